@@ -1,0 +1,1 @@
+"""Subcommands of ``skin``, one module each."""

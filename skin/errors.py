@@ -1,0 +1,48 @@
+"""One exception root for the whole project.
+
+Each subclass also inherits the built-in a caller would naturally catch, so
+``except ValueError`` keeps working for code that does not know canskin.
+"""
+
+from __future__ import annotations
+
+
+class SkinError(Exception):
+    """Root of every error canskin raises on purpose."""
+
+
+class ConfigError(SkinError, ValueError):
+    """A scene, config or command-line value is wrong; the message names the field."""
+
+    def __init__(self, field: str, problem: str) -> None:
+        self.field = field
+        self.problem = problem
+        super().__init__(f"{field}: {problem}")
+
+
+class StrainLimitError(SkinError, ValueError):
+    """A force would strain a pillar past the model's validity limit."""
+
+
+class ConvergenceError(SkinError, ArithmeticError):
+    """An iterative solve of the sensor model did not converge."""
+
+
+class DecodeError(SkinError, ValueError):
+    """Resistances could not be turned into forces."""
+
+
+class NotFittedError(SkinError, ValueError):
+    """A decoder was used before it was fitted."""
+
+
+class ModelFileError(SkinError, ValueError):
+    """A model file is corrupt, truncated, of another schema, or hostile."""
+
+
+class DatasetError(SkinError, ValueError):
+    """A dataset file is missing keys, has wrong shapes, or is unreadable."""
+
+
+class BusError(SkinError, RuntimeError):
+    """Something on the CAN bus went wrong."""
