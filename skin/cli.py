@@ -15,13 +15,15 @@ from collections.abc import Sequence
 from skin import __version__
 from skin.errors import SkinError
 
-SUBCOMMANDS = ("sim", "train", "bench", "plan", "eds", "run", "demo", "sniff", "replay")
+SUBCOMMANDS = (
+    "sim", "model", "train", "bench", "plan", "eds", "run", "demo", "sniff", "replay",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="skin",
-        description="Robot-skin middleware over CAN: simulate, decode, run and sniff tactile patches.",
+        description="Robot-skin middleware over CAN: simulate, decode, run and sniff patches.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("--debug", action="store_true", help="show the traceback on errors")

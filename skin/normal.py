@@ -72,7 +72,7 @@ def normal_force_from_ratio_change(
         step = np.full(qs.shape, np.inf)
         for _ in range(_MAX_ITER):
             K, r, _ = stiffness_and_residual(ux, uy, uz, (zero, zero, zero), c)
-            k11, k22, k33, k12, k13, k23 = K
+            k11, k22, _, k12, k13, k23 = K
             g1 = ux * ux + uy * uy + uz * (2.0 * L + uz) - L * L * qs
             rows = ((2.0 * ux, 2.0 * uy, 2.0 * (L + uz)), (k11, k12, k13), (k12, k22, k23))
             dx, dy, dz = _solve3(rows, (g1, r[0], r[1]))

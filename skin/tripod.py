@@ -225,7 +225,9 @@ def displacement_from_force(
     """
     force = np.asarray(force_N, dtype=np.float64)
     if force.shape[-1:] != (3,):
-        raise ValueError(f"force_N must have a last axis of 3 (Fx, Fy, Fz), got shape {force.shape}")
+        raise ValueError(
+            f"force_N must have a last axis of 3 (Fx, Fy, Fz), got shape {force.shape}"
+        )
     if not np.all(np.isfinite(force)):
         raise ValueError("force_N contains NaN or infinity")
     flat = force.reshape(-1, 3)
