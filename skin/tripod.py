@@ -81,9 +81,8 @@ def stiffness_and_residual(
     vectors = _pillar_vectors(ux, uy, uz, L)
     es = c.axial_stiffness_N
     rest = (L, np.sqrt(2.0) * L, np.sqrt(2.0) * L)
-    k11 = k22 = k33 = k12 = k13 = k23 = None
     r = [-f[0], -f[1], -f[2]]
-    b = tension_per_len[0] + tension_per_len[1] + tension_per_len[2]
+    per_pillar = []
     for (dx, dy, dz), ci, ei, li in zip(vectors, tension_per_len, strains, rest, strict=True):
         lp = li * (1.0 + ei)
         a = (es / li - ci) / (lp * lp)
@@ -91,16 +90,10 @@ def stiffness_and_residual(
         r[1] = r[1] + ci * dy
         r[2] = r[2] + ci * dz
         adx, ady = a * dx, a * dy
-        terms = (adx * dx, ady * dy, a * dz * dz, adx * dy, adx * dz, ady * dz)
-        if k11 is None:
-            k11, k22, k33, k12, k13, k23 = terms
-        else:
-            k11, k22, k33, k12, k13, k23 = (
-                k + t for k, t in zip((k11, k22, k33, k12, k13, k23), terms, strict=True)
-            )
-    assert k11 is not None and k22 is not None and k33 is not None
-    assert k12 is not None and k13 is not None and k23 is not None
-    K = (k11 + b, k22 + b, k33 + b, k12, k13, k23)
+        per_pillar.append((adx * dx, ady * dy, a * dz * dz, adx * dy, adx * dz, ady * dz))
+    zk, xk, yk = per_pillar
+    b = tension_per_len[0] + tension_per_len[1] + tension_per_len[2]
+    K = tuple(zk[i] + xk[i] + yk[i] + (b if i < 3 else 0.0) for i in range(6))
     return K, (r[0], r[1], r[2]), strains
 
 
