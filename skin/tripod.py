@@ -148,14 +148,21 @@ def is_stable(K: tuple[F64, ...], uz: F64, L: float) -> NDArray[np.bool_]:
 
 def _newton(
     u: tuple[F64, F64, F64], f: tuple[F64, F64, F64], c: SensorConstants, tol: float
-) -> tuple[tuple[F64, F64, F64], NDArray[np.bool_]]:
-    """Capped Newton steps from u; returns u and which elements converged to a stable state."""
+) -> tuple[tuple[F64, F64, F64], NDArray[np.bool_], F64]:
+    """Capped Newton steps from u.
+
+    Returns u, which elements converged to a stable state, and their peak
+    pillar strain. Stability and strain are read at the last iterate before
+    the final step, which is below ``tol`` and changes neither.
+    """
     ux, uy, uz = u
     step_tol = tol * c.length_m
     max_step = 0.05 * c.length_m
     step = np.full(ux.shape, np.inf)
+    K: tuple[F64, ...] = ()
+    strains = (step, step, step)
     for _ in range(_MAX_NEWTON):
-        K, r, _ = stiffness_and_residual(ux, uy, uz, f, c)
+        K, r, strains = stiffness_and_residual(ux, uy, uz, f, c)
         dx, dy, dz = solve_sym3(K, r)
         step = np.abs(dx) + np.abs(dy) + np.abs(dz)
         # Cap each step: near the limit the tangent softens and a full step can
@@ -164,22 +171,22 @@ def _newton(
         ux, uy, uz = ux - dx * scale, uy - dy * scale, uz - dz * scale
         if not np.any(step > step_tol):
             break
-    K, _, _ = stiffness_and_residual(ux, uy, uz, f, c)
     ok = (step <= step_tol) & is_stable(K, uz, c.length_m)
-    return (ux, uy, uz), ok
+    return (ux, uy, uz), ok, _peak(strains)
 
 
 def _continuation(
     f: tuple[F64, F64, F64], c: SensorConstants, tol: float, steps: int = 16
-) -> tuple[tuple[F64, F64, F64], NDArray[np.bool_]]:
+) -> tuple[tuple[F64, F64, F64], NDArray[np.bool_], F64]:
     """Follow the stable branch from zero load in small load steps (the slow, sure path)."""
     u = (np.zeros_like(f[0]), np.zeros_like(f[0]), np.zeros_like(f[0]))
     ok = np.ones(f[0].shape, dtype=bool)
+    peak = np.zeros_like(f[0])
     for k in range(1, steps + 1):
         scale = k / steps
-        u, ok_k = _newton(u, (f[0] * scale, f[1] * scale, f[2] * scale), c, tol)
+        u, ok_k, peak = _newton(u, (f[0] * scale, f[1] * scale, f[2] * scale), c, tol)
         ok &= ok_k
-    return u, ok
+    return u, ok, peak
 
 
 def _displacement_block(
@@ -190,12 +197,13 @@ def _displacement_block(
     # A load whose linear strain is already far past the limit is rejected
     # before Newton can wander.
     _check_strain(_peak(_pillar_terms(*u0, c)[0]), 2.0 * c.max_strain, c, offset)
-    (ux, uy, uz), ok = _newton(u0, f, c, tol)
+    (ux, uy, uz), ok, peak = _newton(u0, f, c, tol)
     retry = np.flatnonzero(~ok)
     if retry.size:
         sub = (fx[retry], fy[retry], -fz[retry])
-        (rx, ry, rz), ok_retry = _continuation(sub, c, tol)
+        (rx, ry, rz), ok_retry, peak_retry = _continuation(sub, c, tol)
         ux[retry], uy[retry], uz[retry] = rx, ry, rz
+        peak[retry] = peak_retry
         if not np.all(ok_retry):
             i = int(retry[np.flatnonzero(~ok_retry)[0]])
             force = (float(fx[i]), float(fy[i]), float(fz[i]))
@@ -204,7 +212,7 @@ def _displacement_block(
                 f"{force[2]:.3g}) N has no stable equilibrium: the tripod would collapse "
                 f"before reaching it (snap-through); reduce the load"
             )
-    _check_strain(_peak(_pillar_terms(ux, uy, uz, c)[0]), c.max_strain, c, offset)
+    _check_strain(peak, c.max_strain, c, offset)
     return ux, uy, uz
 
 
