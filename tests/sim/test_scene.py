@@ -1,0 +1,132 @@
+"""Scene parsing: shipped scenes load, and every bad input names its field."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sim import Simulator, load_scene, scene_from_dict, shipped_scenes
+from skin.errors import ConfigError
+
+FILES = Path(__file__).parents[1] / "files"
+BASE: dict[str, Any] = {
+    "scene": {"name": "t", "mode": "xyz"},
+    "patches": [{"node_id": 1}, {"node_id": 2}],
+    "loads": [{"kind": "uniform_random", "fz_max_N": 4.0}],
+    "effects": {"elastic_crosstalk": {}},
+}
+
+
+def with_change(path: tuple[Any, ...], value: Any) -> dict[str, Any]:
+    data = copy.deepcopy(BASE)
+    node = data
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = value
+    return data
+
+
+def test_shipped_scenes_load_and_run() -> None:
+    names = shipped_scenes()
+    for required in ("paper", "indenter", "slide", "grasp", "idle", "passive", "hard", "skin64"):
+        assert required in names
+    for name in names:
+        scene = load_scene(name)
+        frame = Simulator(scene).run(3)
+        assert frame.resistance_ohm.shape == (3, len(scene.patches), 9, scene.pillars)
+
+
+def test_paper_scene_is_the_design() -> None:
+    scene = load_scene("paper")
+    assert scene.mode == "z" and scene.node_ids == (1,)
+    assert scene.listed_effects() == ["elastic_crosstalk", "noise"]
+    (load,) = scene.loads
+    assert load.kind == "uniform_random"
+    assert (load.params.fz_min_N, load.params.fz_max_N, load.params.shear_max_N) == (0, 5, 0)
+    assert scene.effects["noise"].sigma_rel == 0.0005
+
+
+def test_to_dict_round_trips() -> None:
+    for name in shipped_scenes():
+        scene = load_scene(name)
+        assert scene_from_dict(scene.to_dict()) == scene
+
+
+def test_crosstalk_matrix_identity_without_effect() -> None:
+    data = with_change(("effects",), {})
+    np.testing.assert_array_equal(scene_from_dict(data).crosstalk_matrix(), np.eye(9))
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "field"),
+    [
+        (("loads", 0, "kind"), "foo", "loads[0].kind"),
+        (("loads", 0, "radius_mm"), 1.0, "loads[0].radius_mm"),
+        (("loads", 0, "fz_max_N"), "five", "loads[0].fz_max_N"),
+        (("loads", 0, "patches"), [3], "loads[0].patches[0]"),
+        (("effects", "wobble"), {}, "effects.wobble"),
+        (("effects", "elastic_crosstalk", "coupling"), -0.1, "effects.elastic_crosstalk.coupling"),
+        (("effects", "readout"), {"kind": "psychic"}, "effects.readout.kind"),
+        (("effects", "noise"), {"sigma": 1.0}, "effects.noise.sigma"),
+        (("scene", "mode"), "xy", "scene.mode"),
+        (("scene", "rate_hz"), 0.0, "scene.rate_hz"),
+        (("scene", "colour"), "red", "scene.colour"),
+        (("patches", 1, "node_id"), 128, "patches[1].node_id"),
+        (("patches", 1, "position_m"), [0.0], "patches[1].position_m"),
+        (("extra",), {}, "scene file.extra"),
+        (("effects", "faults"), {"pillars": [{"node_id": 9, "taxel": 0}]},
+         "effects.faults.pillars[0].node_id"),
+        (("effects", "faults"), {"pillars": [{"node_id": 1, "taxel": 9}]},
+         "effects.faults.pillars[0].taxel"),
+        (("effects", "faults"), {"pillars": [{"node_id": 1, "taxel": 0, "kind": "melted"}]},
+         "effects.faults.pillars[0].kind"),
+    ],
+)
+def test_bad_field_is_named(path: tuple[Any, ...], value: Any, field: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        scene_from_dict(with_change(path, value))
+    assert info.value.field == field
+    assert str(info.value).startswith(f"{field}: ")
+
+
+def test_unknown_load_lists_known() -> None:
+    with pytest.raises(ConfigError, match=r"^loads\[0\]\.kind: unknown load 'foo'; known: "
+                       r"uniform_random, indenter, slide, grasp, idle$"):
+        load_scene(FILES / "sim_unknown_load.toml")
+
+
+def test_fault_on_unread_pillar_in_z_mode() -> None:
+    data = with_change(("scene", "mode"), "z")
+    data["effects"]["faults"] = {"pillars": [{"node_id": 1, "taxel": 0, "pillar": "x"}]}
+    with pytest.raises(ConfigError, match=r"pillars\[0\]\.pillar: pillar 'x' is not read"):
+        scene_from_dict(data)
+
+
+def test_malformed_toml() -> None:
+    with pytest.raises(ConfigError, match="malformed TOML"):
+        load_scene(FILES / "sim_bad_syntax.toml")
+
+
+def test_unknown_scene_name_and_missing_file() -> None:
+    with pytest.raises(ConfigError, match=r"unknown scene 'nope'; shipped: .*paper"):
+        load_scene("nope")
+    with pytest.raises(ConfigError, match="no scene file"):
+        load_scene(FILES / "absent.toml")
+
+
+def test_overstrain_names_the_load_field() -> None:
+    scene = load_scene(FILES / "sim_overstrain.toml")
+    with pytest.raises(ConfigError, match=r"^loads\[0\]\.fz_max_N: 20 strains a pillar past 20 %"):
+        Simulator(scene)
+
+
+def test_overstrain_by_shear_names_shear_field() -> None:
+    data = with_change(("loads", 0, "shear_max_N"), 30.0)
+    with pytest.raises(ConfigError) as info:
+        Simulator(scene_from_dict(data))
+    assert info.value.field == "loads[0].shear_max_N"
+    assert isinstance(info.value.__cause__, Exception)
