@@ -1,0 +1,43 @@
+"""EMCY producer for pillar faults: one message when a taxel faults, one when it recovers.
+
+Error code 0x5000 (device hardware) when a taxel's status becomes non-zero, 0x0000
+(error reset) when it returns to zero. The error register (0x1001) has bit 0 (generic)
+and bit 7 (manufacturer-specific) set while any taxel is faulty. The five
+manufacturer bytes are the taxel number and its status byte (see ``canbus.codes``).
+"""
+
+from __future__ import annotations
+
+import struct
+
+import canopen
+import numpy as np
+from numpy.typing import NDArray
+
+DEVICE_HARDWARE = 0x5000
+ERROR_RESET = 0x0000
+REGISTER_FAULT = 0x81
+_EMCY = struct.Struct("<HBBB3x")
+
+
+class FaultReporter:
+    """Compares each new taxel status with the last and reports the changes."""
+
+    def __init__(self) -> None:
+        self.status = np.zeros(9, dtype=np.uint8)
+
+    @property
+    def error_register(self) -> int:
+        return REGISTER_FAULT if self.status.any() else 0
+
+    def update(self, status: NDArray[np.uint8], network: canopen.Network | None,
+               cob_id: int) -> None:
+        """Adopt ``status``; send EMCY for every taxel that changed if ``network`` is given."""
+        changed = np.flatnonzero(status != self.status)
+        self.status = status.copy()
+        if network is None or cob_id & 0x8000_0000:
+            return
+        for taxel in changed.tolist():
+            code = DEVICE_HARDWARE if status[taxel] else ERROR_RESET
+            payload = _EMCY.pack(code, self.error_register, taxel, int(status[taxel]))
+            network.send_message(cob_id & 0x7FF, payload)
