@@ -31,8 +31,9 @@ MAX_ARRAY_ELEMENTS = 4_000_000
 MAX_DIMS = 4
 MAX_DEPTH = 4
 ARRAY_KEYS = frozenset({"dtype", "shape", "data"})
-DTYPES = {"<f8": np.dtype("<f8"), "<i8": np.dtype("<i8"), "|u1": np.dtype("|u1"),
-          "|b1": np.dtype("|b1")}
+DTYPES: dict[str, np.dtype[Any]] = {
+    name: np.dtype(name) for name in ("<f8", "<i8", "|u1", "|b1")
+}
 TOP_KEYS = frozenset({"schema", "version", "name", "params", "state"})
 
 
@@ -81,7 +82,7 @@ def decode_array(obj: dict[str, Any], field: str) -> np.ndarray:
     if not isinstance(dtype_str, str) or dtype_str not in DTYPES:
         raise ModelFileError(f"{field}.dtype: {dtype_str!r} is not one of {sorted(DTYPES)}")
     if not (isinstance(shape, list) and len(shape) <= MAX_DIMS
-            and all(isinstance(n, int) and not isinstance(n, bool) and 0 <= n for n in shape)):
+            and all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in shape)):
         raise ModelFileError(f"{field}.shape: must be a list of at most {MAX_DIMS} sizes >= 0")
     size = math.prod(shape)
     if size > MAX_ARRAY_ELEMENTS:
@@ -93,10 +94,11 @@ def decode_array(obj: dict[str, Any], field: str) -> np.ndarray:
     if len(data) != size * dtype.itemsize:
         raise ModelFileError(f"{field}.data: {len(data)} bytes do not match shape {shape} "
                              f"of {dtype_str} ({size * dtype.itemsize} bytes)")
-    array = np.frombuffer(data, dtype=dtype).reshape(shape).astype(dtype.newbyteorder("="))
-    if dtype.kind == "b" and not np.all(np.frombuffer(data, dtype=np.uint8) <= 1):
+    array: np.ndarray = np.frombuffer(data, dtype=dtype).reshape(shape)
+    array = array.astype(array.dtype.newbyteorder("="))
+    if array.dtype.kind == "b" and not np.all(np.frombuffer(data, dtype=np.uint8) <= 1):
         raise ModelFileError(f"{field}.data: booleans must be 0 or 1")
-    if dtype.kind == "f" and not np.all(np.isfinite(array)):
+    if array.dtype.kind == "f" and not np.all(np.isfinite(array)):
         raise ModelFileError(f"{field}.data: contains NaN or infinity")
     return array
 
@@ -128,10 +130,10 @@ def unpack_model(payload: bytes) -> ModelContent:
     try:
         doc = msgpack.unpackb(
             payload, raw=False, strict_map_key=True, use_list=True, ext_hook=_no_ext,
-            max_buffer_size=MAX_FILE_BYTES, max_bin_len=MAX_ARRAY_ELEMENTS * 8,
+            max_bin_len=MAX_ARRAY_ELEMENTS * 8,
             max_str_len=1 << 16, max_array_len=64, max_map_len=256, max_ext_len=0,
         )
-    except (ValueError, TypeError, msgpack.UnpackException) as err:
+    except (ValueError, msgpack.UnpackException) as err:
         raise ModelFileError(f"file: not a valid msgpack document ({err})") from err
     if not isinstance(doc, dict):
         raise ModelFileError("file: top level must be a map")

@@ -34,7 +34,8 @@ class Decoded:
 
     def reason_names(self) -> NDArray[np.str_]:
         """The reason codes as names ("OK", "OPEN", ...), same shape as ``reason``."""
-        return np.vectorize(reason_name, otypes=[str])(self.reason)
+        names: NDArray[np.str_] = np.vectorize(reason_name, otypes=[str])(self.reason)
+        return names
 
 
 @runtime_checkable

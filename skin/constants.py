@@ -3,11 +3,10 @@
 Defaults, and why:
 
 * ``length_m = 10 mm`` and ``area_m2 = 4 mm²`` are the paper's (section 2.1).
-* ``youngs_modulus_pa = 8 MPa``: carbon-filled conductive silicone rubbers sit
-  between about 1 and 10 MPa. At 8 MPa the axial stiffness E·S is 32 N, so the
-  paper's full-scale normal load of 5 N compresses the vertical pillar by about
-  9 % -- a realistic strain well inside the paper's 20 % validity limit, which
-  is reached only near 11 N.
+* ``youngs_modulus_pa = 25 MPa``: a stiff, highly filled conductive silicone.
+  E·S = 100 N, so the paper's full-scale 5 N press strains pillar z by 5.7 %,
+  well inside the paper's 20 % limit and half the load (9.95 N) at which the
+  tripod snaps through. Softer rubbers (8-12 MPa) snap through below 5 N.
 * ``resistivity_ohm_m = 0.4 Ω·m``: typical of carbon-black silicone; it gives
   the vertical pillar R0 = ρ·L/S = 1 kΩ and the diagonal pillars √2 kΩ.
 * ``resistance_lsb_ohm = 0.05 Ω``: the UNSIGNED16 code the patch sends; full
