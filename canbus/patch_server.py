@@ -1,8 +1,10 @@
 """Many patch nodes on one bus, fed by one signal source.
 
-One SYNC subscription for all nodes: each SYNC reads one sample from the source, hands
-each node its patch and sends the TPDOs that are due. Event-driven TPDOs are served by
-a thread that reads the source at ``event_rate_hz``. TPDO frames go straight to the
+One SYNC subscription for all nodes: each SYNC hands each node its patch of the current
+sample and sends the TPDOs that are due. Without ``event_rate_hz`` every SYNC reads the
+next sample from the source; with it, a thread reads the source at that rate (the
+source's own clock, which also serves event-driven TPDOs) and SYNC sends the latest
+sample, so the source never runs faster than its rate. TPDO frames go straight to the
 python-can bus (the data plane); canopen handles only NMT and SDO.
 """
 
@@ -72,7 +74,8 @@ class PatchServer:
         """One SYNC: a new sample, then every node's synchronous TPDOs."""
         with self._lock:
             self.sync_count += 1
-            self._tick()
+            if self._thread is None:
+                self._tick()
             self._send([f for node in self.nodes for f in node.frames_on_sync(self.sync_count)])
 
     def _tick(self) -> None:

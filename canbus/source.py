@@ -1,16 +1,19 @@
 """Signal sources: where patch nodes get their resistances from.
 
 Anything with ``node_ids``, ``pillars`` and ``read() -> (patches, 9, P)`` ohms is a
-source. :class:`SimulatorSource` adapts ``sim.Simulator`` (by its shape, so ``canbus``
-does not import ``sim``); :class:`ArraySource` replays recorded resistances in a loop.
+source. :class:`SimulatorSource` adapts ``sim.Simulator`` (one time step per read);
+:class:`ArraySource` replays recorded resistances in a loop.
 """
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+if TYPE_CHECKING:
+    from sim import Simulator
 
 
 class ResistanceSource(Protocol):
@@ -23,9 +26,9 @@ class ResistanceSource(Protocol):
 
 
 class SimulatorSource:
-    """One ``Simulator.step()`` per read."""
+    """One ``Simulator.step()`` per read: the patches report what the simulator produced."""
 
-    def __init__(self, simulator: Any) -> None:
+    def __init__(self, simulator: Simulator) -> None:
         self.simulator = simulator
         self.node_ids = tuple(int(n) for n in simulator.node_ids)
         self.pillars = int(simulator.pillars)

@@ -9,12 +9,12 @@ from typing import Any
 
 def _check(args: argparse.Namespace) -> int:
     from canbus.edscheck import check
-    from canbus.od import eds_path
+    from canbus.od import eds_file
 
     failed = 0
     for name in args.files:
-        path = eds_path(name)
-        problems = check(path)
+        with eds_file(name) as path:
+            problems = check(path)
         for problem in problems:
             print(f"{name}: {problem}", file=sys.stderr)
         if problems:

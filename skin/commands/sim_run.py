@@ -9,6 +9,8 @@ import threading
 import time
 from typing import Any
 
+_NOTIFIER_CYCLE_S = 0.05
+
 
 def _run(args: argparse.Namespace) -> int:
     import can.cli
@@ -25,6 +27,9 @@ def _run(args: argparse.Namespace) -> int:
         args.channel = ("skin" if args.interface == "virtual"
                         else UdpMulticastBus.DEFAULT_GROUP_IPv4)
     network = canopen.Network(can.cli.create_bus_from_namespace(args))
+    # canopen's notifier blocks in recv() for up to NOTIFIER_CYCLE (1 s by default) and
+    # disconnect() joins it: a short cycle makes --seconds S end after ~S, not S + 1.
+    network.NOTIFIER_CYCLE = _NOTIFIER_CYCLE_S
     network.connect()  # starts canopen's notifier on the bus it was given
     source = SimulatorSource(Simulator(scene, seed=args.seed))
     started, cpu0 = time.monotonic(), os.times()

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from importlib import resources
 from pathlib import Path
 
 import canopen
@@ -13,17 +14,39 @@ from hypothesis.extra import numpy as hnp
 
 from canbus import busload, codes
 from canbus.edscheck import check
-from canbus.od import eds_path, load_od
+from canbus.od import SHIPPED, eds_file, load_od
 from canbus.pdo_codec import PdoCodec, read_defaults, read_layouts
+from skin.errors import ConfigError
 
 FILES = Path(__file__).parents[1] / "files"
 
 
 @pytest.mark.parametrize("name", ["skin-patch", "skin-forces"])
 def test_shipped_eds_pass_check_and_load(name: str) -> None:
-    assert check(eds_path(name)) == []
+    with eds_file(name) as path:
+        assert check(path) == []
     od = load_od(name, 3)
     assert od[0x1800][1].default == 0x183
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_eds_found_by_name_in_the_installed_eds_package(name: str) -> None:
+    import eds  # the package the wheel ships the EDS files in
+
+    resource = resources.files(eds).joinpath(f"{name}.eds")
+    assert resource.is_file()
+    with eds_file(name) as by_name, eds_file(f"{name}.eds") as with_suffix:
+        assert by_name == with_suffix == Path(str(resource))
+        assert by_name.parent == Path(eds.__file__).parent
+    with resources.as_file(resource) as path:
+        od = canopen.import_od(str(path), 5)
+    assert od[0x1018][2].default == (1 if name == "skin-patch" else 2)  # product code
+    assert od[0x1014].default == 0x85 and load_od(name, 5)[0x1014].default == 0x85
+
+
+def test_unknown_eds_name_is_a_config_error() -> None:
+    with pytest.raises(ConfigError, match="no shipped EDS 'skin-nothing'"):
+        load_od("skin-nothing", 1)
 
 
 @pytest.mark.parametrize(("file", "message"), [

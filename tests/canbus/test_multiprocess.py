@@ -10,28 +10,39 @@ import numpy as np
 
 from canbus import codes
 from canbus.patch_server import PatchServer
-from canbus.source import ArraySource
+from canbus.source import SimulatorSource
+from sim import Simulator, load_scene
 from skin.constants import DEFAULT_CONSTANTS
-from skin.tripod import resistance_from_force
+
+SKIP, SYNCS = 4, 3  # steps 5..7 of the indenter scene press up to 2.5 N
 
 
-def test_canopen_master_in_another_process(udp_channel: str) -> None:
-    rng = np.random.default_rng(7)
-    force = np.zeros((1, 1, 9, 3))
-    force[..., :2] = rng.uniform(-0.5, 0.5, (9, 2))
-    force[..., 2] = rng.uniform(0.0, 4.0, 9)
-    resistance = resistance_from_force(force, DEFAULT_CONSTANTS)
-    expected = codes.resistance_to_code(resistance[0, 0], DEFAULT_CONSTANTS.resistance_lsb_ohm)
+def test_canopen_master_decodes_the_simulator_resistances(udp_channel: str) -> None:
+    scene = load_scene("indenter")  # mode xyz: the default 27-value mapping is the EDS's
+    simulator = Simulator(scene)
+    simulator.run(SKIP)
+    # The server reads one sample when it starts and one per SYNC: steps SKIP..SKIP+SYNCS.
+    reference = Simulator(scene).run(SKIP + 1 + SYNCS)
+    sent = reference.resistance_ohm[SKIP + 1:, 0]  # (SYNCS, 9, 3), patch node 1
+    assert reference.force_N[SKIP + 1:, 0, :, 2].max() > 2.0  # the sphere is pressing
+    lsb = DEFAULT_CONSTANTS.resistance_lsb_ohm
+    expected = np.rint(sent / lsb).astype(np.int64).reshape(SYNCS, 27)
+    np.testing.assert_allclose(sent, expected.reshape(SYNCS, 9, 3) * lsb, rtol=0, atol=1e-9)
+    assert not (expected >= codes.SATURATED).any()  # real readings, no fault codes
+
     net = canopen.Network()
+    net.NOTIFIER_CYCLE = 0.05
     net.connect(interface="udp_multicast", channel=udp_channel)
     try:
-        with PatchServer(net, ArraySource(resistance, (1,))):
+        with PatchServer(net, SimulatorSource(simulator)) as server:
             run = subprocess.run([sys.executable, str(Path(__file__).with_name("master_script.py")),
-                                  udp_channel], capture_output=True, text=True, timeout=30)
+                                  udp_channel, str(SYNCS)], capture_output=True, text=True,
+                                 timeout=30)
     finally:
         net.disconnect()
     assert run.returncode == 0, run.stderr
+    assert server.samples == 1 + SYNCS
     result = json.loads(run.stdout)
     assert result["identity"] == [0, 1, 0x00010000, 1]
     assert result["mapping_equals_eds"]
-    assert result["values"] == expected.reshape(-1).tolist()
+    assert result["values"] == expected.tolist()

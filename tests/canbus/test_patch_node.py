@@ -23,16 +23,24 @@ def _resistances(samples: int = 4) -> np.ndarray:
     return resistance_from_force(force, DEFAULT_CONSTANTS)[..., :1]  # z-only patches
 
 
+CYCLE_S = 0.05  # notifier recv() timeout: stop()/disconnect() join within one cycle
+
+
+def _network(channel: str) -> canopen.Network:
+    net = canopen.Network()
+    net.NOTIFIER_CYCLE = CYCLE_S
+    return net.connect(interface="virtual", channel=channel)
+
+
 class Bench:
-    def __init__(self, channel: str) -> None:
-        self.device = canopen.Network()
-        self.device.connect(interface="virtual", channel=channel)
-        self.master = canopen.Network()
-        self.master.connect(interface="virtual", channel=channel)
+    def __init__(self, channel: str, event_rate_hz: float = 0.0) -> None:
+        self.device = _network(channel)
+        self.master = _network(channel)
         self.raw = can.Bus(interface="virtual", channel=channel)
         self.frames: queue.Queue[can.Message] = queue.Queue()
-        self.notifier = can.Notifier(self.raw, [self.frames.put])
-        self.server = PatchServer(self.device, ArraySource(_resistances(), (1, 2)))
+        self.notifier = can.Notifier(self.raw, [self.frames.put], timeout=CYCLE_S)
+        self.server = PatchServer(self.device, ArraySource(_resistances(), (1, 2)),
+                                  event_rate_hz=event_rate_hz)
         self.server.start()
         od = self.server.nodes[0].store.object_dictionary
         self.node = self.master.add_node(canopen.RemoteNode(1, od))
@@ -49,7 +57,7 @@ class Bench:
 
     def close(self) -> None:
         self.server.stop()
-        self.notifier.stop()
+        self.notifier.stop(timeout=1.0)
         self.raw.shutdown()
         self.master.disconnect()
         self.device.disconnect()
@@ -58,6 +66,14 @@ class Bench:
 @pytest.fixture
 def bench(request: pytest.FixtureRequest) -> Iterator[Bench]:
     b = Bench(request.node.name)
+    yield b
+    b.close()
+
+
+@pytest.fixture
+def events(request: pytest.FixtureRequest) -> Iterator[Bench]:
+    """A bench whose server serves event-driven TPDOs every 5 ms (and reads a sample)."""
+    b = Bench(request.node.name, event_rate_hz=200.0)
     yield b
     b.close()
 
@@ -143,12 +159,84 @@ def test_remap_to_status_by_cia301_sequence(bench: Bench) -> None:
     assert [bytes(m.data) for m in first] == [b"\x00\x00"]
 
 
-def test_emcy_on_fault_and_recovery(bench: Bench) -> None:
+@pytest.mark.parametrize(("ohm", "status"), [(np.inf, 1), (0.0, 2), (-3.0, 2), (1e6, 3)],
+                         ids=["open", "short", "negative", "saturated"])
+def test_emcy_on_fault_and_recovery(bench: Bench, ohm: float, status: int) -> None:
     patch = bench.server.nodes[0]
     r = np.full((9, 1), 1000.0)
-    r[4, 0] = np.inf
+    r[4, 0] = ohm
     patch.update(r)
+    assert bench.node.sdo[0x1001].raw == 0x81
+    assert bench.node.sdo[0x2004][5].raw == status
     r[4, 0] = 1000.0
     patch.update(r)
     emcy = [bytes(m.data) for m in bench.collect(0.2) if m.arbitration_id == 0x81]
-    assert emcy == [b"\x00\x50\x81\x04\x01\x00\x00\x00", b"\x00\x00\x00\x04\x00\x00\x00\x00"]
+    assert emcy == [b"\x00\x50\x81\x04" + bytes([status]) + b"\x00\x00\x00",
+                    b"\x00\x00\x00\x04\x00\x00\x00\x00"]
+    assert bench.node.sdo[0x1001].raw == 0
+
+
+def test_emcy_error_register_stays_set_until_the_last_fault_recovers(bench: Bench) -> None:
+    patch = bench.server.nodes[0]
+    r = np.full((9, 1), 1000.0)
+    r[2, 0] = 0.0  # short
+    patch.update(r)
+    r[7, 0] = 4000.0  # beyond 0xFFFE * 0.05 ohm: saturated
+    patch.update(r)
+    r[2, 0] = 1000.0
+    patch.update(r)
+    r[7, 0] = 1000.0
+    patch.update(r)
+    emcy = [bytes(m.data) for m in bench.collect(0.2) if m.arbitration_id == 0x81]
+    assert emcy == [b"\x00\x50\x81\x02\x02\x00\x00\x00", b"\x00\x50\x81\x07\x03\x00\x00\x00",
+                    b"\x00\x00\x81\x02\x00\x00\x00\x00", b"\x00\x00\x00\x07\x00\x00\x00\x00"]
+
+
+def _event_driven(node: canopen.RemoteNode, pdo: int, trans: int, *, inhibit_100us: int = 0,
+                  timer_ms: int = 0) -> None:
+    """Make TPDO ``pdo`` event-driven the CiA 301 way: invalidate, set, validate."""
+    comm = node.sdo[0x1800 + pdo - 1]
+    cob_id = comm[1].raw
+    comm[1].raw = cob_id | 0x8000_0000
+    comm[2].raw = trans
+    comm[3].raw = inhibit_100us
+    comm[5].raw = timer_ms
+    comm[1].raw = cob_id
+
+
+def _tpdo_times(frames: list[can.Message], cob_id: int) -> np.ndarray:
+    return np.array([m.timestamp for m in frames if m.arbitration_id == cob_id])
+
+
+@pytest.mark.parametrize("trans", [254, 255])
+def test_event_timer_paces_tpdos_and_stop_silences_them(events: Bench, trans: int) -> None:
+    _event_driven(events.node, 1, trans, timer_ms=50)
+    events.node.nmt.send_command(0x01)
+    frames = events.collect(0.45)
+    times = _tpdo_times(frames, 0x181)
+    assert len(times) >= 6
+    assert np.mean(np.diff(times)) == pytest.approx(0.050, rel=0.3)
+    assert not [m for m in frames if m.arbitration_id in (0x281, 0x381)]  # still on SYNC
+    events.node.nmt.send_command(0x02)
+    events.collect(0.02)
+    assert not [m for m in events.collect(0.25) if 0x180 <= m.arbitration_id < 0x580]
+    events.node.nmt.send_command(0x01)
+    assert len(_tpdo_times(events.collect(0.2), 0x181)) >= 2  # and start resumes them
+
+
+def test_inhibit_time_spaces_tpdos_on_change(events: Bench) -> None:
+    # The source changes every 5 ms tick; without the inhibit time every tick would send.
+    _event_driven(events.node, 2, 255, inhibit_100us=400)
+    events.node.nmt.send_command(0x01)
+    times = _tpdo_times(events.collect(0.45), 0x281)
+    assert len(times) >= 6
+    gaps = np.diff(times)
+    assert np.mean(gaps) == pytest.approx(0.040, rel=0.3)
+    assert gaps.min() >= 0.9 * 0.040
+
+
+def test_event_driven_without_timer_or_change_sends_once(events: Bench) -> None:
+    events.server.source = ArraySource(_resistances(1), (1, 2))  # a constant signal
+    _event_driven(events.node, 3, 254)
+    events.node.nmt.send_command(0x01)
+    assert len(_tpdo_times(events.collect(0.3), 0x381)) == 1
