@@ -14,23 +14,19 @@ from typing import Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from decoder.lm import LMOptions, TrainResult
-from decoder.mlp import Layout
 from decoder.protocol import (
     F64,
-    BaseDecoder,
     Decoded,
     Progress,
-    expect_array,
     fold_force,
     fold_resistance,
     unfold,
 )
 from decoder.reasons import Reason, classify_resistance, worst_reason
-from decoder.regressor import FoldedMLP, fit_mlp
+from decoder.regressor import MLPDecoderBase
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.constants import TAXELS_PER_PATCH as T
-from skin.errors import DecodeError, ModelFileError
+from skin.errors import DecodeError
 
 
 def targets(force: F64, pillars: int) -> F64:
@@ -46,39 +42,22 @@ def to_force(y: F64, pillars: int) -> F64:
     return force
 
 
-class LMMLPDecoder(BaseDecoder):
+class LMMLPDecoder(MLPDecoderBase):
     """Resistances -> one tanh hidden layer -> forces, trained by Levenberg-Marquardt."""
 
     name = "lm-mlp"
     _params = ("constants", "r0_ohm", "hidden", "goal_mse", "max_epochs", "val_fraction",
                "seed", "range_margin")
-    _state = ("pillars_", "x_lo_", "x_hi_", "y_lo_", "y_hi_", "theta_")
-
-    pillars_: int
-    x_lo_: F64
-    x_hi_: F64
-    y_lo_: F64
-    y_hi_: F64
-    theta_: F64
-    train_result_: TrainResult
 
     def __init__(self, *, hidden: int = 10, goal_mse: float = 1e-4, max_epochs: int = 1000,
                  val_fraction: float = 0.15, seed: int = 0, range_margin: float = 0.1,
                  constants: SensorConstants = DEFAULT_CONSTANTS,
                  r0_ohm: ArrayLike | None = None) -> None:
-        super().__init__(constants=constants, r0_ohm=r0_ohm)
-        if not (isinstance(hidden, int) and 1 <= hidden <= 1000):
-            raise DecodeError(f"hidden must be an integer in [1, 1000], got {hidden!r}")
-        if not (0.0 <= val_fraction < 1.0 and goal_mse >= 0.0 and max_epochs >= 0
-                and range_margin >= 0.0):
-            raise DecodeError("val_fraction in [0, 1), goal_mse >= 0, max_epochs >= 0 and "
-                              "range_margin >= 0 are required")
-        self.hidden, self.goal_mse, self.max_epochs = hidden, goal_mse, max_epochs
-        self.val_fraction, self.seed, self.range_margin = val_fraction, seed, range_margin
-
-    def _layout(self) -> Layout:
-        n = T * int(self.pillars_)
-        return Layout(n, self.hidden, n if self.pillars_ == 3 else T)
+        super().__init__(constants=constants, r0_ohm=r0_ohm, hidden=hidden, goal_mse=goal_mse,
+                         max_epochs=max_epochs, val_fraction=val_fraction, seed=seed)
+        if not range_margin >= 0.0:
+            raise DecodeError(f"range_margin must be >= 0, got {range_margin!r}")
+        self.range_margin = range_margin
 
     def fit(self, resistance_ohm: ArrayLike, force_N: ArrayLike, *,
             progress: Progress | None = None) -> Self:
@@ -88,40 +67,14 @@ class LMMLPDecoder(BaseDecoder):
         x = r.reshape(r.shape[0], -1)
         codes = worst_reason(classify_resistance(r, self.constants))
         keep = np.all(codes == 0, axis=1)
-        options = LMOptions(goal_mse=self.goal_mse, max_epochs=self.max_epochs)
-        state, self.train_result_ = fit_mlp(
-            x[keep], targets(force[keep], pillars), hidden=self.hidden, options=options,
-            val_fraction=self.val_fraction, seed=self.seed, progress=progress)
-        for key, value in state.items():
-            setattr(self, key, value)
-        self.pillars_ = pillars
-        self._prepare()
+        self._fit_scaled(x[keep], targets(force[keep], pillars), pillars, progress)
         return self
 
-    @property
-    def train_result(self) -> TrainResult | None:
-        """How the last fit ended (None after load)."""
-        return getattr(self, "train_result_", None)
-
     def _prepare(self) -> None:
-        state = {k: getattr(self, k) for k in ("x_lo_", "x_hi_", "y_lo_", "y_hi_", "theta_")}
-        self._net = FoldedMLP(self._layout(), state)
+        super()._prepare()
         margin = self.range_margin * (self.x_hi_ - self.x_lo_)
         self._lo, self._hi = self.x_lo_ - margin, self.x_hi_ + margin
         self._mid = 0.5 * (self.x_lo_ + self.x_hi_)
-
-    def _check_state(self) -> None:
-        if self.pillars_ not in (1, 3) or isinstance(self.pillars_, bool):
-            raise ModelFileError(f"state.pillars_: must be 1 or 3, got {self.pillars_!r}")
-        layout = self._layout()
-        for key in ("x_lo_", "x_hi_"):
-            expect_array(getattr(self, key), key, (layout.n_in,))
-        for key in ("y_lo_", "y_hi_"):
-            expect_array(getattr(self, key), key, (layout.n_out,))
-        expect_array(self.theta_, "theta_", (layout.n_params,))
-        if np.any(self.x_lo_ > self.x_hi_) or np.any(self.y_lo_ > self.y_hi_):
-            raise ModelFileError("state.x_lo_: a scaling range has min > max")
-        self._prepare()
 
     def decode(self, resistance_ohm: ArrayLike) -> Decoded:
         self._require_fitted()

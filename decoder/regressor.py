@@ -10,12 +10,13 @@ matrix products and one tanh.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from decoder.lm import LMOptions, TrainResult, train_lm
 from decoder.mlp import F64, Layout, mapminmax, minmax_range, nguyen_widrow
-from decoder.protocol import Progress
-from skin.errors import DecodeError
+from decoder.protocol import BaseDecoder, Progress, expect_array
+from skin.constants import TAXELS_PER_PATCH, SensorConstants
+from skin.errors import DecodeError, ModelFileError
 
 
 def split_indices(
@@ -68,3 +69,66 @@ class FoldedMLP:
         y: F64 = h @ self.W2T
         y += self.b2
         return y
+
+
+_SCALED_STATE = ("x_lo_", "x_hi_", "y_lo_", "y_hi_", "theta_")
+
+
+class MLPDecoderBase(BaseDecoder):
+    """What lm-mlp and hybrid share: options, the scaled-MLP state and its checks."""
+
+    _state = ("pillars_", *_SCALED_STATE)
+
+    pillars_: int
+    x_lo_: F64
+    x_hi_: F64
+    y_lo_: F64
+    y_hi_: F64
+    theta_: F64
+    train_result_: TrainResult
+
+    def __init__(self, *, constants: SensorConstants, r0_ohm: ArrayLike | None, hidden: int,
+                 goal_mse: float, max_epochs: int, val_fraction: float, seed: int) -> None:
+        super().__init__(constants=constants, r0_ohm=r0_ohm)
+        if not (isinstance(hidden, int) and 1 <= hidden <= 1000):
+            raise DecodeError(f"hidden must be an integer in [1, 1000], got {hidden!r}")
+        if not (0.0 <= val_fraction < 1.0 and goal_mse >= 0.0 and max_epochs >= 0):
+            raise DecodeError("val_fraction in [0, 1), goal_mse >= 0, max_epochs >= 0 required")
+        self.hidden, self.goal_mse, self.max_epochs = hidden, goal_mse, max_epochs
+        self.val_fraction, self.seed = val_fraction, seed
+
+    def _layout(self) -> Layout:
+        n = TAXELS_PER_PATCH * int(self.pillars_)
+        return Layout(n, self.hidden, n)
+
+    def _fit_scaled(self, x: F64, y: F64, pillars: int, progress: Progress | None) -> None:
+        options = LMOptions(goal_mse=self.goal_mse, max_epochs=self.max_epochs)
+        state, self.train_result_ = fit_mlp(x, y, hidden=self.hidden, options=options,
+                                            val_fraction=self.val_fraction, seed=self.seed,
+                                            progress=progress)
+        for key, value in state.items():
+            setattr(self, key, value)
+        self.pillars_ = pillars
+        self._prepare()
+
+    @property
+    def train_result(self) -> TrainResult | None:
+        """How the last fit ended (None after load)."""
+        return getattr(self, "train_result_", None)
+
+    def _prepare(self) -> None:
+        state = {k: getattr(self, k) for k in _SCALED_STATE}
+        self._net = FoldedMLP(self._layout(), state)
+
+    def _check_state(self) -> None:
+        if self.pillars_ not in (1, 3) or isinstance(self.pillars_, bool):
+            raise ModelFileError(f"state.pillars_: must be 1 or 3, got {self.pillars_!r}")
+        layout = self._layout()
+        for key in ("x_lo_", "x_hi_"):
+            expect_array(getattr(self, key), key, (layout.n_in,))
+        for key in ("y_lo_", "y_hi_"):
+            expect_array(getattr(self, key), key, (layout.n_out,))
+        expect_array(self.theta_, "theta_", (layout.n_params,))
+        if np.any(self.x_lo_ > self.x_hi_) or np.any(self.y_lo_ > self.y_hi_):
+            raise ModelFileError("state.x_lo_: a scaling range has min > max")
+        self._prepare()
