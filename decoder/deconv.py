@@ -16,18 +16,16 @@ from typing import Self
 
 import numpy as np
 import scipy.linalg
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
-from decoder.analytic import exact_inverse
+from decoder.physics import solve, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
     BaseDecoder,
-    Decoded,
     Progress,
     expect_array,
     fold_force,
     fold_resistance,
-    unfold,
 )
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.errors import DecodeError, ModelFileError
@@ -63,7 +61,7 @@ class DeconvDecoder(BaseDecoder):
             progress: Progress | None = None) -> Self:
         r, _ = fold_resistance(resistance_ohm)
         force = fold_force(force_N, r.shape[0])
-        effective, reason = exact_inverse(r, self.constants, self.r0_for(r.shape[-1]))
+        effective, reason = solve(self.inverse(r.shape[-1]), r, self.constants)
         keep = np.all(reason == 0, axis=1)
         if not np.any(keep):
             raise DecodeError("no calibration sample has all nine taxels valid")
@@ -79,15 +77,17 @@ class DeconvDecoder(BaseDecoder):
         if self.pillars_ not in (1, 3) or isinstance(self.pillars_, bool):
             raise ModelFileError(f"state.pillars_: must be 1 or 3, got {self.pillars_!r}")
 
-    def decode(self, resistance_ohm: ArrayLike) -> Decoded:
-        self._require_fitted()
-        r, lead = fold_resistance(resistance_ohm)
-        if r.shape[-1] != self.pillars_:
-            raise DecodeError(f"model was fitted on {self.pillars_}-pillar input, "
-                              f"got {r.shape[-1]} pillars")
-        effective, reason = exact_inverse(r, self.constants, self.r0_for(r.shape[-1]))
-        force = np.matmul(self.unmix_, effective)
-        valid = reason == 0
-        if not valid.all():
-            force[~valid] = 0.0
-        return unfold(Decoded(force_N=force, valid=valid, reason=reason), lead)
+    def _unmix(self, effective: F64) -> F64:
+        """W applied per sample and component: Fz (n, 9) or forces (n, 9, 3) -> forces."""
+        if effective.ndim == 2:
+            return to_force(effective @ self.unmix_.T, 1)
+        force: F64 = np.matmul(self.unmix_, effective)
+        return force
+
+    def _decode_fast(self, r: F64) -> F64 | None:
+        effective = self.inverse(self.pillars_).fast(r)
+        return None if effective is None else self._unmix(effective)
+
+    def _decode_full(self, r: F64) -> tuple[F64, NDArray[np.uint8]]:
+        effective, ok = self.inverse(self.pillars_).full(r)  # 0 N where not ok
+        return self._unmix(effective), taxel_reasons(r, ok, self.constants)

@@ -12,20 +12,18 @@ from __future__ import annotations
 from typing import Self
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
-from decoder.analytic import exact_inverse
-from decoder.lmmlp import targets, to_force
+from decoder.lmmlp import targets
+from decoder.physics import solve, taxel_reasons, to_force
 from decoder.protocol import (
-    Decoded,
+    F64,
     Progress,
     fold_force,
     fold_resistance,
-    unfold,
 )
-from decoder.regressor import MLPDecoderBase
+from decoder.regressor import MLPDecoderBase, sample_rows
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
-from skin.errors import DecodeError
 
 
 class HybridDecoder(MLPDecoderBase):
@@ -45,23 +43,23 @@ class HybridDecoder(MLPDecoderBase):
         r, _ = fold_resistance(resistance_ohm)
         force = fold_force(force_N, r.shape[0])
         pillars = r.shape[-1]
-        physics, reason = exact_inverse(r, self.constants, self.r0_for(pillars))
+        physics, reason = solve(self.inverse(pillars), r, self.constants)
         keep = np.all(reason == 0, axis=1)
         x = targets(physics[keep], pillars)
         self._fit_scaled(x, targets(force[keep], pillars) - x, pillars, progress)
         return self
 
-    def decode(self, resistance_ohm: ArrayLike) -> Decoded:
-        self._require_fitted()
-        r, lead = fold_resistance(resistance_ohm)
-        if r.shape[-1] != self.pillars_:
-            raise DecodeError(f"model was fitted on {self.pillars_}-pillar input, "
-                              f"got {r.shape[-1]} pillars")
-        physics, reason = exact_inverse(r, self.constants, self.r0_for(self.pillars_))
-        x = targets(physics, self.pillars_)
-        correction = self._net(np.clip(x, self.x_lo_, self.x_hi_))
-        force = to_force(x + correction, self.pillars_)
-        valid = reason == 0
-        if not valid.all():
-            force[~valid] = 0.0
-        return unfold(Decoded(force_N=force, valid=valid, reason=reason), lead)
+    def _predict(self, physics: F64) -> F64:
+        """Analytic outputs (Fz (n, 9) or forces (n, 9, 3)) -> corrected forces (n, 9, 3)."""
+        x = sample_rows(physics)
+        y = self._net(np.minimum(np.maximum(x, self.x_lo_), self.x_hi_))
+        y += x
+        return to_force(y, self.pillars_)
+
+    def _decode_fast(self, r: F64) -> F64 | None:
+        physics = self.inverse(self.pillars_).fast(r)
+        return None if physics is None else self._predict(physics)
+
+    def _decode_full(self, r: F64) -> tuple[F64, NDArray[np.uint8]]:
+        physics, ok = self.inverse(self.pillars_).full(r)  # 0 N where not ok
+        return self._predict(physics), taxel_reasons(r, ok, self.constants)

@@ -14,16 +14,15 @@ from typing import Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from decoder.physics import to_force
 from decoder.protocol import (
     F64,
-    Decoded,
     Progress,
     fold_force,
     fold_resistance,
-    unfold,
 )
 from decoder.reasons import Reason, classify_resistance, worst_reason
-from decoder.regressor import MLPDecoderBase
+from decoder.regressor import MLPDecoderBase, sample_rows
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.constants import TAXELS_PER_PATCH as T
 from skin.errors import DecodeError
@@ -32,14 +31,6 @@ from skin.errors import DecodeError
 def targets(force: F64, pillars: int) -> F64:
     """Training targets (n, 9) Fz in z-only mode, (n, 27) all components in 3-axis mode."""
     return force[..., 2].copy() if pillars == 1 else force.reshape(force.shape[0], 3 * T)
-
-
-def to_force(y: F64, pillars: int) -> F64:
-    if pillars == 3:
-        return y.reshape(-1, T, 3)
-    force = np.zeros((y.shape[0], T, 3))
-    force[..., 2] = y
-    return force
 
 
 class LMMLPDecoder(MLPDecoderBase):
@@ -76,23 +67,18 @@ class LMMLPDecoder(MLPDecoderBase):
         self._lo, self._hi = self.x_lo_ - margin, self.x_hi_ + margin
         self._mid = 0.5 * (self.x_lo_ + self.x_hi_)
 
-    def decode(self, resistance_ohm: ArrayLike) -> Decoded:
-        self._require_fitted()
-        r, lead = fold_resistance(resistance_ohm)
-        if r.shape[-1] != self.pillars_:
-            raise DecodeError(f"model was fitted on {self.pillars_}-pillar input, "
-                              f"got {r.shape[-1]} pillars")
-        x = r.reshape(r.shape[0], -1)
-        ok = (x >= self._lo) & (x <= self._hi)
-        if ok.all():
-            force = to_force(self._net(x), self.pillars_)
-            n = r.shape[0]
-            return unfold(Decoded(force, np.ones((n, T), bool), np.zeros((n, T), np.uint8)), lead)
-        reason = self._reasons(r, ok)
-        x = np.where(np.repeat(reason != 0, self.pillars_, axis=1), self._mid, x)
-        force = to_force(self._net(x), self.pillars_)
-        force[reason != 0] = 0.0
-        return unfold(Decoded(force, reason == 0, reason), lead)
+    def _decode_fast(self, r: F64) -> F64 | None:
+        x = sample_rows(r)
+        if not ((x >= self._lo) & (x <= self._hi)).all():
+            return None
+        return to_force(self._net(x), self.pillars_)
+
+    def _decode_full(self, r: F64) -> tuple[F64, NDArray[np.uint8]]:
+        x = sample_rows(r)
+        reason = self._reasons(r, (x >= self._lo) & (x <= self._hi))
+        bad = np.repeat(reason != 0, self.pillars_, axis=1).reshape(x.shape)
+        x = np.where(bad, self._mid, x)
+        return to_force(self._net(x), self.pillars_), reason
 
     def _reasons(self, r: F64, ok: NDArray[np.bool_]) -> NDArray[np.uint8]:
         in_range = ok.reshape(r.shape).all(axis=-1)

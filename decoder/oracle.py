@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from decoder.analytic import exact_inverse
+from decoder.physics import exact_inverse
 from decoder.protocol import Decoded, fold_resistance, unfold
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.errors import DecodeError

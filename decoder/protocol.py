@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from decoder.modelfile import read_model, write_model
+from decoder.physics import Inverse, make_inverse
 from decoder.reasons import reason_name
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
 from skin.errors import DecodeError, ModelFileError, NotFittedError
@@ -58,13 +59,17 @@ class Decoder(Protocol):
 def fold_resistance(resistance_ohm: ArrayLike) -> tuple[F64, tuple[int, ...]]:
     """(samples, [patches,] 9, P) -> contiguous (n, 9, P) float64, and the leading shape."""
     r = np.asarray(resistance_ohm, dtype=np.float64)
-    if r.ndim not in (3, 4) or r.shape[-2] != TAXELS_PER_PATCH or r.shape[-1] not in (1, 3):
+    shape = r.shape
+    if len(shape) not in (3, 4) or shape[-2] != TAXELS_PER_PATCH or shape[-1] not in (1, 3):
         raise DecodeError(
             f"resistance_ohm must be (samples, 9, P) or (samples, patches, 9, P) with P = 1 "
-            f"(z-only) or 3 (pillars z, x, y), got shape {r.shape}"
+            f"(z-only) or 3 (pillars z, x, y), got shape {shape}"
         )
-    lead = r.shape[:-2]
-    return np.ascontiguousarray(r.reshape(-1, TAXELS_PER_PATCH, r.shape[-1])), lead
+    if len(shape) == 4:
+        r = r.reshape(-1, TAXELS_PER_PATCH, shape[-1])
+    if not r.flags.c_contiguous:
+        r = np.ascontiguousarray(r)
+    return r, shape[:-2]
 
 
 def fold_force(force_N: ArrayLike, samples: int) -> F64:
@@ -81,31 +86,47 @@ def fold_force(force_N: ArrayLike, samples: int) -> F64:
 
 
 def unfold(decoded: Decoded, lead: tuple[int, ...]) -> Decoded:
-    return Decoded(
-        force_N=decoded.force_N.reshape(*lead, TAXELS_PER_PATCH, 3),
-        valid=decoded.valid.reshape(*lead, TAXELS_PER_PATCH),
-        reason=decoded.reason.reshape(*lead, TAXELS_PER_PATCH),
-    )
+    """Restore the leading shape of :func:`fold_resistance` (a no-op for (samples, 9, P))."""
+    if len(lead) == 1:
+        return decoded
+    shape = (*lead, TAXELS_PER_PATCH)
+    return Decoded(decoded.force_N.reshape(*shape, 3), decoded.valid.reshape(shape),
+                   decoded.reason.reshape(shape))
 
 
-def finalize(force: F64, reason: NDArray[np.uint8]) -> Decoded:
-    """Zero the force of every invalid taxel and of any non-finite output; build Decoded."""
-    bad = ~np.all(np.isfinite(force), axis=-1)
-    if np.any(bad):
-        from decoder.reasons import Reason
+def all_valid(force: F64, lead: tuple[int, ...]) -> Decoded:
+    """Decoded, in the leading shape ``lead``, for forces (n, 9, 3) of which every taxel decoded."""
+    shape = (*lead, TAXELS_PER_PATCH)
+    valid = np.empty(shape, dtype=bool)
+    valid.fill(True)
+    if len(lead) > 1:
+        force = force.reshape(*shape, 3)
+    return Decoded(force, valid, np.zeros(shape, dtype=np.uint8))
 
-        reason = np.where(bad & (reason == 0), np.uint8(Reason.OUT_OF_RANGE), reason)
+
+def masked(force: F64, reason: NDArray[np.uint8], lead: tuple[int, ...]) -> Decoded:
+    """Decoded, in the leading shape ``lead``, for forces (n, 9, 3) and reasons (n, 9):
+    0 N wherever the reason is not OK."""
     valid = reason == 0
-    force = np.where(valid[..., None], force, 0.0)
-    return Decoded(force_N=force, valid=valid, reason=reason.astype(np.uint8))
+    if not valid.all():
+        force[~valid] = 0.0
+    return unfold(Decoded(force, valid, reason), lead)
 
 
 class BaseDecoder:
-    """Shared parameters, fitted-state checks and model-file round trip.
+    """Shared parameters, the decode template, fitted-state checks and model-file round trip.
 
     Subclasses list their constructor keywords in ``_params`` and their learned
     attributes (names ending in "_") in ``_state``; ``_check_state`` validates a
     loaded state so a tampered file cannot become a silently wrong model.
+
+    ``decode`` folds the input and calls ``_check_decodable``, then
+    ``_decode_fast``, which returns the forces only if no taxel needs masking
+    (else None), and otherwise ``_decode_full``, which returns forces and a
+    reason per taxel; ``decode`` then zeroes the masked taxels. The two paths
+    must agree exactly wherever the fast one answers
+    (tests/decoder/test_fast_path.py); it exists so that one patch-sample does
+    not pay for the reason machinery.
     """
 
     name: ClassVar[str] = ""
@@ -115,11 +136,13 @@ class BaseDecoder:
     def __init__(self, *, constants: SensorConstants = DEFAULT_CONSTANTS,
                  r0_ohm: ArrayLike | None = None) -> None:
         self.constants = constants
-        self.r0_ohm = None if r0_ohm is None else np.asarray(r0_ohm, dtype=np.float64)
-        if self.r0_ohm is not None and not (
-            np.all(np.isfinite(self.r0_ohm)) and np.all(self.r0_ohm > 0)
-        ):
-            raise DecodeError("r0_ohm must be positive and finite")
+        self.r0_ohm = None if r0_ohm is None else np.array(r0_ohm, dtype=np.float64)
+        if self.r0_ohm is not None:
+            if not (np.all(np.isfinite(self.r0_ohm)) and np.all(self.r0_ohm > 0)):
+                raise DecodeError("r0_ohm must be positive and finite")
+            self.r0_ohm.flags.writeable = False  # the cached inverses depend on it
+        self._inverses: dict[int, Inverse] = {}
+        self._inverse_key: tuple[SensorConstants, F64 | None] = (constants, self.r0_ohm)
 
     def r0_for(self, pillars: int) -> F64:
         """R0 broadcastable against (n, 9, P)."""
@@ -130,6 +153,45 @@ class BaseDecoder:
             raise DecodeError(f"r0_ohm has shape {r0.shape}; expected ({pillars},) or "
                               f"(9, {pillars}) for {pillars}-pillar input")
         return r0
+
+    def inverse(self, pillars: int) -> Inverse:
+        """The exact inverse for these constants and R0, built on first use per pillar count."""
+        key = self._inverse_key
+        if key[0] is not self.constants or key[1] is not self.r0_ohm:
+            self._inverses = {}
+            self._inverse_key = (self.constants, self.r0_ohm)
+        inverse = self._inverses.get(pillars)
+        if inverse is None:
+            inverse = make_inverse(self.constants, self.r0_for(pillars), pillars)
+            self._inverses[pillars] = inverse
+        return inverse
+
+    def decode(self, resistance_ohm: ArrayLike) -> Decoded:
+        """Resistances (samples, [patches,] 9, P) in ohm -> forces, valid mask and reasons."""
+        r, lead = fold_resistance(resistance_ohm)
+        self._check_decodable(r.shape[2])
+        force = self._decode_fast(r)
+        if force is not None:
+            return all_valid(force, lead)
+        force, reason = self._decode_full(r)
+        return masked(force, reason, lead)
+
+    def _check_decodable(self, pillars: int) -> None:
+        """Raise unless fitted (decoders with state), on ``pillars``-pillar input if it says."""
+        if self._state and "pillars_" not in self.__dict__:
+            self._require_fitted()
+        fitted = self.__dict__.get("pillars_", pillars)
+        if pillars != fitted:
+            raise DecodeError(f"model was fitted on {fitted}-pillar input, got {pillars} pillars")
+
+    def _decode_fast(self, r: F64) -> F64 | None:
+        """Folded (n, 9, P) -> forces (n, 9, 3) if no taxel needs masking, else None."""
+        return None
+
+    def _decode_full(self, r: F64) -> tuple[F64, NDArray[np.uint8]]:
+        """Folded (n, 9, P) -> forces (n, 9, 3) and reasons (n, 9) for any input; the forces
+        of taxels with a reason are set to 0 N by ``decode``."""
+        raise NotImplementedError
 
     def _require_fitted(self) -> None:
         missing = [s for s in self._state if not hasattr(self, s)]

@@ -20,6 +20,8 @@ class Reason(enum.IntEnum):
     SHORT = 4  # exactly 0 ohm: short circuit
     SATURATED = 5  # at or above the ADC's full-scale code
     OUT_OF_RANGE = 6  # physically possible reading outside the decoder's valid/calibrated range
+    MISSING = 7  # PDO not received in the cycle (lost, late, duplicated or malformed)
+    FAULTY = 8  # reported faulty by the node (EMCY / taxel status): masked by the host
 
 
 def reason_name(code: int) -> str:

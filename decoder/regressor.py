@@ -9,6 +9,8 @@ matrix products and one tanh.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -47,6 +49,14 @@ def fit_mlp(
     return state, result
 
 
+def sample_rows(a: F64) -> F64:
+    """(n, ...) -> one feature row per sample (n, k); one sample -> a vector (k,), so the
+    network and the range checks run as vector operations, without broadcasting."""
+    if a.shape[0] == 1:
+        return a.reshape(-1)
+    return a.reshape(a.shape[0], math.prod(a.shape[1:]))
+
+
 class FoldedMLP:
     """Prediction in raw units: scalings folded into the first and last layers."""
 
@@ -63,10 +73,12 @@ class FoldedMLP:
         self.b2 = (A2[:, -1] + 1.0) * gy + state["y_lo_"]
 
     def __call__(self, x: F64) -> F64:
-        h = x @ self.W1T
+        """Outputs (n, O) for inputs (n, I), or (O,) for one sample (I,)."""
+        product = np.dot if x.ndim == 1 else np.matmul  # np.dot: less overhead for a vector
+        h = product(x, self.W1T)
         h += self.b1
         np.tanh(h, out=h)
-        y: F64 = h @ self.W2T
+        y: F64 = product(h, self.W2T)
         y += self.b2
         return y
 

@@ -46,3 +46,14 @@ class DatasetError(SkinError, ValueError):
 
 class BusError(SkinError, RuntimeError):
     """Something on the CAN bus went wrong."""
+
+
+class RecordingError(SkinError, ValueError):
+    """A recording is truncated, corrupt or of an unsupported kind; names the frame."""
+
+    def __init__(self, source: str, frame: int | None, problem: str) -> None:
+        self.source = source
+        self.frame = frame
+        self.problem = problem
+        where = f"{source}: frame {frame}" if frame is not None else source
+        super().__init__(f"{where}: {problem}")

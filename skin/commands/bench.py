@@ -1,4 +1,5 @@
-"""``skin bench [decoders|sim]``: speed against error of every decoder, or the simulator's speed."""
+"""``skin bench [decoders|sim|dataplane]``: decoders' speed against error, the simulator's speed,
+or the CAN data plane against canopen's PdoMap callbacks."""
 
 from __future__ import annotations
 
@@ -18,8 +19,11 @@ def add_subparser(subparsers: Any) -> None:
         "bench", help="speed against error of every decoder; the paper's Table 1",
         description="decoders: fit every registered decoder on the `paper` scene (1000 "
                     "training, 100 test samples, several seeds), time it, and sweep lm-mlp's "
-                    "hidden nodes 5..14 on `paper` and `indenter`. sim: the simulator's speed.")
-    parser.add_argument("target", nargs="?", choices=("decoders", "sim"), default="decoders")
+                    "hidden nodes 5..14 on `paper` and `indenter`. sim: the simulator's speed. "
+                    "dataplane: 16 patches' TPDOs absorbed, decoded and republished as force "
+                    "TPDOs, against the same work through canopen's PdoMap callbacks.")
+    parser.add_argument("target", nargs="?", choices=("decoders", "sim", "dataplane"),
+                        default="decoders")
     parser.add_argument("--quick", action="store_true", help="one seed, smaller batches (<60 s)")
     parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     parser.add_argument("--plot", metavar="FILE.png", help="draw speed against error")
@@ -47,7 +51,7 @@ def _splits(scene: str, seeds: int) -> list[tuple[Any, ...]]:
 def run_decoders(quick: bool) -> dict[str, Any]:
     import sim
     from decoder import benchmark
-    from decoder.registry import available_decoders
+    from decoder.registry import available_decoders, create_decoder
 
     seeds, batch, repeats = (1, 20_000, 2) if quick else (3, 200_000, 5)
     paper = sim.load_scene("paper")
@@ -64,6 +68,12 @@ def run_decoders(quick: bool) -> dict[str, Any]:
     result["analytic_taxel_samples_per_s"] = {
         "z": benchmark.analytic_throughput(1, 10 * batch, repeats),
         "xyz": benchmark.analytic_throughput(3, 5 * batch, repeats)}
+    r_xyz, f_xyz, r_xyz_test, _ = _splits("indenter", 1)[0]
+    result["xyz_speed"] = [
+        dict(zip(("name", "decode_samples_per_s", "latency_us"),
+                 (name, *benchmark.decode_speed(create_decoder(name).fit(r_xyz, f_xyz),
+                                                r_xyz_test, batch, repeats)), strict=True))
+        for name in available_decoders()]
     r_train, f_train = splits[0][0], splits[0][1]
     result["lm_vs_scipy"] = benchmark.lm_vs_scipy(
         r_train.reshape(r_train.shape[0], -1), f_train[..., 2].reshape(r_train.shape[0], -1),
@@ -100,6 +110,12 @@ def print_decoders(result: dict[str, Any]) -> None:
     console.print(t1)
     speed = result["analytic_taxel_samples_per_s"]
     lm = result["lm_vs_scipy"]
+    xyz = Table(title="3-axis decode speed ('indenter' scene, 27 pillars per patch)")
+    for col in ("decoder", "patch-samples/s", "latency us"):
+        xyz.add_column(col, justify="left" if col == "decoder" else "right")
+    for d in result["xyz_speed"]:
+        xyz.add_row(d["name"], f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}")
+    console.print(xyz)
     console.print(f"analytic: {speed['z']:,.0f} taxel-samples/s z-only, "
                   f"{speed['xyz']:,.0f} 3-axis")
     console.print(f"LM vs SciPy least_squares(method='lm'), {lm['samples']} samples, "
@@ -137,6 +153,33 @@ def plot(result: dict[str, Any], path: str) -> None:
     plt.close(fig)
 
 
+def print_dataplane(result: dict[str, Any]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    table = Table(title=f"data plane: {result['patches']} patches ({result['mode']}), "
+                        f"{result['frames_in']:,} PDOs in, {result['frames_out']:,} out",
+                  caption=f"{result['cycles']} SYNC cycles; best of {result['repeats']}; "
+                          "one thread; python-can delivery excluded")
+    for col in ("path", "frames in/s", "frames out/s", "CPU", "vs canopen"):
+        table.add_column(col, justify="left" if col == "path" else "right")
+    rows = (("data plane", "dataplane"), ("data plane, batch 1", "per_patch"),
+            ("canopen PdoMaps", "canopen"))
+    for label, key in rows:
+        ratio = result["canopen_s"] / result[f"{key}_s"]
+        table.add_row(label, f"{result[f'{key}_frames_in_per_s']:,.0f}",
+                      f"{result[f'{key}_frames_out_per_s']:,.0f}",
+                      f"{100 * result[f'{key}_cpu_share']:.0f} %", f"{ratio:.2f}x")
+    console.print(table)
+    console.print(f"identical force frames: {result['identical_output']}; all samples complete: "
+                  f"{result['all_samples_complete']}")
+    console.print(f"not included above: python-can virtual bus -> Notifier delivery alone "
+                  f"{result['notifier_frames_per_s']:,.0f} frames/s; the whole path (virtual "
+                  f"bus, Notifier, data plane thread) {result['pipeline_frames_per_s']:,.0f} "
+                  f"frames/s, {result['pipeline_mean_batch']:.1f} samples per decode")
+
+
 def run(args: argparse.Namespace) -> int:
     from threadpoolctl import threadpool_limits
 
@@ -150,6 +193,15 @@ def run(args: argparse.Namespace) -> int:
             print(f"{key:<40} {value:>16,.3f}")
         if args.json:
             _write_json(args.json, dict(figures))
+        return 0
+    if args.target == "dataplane":
+        from canbus.dataplane_bench import run_dataplane_benchmark
+
+        cycles, repeats = (100, 2) if args.quick else (300, 5)
+        figures = run_dataplane_benchmark(cycles=cycles, repeats=repeats)
+        print_dataplane(figures)
+        if args.json:
+            _write_json(args.json, figures)
         return 0
     result = run_decoders(args.quick)
     print_decoders(result)

@@ -94,9 +94,12 @@ def test_patch_codec_round_trip(values: np.ndarray) -> None:
     np.testing.assert_array_equal(codec.unpack(payloads), values)
 
 
-@given(hnp.arrays(np.int16, st.tuples(st.integers(1, 5), st.just(27))))
-def test_forces_codec_round_trip_is_signed(values: np.ndarray) -> None:
-    codec = _codec("skin-forces")
+@given(hnp.arrays(np.int16, st.tuples(st.integers(1, 5), st.just(27))),
+       hnp.arrays(np.uint16, st.tuples(st.just(1), st.just(1))))
+def test_forces_codec_round_trip_is_signed(forces: np.ndarray, valid_bits: np.ndarray) -> None:
+    codec = _codec("skin-forces")  # 27 INTEGER16 forces, then 0x2005 (UNSIGNED16) in TPDO 7
+    assert codec.variables[-1] == (0x2005, 0)
+    values = np.hstack([forces.astype(np.int64), valid_bits.repeat(len(forces), axis=0)])
     np.testing.assert_array_equal(codec.unpack(codec.pack(values)), values)
 
 

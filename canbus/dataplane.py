@@ -1,0 +1,489 @@
+"""The data plane: patch TPDOs in, forces out, one SYNC cycle at a time.
+
+One ``can.Listener`` takes every frame on the bus. Its hot path looks the COB-ID up in a
+table (COB-ID -> channel slot, PDO position), checks the frame against the open SYNC
+cycle and copies the payload into that slot's preallocated buffer; nothing else happens
+per frame. When every PDO of a patch has arrived exactly once, the patch's payload is
+queued; the publisher decodes what is queued in numpy batches (one ``PdoCodec.unpack``
+per PDO layout, one ``decode`` per decoder object) and sends the force nodes' TPDOs
+with ``bus.send``.
+
+Cycle rules (CiA 301's synchronous window, object 0x1007): a frame belongs to cycle k
+only if its timestamp lies in [t_k, t_k + sync_window_s], t_k being the time the host
+sent SYNC k; ``sync_window_s == 0`` means no window (until the next SYNC). Frames
+stamped before t_k are ``late``; frames stamped after the window are held until the next
+SYNC, which accepts the ones inside its own window (a patch may answer SYNC k+1 before
+the host has called :meth:`DataPlane.on_sync`) and counts the rest ``late``. A second
+frame of one COB-ID in a cycle is a ``duplicate``, a frame shorter than its mapping is
+``malformed``: the PDO is not trusted. A patch whose PDOs all arrived is published at
+once; the others are published, incomplete, when the next SYNC (or :meth:`flush`)
+closes the cycle: taxels carried by a missing PDO are invalid with ``Reason.MISSING``,
+and the data of one cycle is never mixed with another's.
+
+Publishing: by default a thread of the data plane decodes and publishes, so that
+patches completing while it works are batched into its next round (the notifier thread
+only copies bytes). ``background=False`` leaves that to the caller
+(:meth:`publish_pending`), as the benchmark does to run everything in one thread.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import can
+import numpy as np
+from numpy.typing import NDArray
+
+from canbus.codes import code_to_resistance
+from canbus.forcenode import ForceNode, batch_frames
+from canbus.pdo_codec import PdoCodec
+from decoder.protocol import Decoder
+from decoder.reasons import Reason
+from skin.constants import TAXELS_PER_PATCH
+from skin.errors import ConfigError
+
+logger = logging.getLogger(__name__)
+
+RESISTANCES = 0x2000
+
+
+@dataclass(frozen=True)
+class ForceFrame:
+    """One patch's forces for one SYNC cycle."""
+
+    patch: int  # patch node-ID
+    force_node: int  # force node-ID it was published as
+    cycle: int  # host's SYNC cycle number (1, 2, ...), monotonic
+    sync_counter: int  # the SYNC counter byte sent (0 without a counter)
+    timestamp: float  # time.time() when the host sent that SYNC
+    force_N: NDArray[np.float64]  # (9, 3) Fx, Fy, Fz; 0 N where not valid
+    valid: NDArray[np.bool_]  # (9,)
+    reason: NDArray[np.uint8]  # (9,) decoder.reasons codes; MISSING, FAULTY from the data plane
+    complete: bool  # every PDO of the patch arrived exactly once within the cycle's window
+    published: bool  # the force TPDOs went onto the bus
+
+
+@dataclass
+class PatchChannel:
+    """Everything the data plane needs to turn one patch's PDOs into forces."""
+
+    node_id: int
+    codec: PdoCodec  # the patch's TPDOs as configured (maps 0x2000 codes; may map more)
+    pillars: int  # 1 (z-only) or 3
+    lsb_ohm: float  # the patch's 0x2001
+    decoder: Decoder  # any registered decoder; r0 baked in by the host
+    force_node: ForceNode
+    scale: NDArray[np.float64] = field(default_factory=lambda: np.ones((TAXELS_PER_PATCH, 1)))
+    """(9, P), or anything that broadcasts to it: multiplied onto resistances before decode."""
+    masked: NDArray[np.bool_] = field(
+        default_factory=lambda: np.zeros(TAXELS_PER_PATCH, dtype=bool))
+    """(9,) taxels the host knows are faulty: invalid with ``Reason.FAULTY``."""
+
+
+@dataclass
+class DataPlaneStats:
+    """Counters since the data plane was built."""
+
+    frames_in: int = 0  # PDO frames of known channels
+    frames_out: int = 0  # force TPDOs sent
+    unknown_frames: int = 0  # anything not a PDO of a channel (other services, lost patches)
+    duplicate_frames: int = 0
+    late_frames: int = 0
+    malformed_frames: int = 0  # shorter than the PDO's mapping
+    samples: int = 0
+    batches: int = 0  # publishing rounds: samples / batches is the mean decode batch
+    complete_samples: int = 0
+    incomplete_samples: int = 0
+    decode_errors: int = 0  # decoder raised: those samples are dropped (logged)
+    send_errors: int = 0  # bus.send raised: that sample is not published (logged)
+    callback_errors: int = 0  # a subscriber raised (logged)
+
+    def snapshot(self) -> dict[str, int]:
+        return dataclasses.asdict(self)
+
+
+class _Slot:
+    """A channel's state in the current cycle and its precomputed layout."""
+
+    def __init__(self, channel: PatchChannel, key: int) -> None:
+        codec = channel.codec
+        pdos = len(codec.layouts)
+        self.channel = channel
+        self.active = True
+        self.raw = bytearray(8 * pdos)
+        self.zeros = bytes(8 * pdos)
+        self.full = (1 << pdos) - 1
+        self.seen = 0  # PDO bits received this cycle
+        self.bad = 0  # PDO bits not trusted this cycle (duplicate, malformed)
+        self.done = False  # queued this cycle
+        self.key = key  # channels with equal keys are unpacked together
+        p = channel.pillars
+        try:
+            self.columns = np.array([[codec.column(RESISTANCES, 3 * t + k + 1) for k in range(p)]
+                                     for t in range(TAXELS_PER_PATCH)], dtype=np.intp)
+        except ValueError as err:
+            raise ConfigError("channel.codec", f"patch {channel.node_id}'s PDOs do not map "
+                              f"every 0x2000 code of {p} pillar(s)") from err
+        carried = np.zeros((pdos, TAXELS_PER_PATCH), dtype=bool)
+        for n, layout in enumerate(codec.layouts):
+            for entry in layout.entries:
+                value = entry.subindex - 1
+                if entry.index == RESISTANCES and value % 3 < p:
+                    carried[n, value // 3] = True
+        self.carried = carried  # (PDOs, 9): the taxels each PDO carries
+
+    def taxels_of(self, pdo_bits: int) -> NDArray[np.bool_]:
+        """(9,) the taxels carried by the PDOs whose bits are set."""
+        which = np.array([pdo_bits >> p & 1 for p in range(len(self.carried))], dtype=bool)
+        taxels: NDArray[np.bool_] = self.carried[which].any(axis=0)
+        return taxels
+
+    def reset(self) -> None:
+        self.seen = self.bad = 0
+        self.done = False
+        self.raw[:] = self.zeros
+
+
+@dataclass(frozen=True)
+class _Job:
+    slot: _Slot
+    cycle: tuple[int, int, float]
+    payload: bytes
+    missing: int  # PDO bits absent or not trusted
+    complete: bool
+
+
+_Entry = tuple[_Slot, int, int, int]  # slot, PDO bit, byte offset, mapped size
+Subscriber = Callable[[list[ForceFrame]], None]
+
+
+class DataPlane(can.Listener):
+    """Patch TPDOs -> forces -> force TPDOs on ``bus``; see the module docstring."""
+
+    def __init__(self, bus: can.BusABC, *, sync_window_s: float,
+                 background: bool = True) -> None:
+        if not (math.isfinite(sync_window_s) and sync_window_s >= 0):
+            raise ConfigError("sync_window_s", f"must be >= 0 s, got {sync_window_s}")
+        self.bus = bus
+        self.sync_window_s = sync_window_s
+        self.stats = DataPlaneStats()
+        self._lock = threading.Lock()  # cycle state: held briefly by every thread
+        self._publish_lock = threading.Lock()  # one publisher at a time, in queue order
+        self._table: dict[int, _Entry] = {}  # replaced, never mutated: read without the lock
+        self._slots: dict[int, _Slot] = {}
+        self._shapes: dict[object, int] = {}  # PDO layout and pillars -> slot key
+        self._cycle: tuple[int, int, float] | None = None
+        self._start, self._end = math.inf, -math.inf  # no cycle open
+        self._held: list[tuple[_Entry, bytes, float]] = []
+        self._queue: list[_Job] = []
+        self._subscribers: tuple[Subscriber, ...] = ()
+        self._raw_samples: dict[int, NDArray[np.float64]] = {}
+        self._wake = threading.Event()
+        self._stopping = False
+        self._thread: threading.Thread | None = None
+        if background:
+            self._thread = threading.Thread(target=self._run, name="dataplane", daemon=True)
+            self._thread.start()
+
+    # -- channels ---------------------------------------------------------------------------
+
+    def add_channel(self, channel: PatchChannel) -> None:
+        """Add a patch, or replace it (its frames of the current cycle are forgotten)."""
+        if channel.pillars not in (1, 3):
+            raise ConfigError("channel.pillars", f"must be 1 or 3, got {channel.pillars}")
+        if not (math.isfinite(channel.lsb_ohm) and channel.lsb_ohm > 0):
+            raise ConfigError("channel.lsb_ohm", f"must be > 0, got {channel.lsb_ohm}")
+        _check_shape(channel.scale, (TAXELS_PER_PATCH, channel.pillars), "channel.scale")
+        if not np.all(np.isfinite(channel.scale) & (np.asarray(channel.scale) > 0)):
+            raise ConfigError("channel.scale", "must be finite and > 0")
+        _check_shape(channel.masked, (TAXELS_PER_PATCH,), "channel.masked")
+        shape = (tuple(layout.entries for layout in channel.codec.layouts), channel.pillars)
+        with self._lock:
+            slot = _Slot(channel, self._shapes.setdefault(shape, len(self._shapes)))
+            others = [s.channel for n, s in self._slots.items() if n != channel.node_id]
+            _check_identifiers(channel, others)
+            old = self._slots.pop(channel.node_id, None)
+            if old is not None:
+                old.active = False
+            self._slots[channel.node_id] = slot
+            self._rebuild_table()
+
+    def remove_channel(self, node_id: int) -> None:
+        """Forget a patch: its frames are counted as unknown from now on."""
+        with self._lock:
+            slot = self._slots.pop(node_id, None)
+            if slot is not None:
+                slot.active = False
+                self._rebuild_table()
+
+    def channel(self, node_id: int) -> PatchChannel:
+        try:
+            return self._slots[node_id].channel
+        except KeyError as err:
+            raise ConfigError("node_id", f"no channel for patch {node_id}") from err
+
+    def _rebuild_table(self) -> None:
+        table: dict[int, _Entry] = {}
+        for slot in self._slots.values():
+            codec = slot.channel.codec
+            for p, (cob, size) in enumerate(zip(codec.cob_ids.tolist(), codec.sizes.tolist(),
+                                                strict=True)):
+                table[cob] = (slot, 1 << p, 8 * p, size)
+        self._table = table
+
+    # -- the hot path -----------------------------------------------------------------------
+
+    def on_message_received(self, msg: can.Message) -> None:
+        entry = self._table.get(msg.arbitration_id)
+        if entry is None or msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
+            self.stats.unknown_frames += 1  # only the notifier thread writes this counter
+            return
+        with self._lock:
+            self.stats.frames_in += 1
+            if self._start <= msg.timestamp <= self._end:
+                self._accept(entry, msg.data)
+            elif msg.timestamp > self._end and len(self._held) < 2 * len(self._table):
+                self._held.append((entry, bytes(msg.data), msg.timestamp))
+            else:
+                self.stats.late_frames += 1
+
+    def _accept(self, entry: _Entry, data: bytes | bytearray) -> None:
+        """One in-window frame (lock held)."""
+        slot, bit, offset, size = entry
+        if slot.seen & bit:
+            self.stats.duplicate_frames += 1
+            slot.bad |= bit
+            return
+        slot.seen |= bit
+        if len(data) < size:
+            self.stats.malformed_frames += 1
+            slot.bad |= bit
+            return
+        slot.raw[offset:offset + size] = data if len(data) == size else data[:size]
+        if slot.seen == slot.full and not slot.bad and slot.active and self._cycle is not None:
+            slot.done = True
+            self._queue.append(_Job(slot, self._cycle, bytes(slot.raw), 0, True))
+            self._wake.set()
+
+    # -- cycles -----------------------------------------------------------------------------
+
+    def on_sync(self, cycle: int, sync_counter: int, timestamp: float) -> None:
+        """SYNC ``cycle`` was sent at ``timestamp``: close the previous cycle, open this one."""
+        with self._lock:
+            self._close()
+            self._cycle = (cycle, sync_counter, timestamp)
+            self._start = timestamp
+            self._end = timestamp + self.sync_window_s if self.sync_window_s else math.inf
+            held, self._held = self._held, []
+            for entry, data, t in held:
+                if self._start <= t <= self._end:
+                    self._accept(entry, data)
+                else:
+                    self.stats.late_frames += 1
+        self._publish_now()
+
+    def flush(self) -> None:
+        """Close the current cycle now and publish everything queued before returning."""
+        with self._lock:
+            self._close()
+            self._cycle = None
+            self._start, self._end = math.inf, -math.inf
+        self.publish_pending()
+
+    def _close(self) -> None:
+        """Queue the open cycle's unfinished patches as incomplete samples (lock held)."""
+        if self._cycle is not None:
+            for slot in self._slots.values():
+                if not slot.done:
+                    missing = slot.full & ~(slot.seen & ~slot.bad)
+                    self._queue.append(_Job(slot, self._cycle, bytes(slot.raw), missing, False))
+        for slot in self._slots.values():
+            slot.reset()
+
+    # -- publishing -------------------------------------------------------------------------
+
+    def subscribe(self, callback: Subscriber) -> None:
+        """Call ``callback(frames)`` with each published batch (from the publishing thread)."""
+        with self._lock:
+            self._subscribers = (*self._subscribers, callback)
+
+    def unsubscribe(self, callback: Subscriber) -> None:
+        with self._lock:
+            self._subscribers = tuple(c for c in self._subscribers if c != callback)
+
+    def raw_sample(self, node_id: int) -> NDArray[np.float64] | None:
+        """The last complete ``(9, P)`` resistances of a patch in ohm, before ``scale``."""
+        sample = self._raw_samples.get(node_id)
+        return None if sample is None else sample.copy()
+
+    def publish_pending(self) -> None:
+        """Decode and publish every queued sample, in the order they were queued."""
+        with self._publish_lock:
+            with self._lock:
+                jobs, self._queue = self._queue, []
+            if jobs:
+                self._publish(jobs)
+
+    def stop(self) -> None:
+        """Stop the publishing thread after it published what is queued (``can.Listener``)."""
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            self._stopping = True
+            self._wake.set()
+            thread.join()
+        self.publish_pending()
+
+    def _publish_now(self) -> None:
+        if self._thread is None:
+            self.publish_pending()
+        else:
+            self._wake.set()
+
+    def _run(self) -> None:
+        while not self._stopping:
+            self._wake.wait()
+            self._wake.clear()
+            try:
+                self.publish_pending()
+            except Exception:  # keep publishing: one bad batch must not stop the data plane
+                logger.exception("data plane: publishing failed")
+
+    def _publish(self, jobs: list[_Job]) -> None:
+        n = len(jobs)
+        missing = np.zeros((n, TAXELS_PER_PATCH), dtype=bool)
+        masked = np.zeros((n, TAXELS_PER_PATCH), dtype=bool)
+        for i, job in enumerate(jobs):
+            if job.missing:
+                missing[i] = job.slot.taxels_of(job.missing)
+            masked[i] = job.slot.channel.masked
+        resistance = self._resistances(jobs, missing | masked)
+        force = np.zeros((n, TAXELS_PER_PATCH, 3))
+        reason = np.zeros((n, TAXELS_PER_PATCH), dtype=np.uint8)
+        decoded = np.zeros(n, dtype=bool)
+        for rows, decoder in _by_decoder(jobs):
+            try:
+                pillars = jobs[rows[0]].slot.channel.pillars
+                result = decoder.decode(resistance[rows, :, :pillars])
+            except Exception:
+                logger.exception("data plane: %r failed on patches %s", decoder,
+                                 [jobs[i].slot.channel.node_id for i in rows])
+                self.stats.decode_errors += len(rows)
+                continue
+            force[rows] = result.force_N
+            reason[rows] = result.reason
+            decoded[rows] = True
+        reason[missing] = Reason.MISSING
+        reason[masked] = Reason.FAULTY
+        valid = reason == 0
+        force[~valid] = 0.0
+        if decoded.all():
+            self._send(jobs, force, valid, reason)
+        else:
+            kept = np.flatnonzero(decoded)
+            self._send([jobs[i] for i in kept], force[kept], valid[kept], reason[kept])
+
+    def _resistances(self, jobs: Sequence[_Job],
+                     undecodable: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """``(n, 9, 3)``: each job's ``(9, P)`` ohms in ``[:, :, :P]``, scaled, NaN where
+        ``undecodable``; one unpack per layout.
+
+        NaN, not a stale or faulty reading, so that a decoder that couples taxels (deconv)
+        treats those taxels as invalid rather than spreading them to their neighbours.
+        """
+        out = np.full((len(jobs), TAXELS_PER_PATCH, 3), np.nan)
+        groups: dict[int, list[int]] = {}
+        for i, job in enumerate(jobs):
+            groups.setdefault(job.slot.key, []).append(i)
+        for rows in groups.values():
+            first = jobs[rows[0]].slot
+            pdos = len(first.channel.codec.layouts)
+            payload = np.frombuffer(b"".join(jobs[i].payload for i in rows), dtype=np.uint8)
+            values = first.channel.codec.unpack(payload.reshape(len(rows), pdos, 8))
+            ohm = code_to_resistance(values[:, first.columns], 1.0)  # open/saturated: +inf
+            for m, i in enumerate(rows):
+                channel = jobs[i].slot.channel
+                r = ohm[m] * channel.lsb_ohm
+                if jobs[i].complete:
+                    self._raw_samples[channel.node_id] = r
+                r = r * channel.scale
+                r[undecodable[i]] = np.nan
+                out[i, :, : channel.pillars] = r
+        return out
+
+    def _send(self, jobs: list[_Job], force: NDArray[np.float64], valid: NDArray[np.bool_],
+              reason: NDArray[np.uint8]) -> None:
+        if not jobs:
+            return
+        complete = [job.complete for job in jobs]
+        nodes = [job.slot.channel.force_node for job in jobs]
+        frames = batch_frames(nodes, force, valid, np.array(complete), reason)
+        out = []
+        for i, job in enumerate(jobs):
+            arrived = job.missing != job.slot.full
+            published = arrived and nodes[i].transmitting and self._transmit(frames[i])
+            channel = job.slot.channel
+            cycle, counter, timestamp = job.cycle
+            out.append(ForceFrame(channel.node_id, nodes[i].node_id, cycle, counter, timestamp,
+                                  force[i], valid[i], reason[i], job.complete, published))
+        stats = self.stats
+        stats.samples += len(out)
+        stats.batches += 1
+        stats.complete_samples += sum(complete)
+        stats.incomplete_samples += len(out) - sum(complete)
+        for callback in self._subscribers:
+            try:
+                callback(out)
+            except Exception:
+                stats.callback_errors += 1
+                logger.exception("data plane: subscriber %r failed", callback)
+
+    def _transmit(self, frames: list[tuple[int, bytes]]) -> bool:
+        send = self.bus.send
+        try:
+            for cob, payload in frames:
+                send(can.Message(arbitration_id=cob, data=payload, is_extended_id=False,
+                                 check=False))
+                self.stats.frames_out += 1
+        except can.CanError as err:
+            self.stats.send_errors += 1
+            logger.warning("data plane: force TPDO not sent: %s", err)
+            return False
+        return True
+
+
+def _by_decoder(jobs: Sequence[_Job]) -> list[tuple[list[int], Decoder]]:
+    """Rows that share one decoder object and pillar count: one decode call each."""
+    groups: dict[tuple[int, int], tuple[list[int], Decoder]] = {}
+    for i, job in enumerate(jobs):
+        channel = job.slot.channel
+        key = (id(channel.decoder), channel.pillars)
+        groups.setdefault(key, ([], channel.decoder))[0].append(i)
+    return list(groups.values())
+
+
+def _check_shape(array: NDArray[np.generic], shape: tuple[int, ...], name: str) -> None:
+    a = np.asarray(array)
+    try:
+        np.broadcast_to(a, shape)
+    except ValueError as err:
+        raise ConfigError(name, f"must broadcast to {shape}, got {a.shape}") from err
+
+
+def _check_identifiers(channel: PatchChannel, others: Sequence[PatchChannel]) -> None:
+    """No two patches share a PDO COB-ID, and no force node sends on a patch's PDO COB-ID."""
+    mine = set(channel.codec.cob_ids.tolist())
+    force = channel.force_node.cob_ids()
+    for other in others:
+        theirs = set(other.codec.cob_ids.tolist())
+        clash = (mine & theirs) or (mine & other.force_node.cob_ids()) or (force & theirs)
+        if clash:
+            raise ConfigError("channel", f"patch {channel.node_id} and patch {other.node_id} "
+                              f"share COB-ID(s) {', '.join(f'0x{c:03X}' for c in sorted(clash))}")
+    if mine & force:
+        raise ConfigError("channel", f"patch {channel.node_id}'s force node sends on its own "
+                          f"PDO COB-ID(s) {sorted(mine & force)}")

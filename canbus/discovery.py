@@ -1,0 +1,110 @@
+# canopen 2.4 ships py.typed but leaves SdoClient and NodeScanner methods unannotated.
+# mypy: disable-error-code="no-untyped-call"
+"""Finding nodes: boot-up messages, canopen's SDO scan, and identification by object 0x1018.
+
+A node is a *patch* if its identity (0x1018) has product code 1, a *force node* if 2
+(eds/skin-patch.eds, eds/skin-forces.eds; vendor 0). Anything else, or a node that does
+not answer SDO, is *unknown*: the host reports it and leaves it alone.
+
+SDO transfers wait for responses that arrive on the network's notifier thread, so
+nothing here may run on that thread: callbacks only record, a worker identifies.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import canopen
+from canopen.sdo.client import SdoClient
+
+PATCH_PRODUCT = 1
+FORCE_PRODUCT = 2
+BOOTUP = 0x00
+_HEARTBEAT = 0x700
+
+
+@dataclass(frozen=True)
+class Identity:
+    """Object 0x1018: vendor-ID, product code, revision number, serial number."""
+
+    vendor: int
+    product: int
+    revision: int
+    serial: int
+
+    @property
+    def kind(self) -> str:
+        """``"patch"``, ``"forces"`` or ``"unknown"``."""
+        if self.vendor != 0:
+            return "unknown"
+        return {PATCH_PRODUCT: "patch", FORCE_PRODUCT: "forces"}.get(self.product, "unknown")
+
+
+@dataclass(frozen=True)
+class UnknownNode:
+    """A node the host does not manage, as reported to ``on_unknown``."""
+
+    node_id: int
+    identity: Identity | None  # None: it did not answer SDO
+    reason: str
+
+
+def read_identity(sdo: SdoClient) -> Identity:
+    """Read 0x1018 sub-indexes 1..4 (raises canopen's SDO errors)."""
+    values = [struct.unpack("<I", sdo.upload(0x1018, s).ljust(4, b"\x00")[:4])[0]
+              for s in range(1, 5)]
+    return Identity(*values)
+
+
+@contextmanager
+def sdo_client(network: canopen.Network, node_id: int, *,
+               timeout_s: float) -> Iterator[SdoClient]:
+    """An SDO client for ``node_id`` subscribed to ``network`` for the ``with`` block.
+
+    Only for nodes the host has no :class:`canopen.RemoteNode` for: two clients on one
+    server would both take every response.
+    """
+    client = SdoClient(0x600 + node_id, 0x580 + node_id, canopen.ObjectDictionary())
+    client.RESPONSE_TIMEOUT = timeout_s
+    client.network = network
+    network.subscribe(client.tx_cobid, client.on_response)
+    try:
+        yield client
+    finally:
+        network.unsubscribe(client.tx_cobid, client.on_response)
+
+
+def scan(network: canopen.Network, wait_s: float, *, exclude: Iterable[int] = ()) -> list[int]:
+    """Node-IDs that answer canopen's SDO scan (an upload of 0x1000 to every node-ID)
+    within ``wait_s``, or that the scanner saw otherwise (heartbeat, EMCY, TPDO)."""
+    network.scanner.reset()
+    network.scanner.search()
+    threading.Event().wait(wait_s)
+    skip = set(exclude)
+    return sorted(n for n in network.scanner.nodes if n not in skip)
+
+
+class BootListener:
+    """Calls ``on_boot(node_id)`` for every boot-up message (0x700 + ID, one byte 0x00)."""
+
+    def __init__(self, network: canopen.Network, on_boot: Callable[[int], None]) -> None:
+        self.network = network
+        self.on_boot = on_boot
+        self._ids = range(_HEARTBEAT + 1, _HEARTBEAT + 128)
+
+    def start(self) -> None:
+        for cob_id in self._ids:
+            self.network.subscribe(cob_id, self._on_message)
+
+    def stop(self) -> None:
+        for cob_id in self._ids:
+            if self._on_message in self.network.subscribers.get(cob_id, []):
+                self.network.unsubscribe(cob_id, self._on_message)
+
+    def _on_message(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if len(data) == 1 and data[0] == BOOTUP:
+            self.on_boot(can_id - _HEARTBEAT)

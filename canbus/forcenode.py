@@ -1,0 +1,278 @@
+# canopen 2.4 ships py.typed but leaves LocalNode/SdoServer methods unannotated.
+# mypy: disable-error-code="no-untyped-call"
+"""The force node: one patch's decoded forces as a CANopen device (eds/skin-forces.eds).
+
+Objects: 0x2000 forces, 27 INTEGER16 in mN (taxel*3 + axis + 1; Fx, Fy, Fz); 0x2001 the
+source patch's node-ID; 0x2004 per-taxel status (the ``decoder.reasons`` code, 0 OK);
+0x2005 valid taxels, UNSIGNED16 (bit k = taxel k valid, bit 15 = sample complete). A
+component that is invalid or does not fit INTEGER16 is sent as 0x8000 (-32768, "no
+value"), never clipped, and its taxel's valid bit is cleared.
+
+The default mapping is 4 forces per TPDO, TPDO 7 = the last 3 forces + 0x2005, all
+event-driven (type 254): :meth:`ForceNode.frames` returns the frames of one sample, sent
+as soon as it is decoded. The node answers SDO, sends its boot-up and heartbeat and obeys
+NMT like a patch node; it transmits only while OPERATIONAL (:attr:`transmitting`).
+"""
+
+from __future__ import annotations
+
+import functools
+import threading
+import weakref
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import canopen
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from canbus.heartbeat import HeartbeatProducer
+from canbus.nmt_slave import OPERATIONAL, RESET_COMMUNICATION, RESET_NODE, START, NmtSlave
+from canbus.object_store import ObjectStore
+from canbus.od import load_od
+from canbus.pdo_codec import MappedEntry, PdoCodec, read_defaults, read_layouts
+from canbus.tpdo import TpdoTable
+from skin.errors import BusError, ConfigError
+
+FORCES, SOURCE, STATUS, VALID = 0x2000, 0x2001, 0x2004, 0x2005
+TPDO_COUNT = 7
+NO_VALUE = -0x8000
+"""INTEGER16 0x8000: the component has no value (invalid taxel or beyond +-32.767 N)."""
+COMPLETE = 1 << 15
+"""Bit 15 of 0x2005: every PDO of the patch arrived exactly once in the SYNC cycle."""
+MAX_MN = 0x7FFF
+UNSPECIFIED = 0xFF
+"""0x2004 of an invalid taxel when the caller gives no reason code."""
+Frame = tuple[int, bytes]
+
+
+def forces_to_mN(force_N: ArrayLike, valid: ArrayLike) -> tuple[NDArray[np.int16],
+                                                                 NDArray[np.bool_]]:
+    """``(..., 9, 3)`` N and ``(..., 9)`` valid -> INTEGER16 mN and the taxels valid on the bus.
+
+    A component is ``NO_VALUE`` when its taxel is invalid or its value is not finite or
+    rounds beyond +-32767 mN; such a taxel is not valid on the bus.
+    """
+    f = np.asarray(force_N, dtype=np.float64)
+    ok = np.asarray(valid, dtype=bool)
+    mN = np.rint(f * 1000.0)
+    fits = np.abs(mN) <= MAX_MN  # False for NaN and inf too
+    usable = fits & ok[..., None]
+    out = np.where(usable, mN, NO_VALUE).astype(np.int16)
+    return out, usable.all(axis=-1)
+
+
+def valid_bits(valid: ArrayLike, complete: ArrayLike) -> NDArray[np.uint16]:
+    """Object 0x2005: ``(..., 9)`` valid and ``(...)`` complete -> UNSIGNED16."""
+    v = np.asarray(valid, dtype=np.uint16)
+    bits = (v << np.arange(v.shape[-1], dtype=np.uint16)).sum(axis=-1, dtype=np.uint16)
+    complete_bit = np.where(np.asarray(complete, dtype=bool), COMPLETE, 0).astype(np.uint16)
+    return np.asarray(bits | complete_bit, dtype=np.uint16)
+
+
+def batch_frames(nodes: Sequence[ForceNode], force_N: NDArray[np.float64],
+                 valid: NDArray[np.bool_], complete: NDArray[np.bool_],
+                 reason: NDArray[np.uint8] | None = None) -> list[list[Frame]]:
+    """:meth:`ForceNode.frames` of ``n`` nodes at once: ``(n, 9, 3)``, ``(n, 9)``, ``(n,)``.
+
+    Nodes whose TPDOs are mapped alike are packed by one ``PdoCodec.pack`` call.
+    """
+    n = len(nodes)
+    mN, bus_valid = forces_to_mN(force_N, valid)
+    bits = valid_bits(bus_valid, complete)
+    status = (np.where(bus_valid, 0, UNSPECIFIED).astype(np.uint8) if reason is None
+              else np.asarray(reason, dtype=np.uint8))
+    error_register = np.zeros((n, 1), dtype=np.int64)
+    table = np.concatenate([mN.reshape(n, 27), status, bits[:, None], error_register],
+                           axis=1, dtype=np.int64)
+    groups: dict[_Layout, list[tuple[int, PdoCodec]]] = {}
+    for i, node in enumerate(nodes):
+        codec = node._adopt(mN[i].reshape(27), status[i], int(bits[i]))
+        groups.setdefault(_layout(codec), []).append((i, codec))
+    out: list[list[Frame]] = [[] for _ in range(n)]
+    for key, members in groups.items():
+        rows = [i for i, _ in members]
+        payload = members[0][1].pack(table[rows][:, key.gather]).tobytes()
+        width = 8 * len(key.sizes)
+        for m, (i, codec) in enumerate(members):
+            at = m * width
+            out[i] = [(cob, payload[at + 8 * p:at + 8 * p + size])
+                      for p, (cob, size) in enumerate(zip(codec.cob_ids.tolist(), key.sizes,
+                                                          strict=True))]
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class _Layout:
+    """A mapping shape: nodes with the same one (identity) are packed together."""
+
+    sizes: tuple[int, ...]
+    gather: NDArray[np.intp]  # row columns ``[forces (27), status (9), 0x2005, 0x1001]``
+
+
+_LAYOUTS: weakref.WeakKeyDictionary[PdoCodec, _Layout] = weakref.WeakKeyDictionary()
+_SHAPES: dict[tuple[tuple[MappedEntry, ...], ...], _Layout] = {}
+_FIRST_COLUMN = {FORCES: 0, STATUS: 27, VALID: 36, 0x1001: 37}
+
+
+def _layout(codec: PdoCodec) -> _Layout:
+    """The codec's shape, one object per distinct mapping (computed once per codec)."""
+    layout = _LAYOUTS.get(codec)
+    if layout is None:
+        entries = tuple(lay.entries for lay in codec.layouts)
+        layout = _SHAPES.get(entries)
+        if layout is None:
+            gather = []
+            for obj, sub in codec.variables:
+                if obj not in _FIRST_COLUMN:  # TpdoTable admits only the EDS's mappable objects
+                    raise ConfigError("pdo mapping", f"0x{obj:04X}:{sub:02X} is not published")
+                gather.append(_FIRST_COLUMN[obj] + max(sub - 1, 0))
+            layout = _Layout(tuple(int(size) for size in codec.sizes),
+                             np.array(gather, dtype=np.intp))
+            _SHAPES[entries] = layout
+        _LAYOUTS[codec] = layout
+    return layout
+
+
+@functools.lru_cache(maxsize=128)
+def force_node_cob_ids(node_id: int) -> frozenset[int]:
+    """Every COB-ID a force node at ``node_id`` transmits on by default (EDS values).
+
+    TPDOs, EMCY, heartbeat (also boot-up) and SDO server-to-client: what a configuration
+    check compares against the patches' identifiers without building a node.
+    """
+    od = load_od("skin-forces", node_id)
+    read = read_defaults(od)
+    tpdos = {layout.cob_id for layout in read_layouts(read, TPDO_COUNT)}
+    return frozenset(tpdos | {read(0x1014, 0) & 0x7FF, 0x700 + node_id, read(0x1200, 2) & 0x7FF})
+
+
+class ForceNode:
+    """The force node of patch ``source_patch`` at node-ID ``node_id`` (1..127)."""
+
+    def __init__(self, node_id: int, source_patch: int, *, heartbeat_ms: int = 1000) -> None:
+        if not 1 <= source_patch <= 127:
+            raise ConfigError("source_patch", f"must be a node-ID in 1..127, got {source_patch}")
+        if not 0 <= heartbeat_ms <= 0xFFFF:
+            raise ConfigError("heartbeat_ms", f"must be in 0..65535, got {heartbeat_ms}")
+        self.node_id = node_id
+        self.source_patch = source_patch
+        self.heartbeat_ms = heartbeat_ms
+        self.store = ObjectStore(node_id, load_od("skin-forces", node_id))
+        self.tpdo = TpdoTable(self.store, TPDO_COUNT)
+        self.heartbeat = HeartbeatProducer(node_id)
+        self.nmt = NmtSlave(node_id, on_reset=self._reset, on_state=self.heartbeat.set_state)
+        self.network: canopen.Network | None = None
+        self.lock = threading.RLock()
+        self._forces_mN = np.full(27, NO_VALUE, dtype=np.int16)
+        self._status = np.zeros(9, dtype=np.uint8)
+        self._valid = 0
+        self.store.add_read_callback(self._read_live)
+        self.store.add_write_callback(self._written)
+        self._apply_defaults()
+
+    @property
+    def codec(self) -> PdoCodec:
+        """The force TPDOs as currently mapped (another master may remap them by SDO)."""
+        with self.lock:
+            return self.tpdo.codec
+
+    @property
+    def state(self) -> int:
+        return self.nmt.state
+
+    @property
+    def transmitting(self) -> bool:
+        """OPERATIONAL: the node's PDOs may go onto the bus."""
+        return self.nmt.state == OPERATIONAL
+
+    def attach(self, network: canopen.Network) -> None:
+        """Join ``network`` and boot: boot-up message, PRE-OPERATIONAL, heartbeat, SDO server."""
+        self.network = network
+        self.store.associate_network(network)
+        network.subscribe(0, self._on_nmt)
+        self.nmt.boot(network)
+        self.heartbeat.start(network, int(self.store.value(0x1017)), self.nmt.state)
+
+    def detach(self) -> None:
+        self.heartbeat.stop()
+        if self.network is not None:
+            self.network.unsubscribe(0, self._on_nmt)
+            self.store.remove_network()
+            self.network = None
+
+    def start(self) -> None:
+        """Enter OPERATIONAL, as an NMT start from a master would (the host's own nodes)."""
+        if self.network is None:
+            raise BusError(f"force node {self.node_id} must be attached before it starts")
+        with self.lock:
+            self.nmt.on_command(0, bytes([START, self.node_id]), 0.0)
+
+    def cob_ids(self) -> frozenset[int]:
+        """Every COB-ID the node transmits on now: TPDOs, EMCY, heartbeat, SDO responses."""
+        with self.lock:
+            tpdos = {int(c) for c in self.tpdo.codec.cob_ids}
+            emcy = int(self.store.value(0x1014)) & 0x7FF
+            sdo_tx = int(self.store.value(0x1200, 2)) & 0x7FF
+        return frozenset(tpdos | {emcy, 0x700 + self.node_id, sdo_tx})
+
+    def frames(self, force_N: ArrayLike, valid: ArrayLike, complete: bool, *,
+               reason: ArrayLike | None = None) -> list[Frame]:
+        """The TPDO frames of one sample: ``(9, 3)`` N, ``(9,)`` valid, the complete flag.
+
+        Also the values an SDO read of 0x2000, 0x2004 and 0x2005 returns from now on.
+        ``reason`` (9,) is the ``decoder.reasons`` code per taxel for 0x2004; without it an
+        invalid taxel reads ``UNSPECIFIED``. The frames are returned whatever the NMT state:
+        the sender checks :attr:`transmitting`.
+        """
+        f = np.asarray(force_N, dtype=np.float64).reshape(1, 9, 3)
+        v = np.asarray(valid, dtype=bool).reshape(1, 9)
+        r = None if reason is None else np.asarray(reason, dtype=np.uint8).reshape(1, 9)
+        return batch_frames([self], f, v, np.array([complete]), r)[0]
+
+    def _adopt(self, forces_mN: NDArray[np.int16], status: NDArray[np.uint8],
+               valid: int) -> PdoCodec:
+        """Take one sample's object values; the codec to pack them with."""
+        with self.lock:
+            self._forces_mN = forces_mN
+            self._status = status
+            self._valid = valid
+            return self.tpdo.codec
+
+    def _read_live(self, index: int, subindex: int, **_: Any) -> int | None:
+        if index == FORCES and subindex:
+            return int(self._forces_mN[subindex - 1])
+        if index == STATUS and subindex:
+            return int(self._status[subindex - 1])
+        if index == VALID:
+            return self._valid
+        return None
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        with self.lock:
+            self.nmt.on_command(can_id, data, timestamp)
+            reset = len(data) == 2 and data[0] in (RESET_NODE, RESET_COMMUNICATION)
+            if reset and data[1] in (0, self.node_id) and self.network is not None:
+                self.heartbeat.start(self.network, int(self.store.value(0x1017)), self.nmt.state)
+
+    def _written(self, index: int, **_: Any) -> None:
+        if index == 0x1017:
+            self.heartbeat.set_period(int(self.store.value(0x1017)))
+
+    def _reset(self, application: bool) -> None:
+        with self.lock:
+            self.store.reset_area(0x1000, 0xFFFF if application else 0x1FFF)
+            if application:
+                self._forces_mN = np.full(27, NO_VALUE, dtype=np.int16)
+                self._status = np.zeros(9, dtype=np.uint8)
+                self._valid = 0
+            self._apply_defaults()
+            self.heartbeat.stop()
+
+    def _apply_defaults(self) -> None:
+        """Power-on values the EDS cannot know: serial, source patch, heartbeat period."""
+        self.store.store(0x1018, 4, self.node_id)
+        self.store.store(SOURCE, 0, self.source_patch)
+        self.store.store(0x1017, 0, self.heartbeat_ms)
+        self.tpdo.reset()

@@ -1,0 +1,396 @@
+"""The host manager's TOML config -> frozen dataclasses, checked before anything touches a bus.
+
+Every error is a :class:`~skin.errors.ConfigError` naming the dotted field, e.g.
+``patches[2].model: no such file 'm.msgpack'`` or ``patches[1].force_cob_ids[0]: 0x1C1
+is also patches[0].force_node TPDO 1``. The collision check covers every COB-ID a node
+on the bus may transmit on: NMT 0x000, SYNC 0x080, TIME 0x100, and for each patch,
+force node and ``other_nodes`` entry its CiA 301 predefined connection set (EMCY, TPDOs,
+RPDOs of the other nodes, SDO both ways, heartbeat) plus any COB-IDs the config sets.
+
+Example: ``examples/host.toml``; the format is documented in ``docs/host.md``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from decoder.protocol import Decoder
+from decoder.registry import decoder_class, load_decoder
+from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
+from skin.errors import ConfigError, ModelFileError, NotFittedError
+
+MODES = ("z", "xyz")
+TPDO_COUNT = 7
+FORCE_NODE_OFFSET = 64
+NMT, SYNC, TIME = 0x000, 0x080, 0x100
+_TPDO_BASES = (0x180, 0x280, 0x380, 0x480, 0x200, 0x300, 0x400)
+_RPDO_BASES = (0x200, 0x300, 0x400, 0x500)
+# CiA 301 table 43: identifiers no PDO may use (NMT, SYNC/EMCY of node 0, TIME, SDO, NMT
+# error control and LSS ranges).
+_RESTRICTED = ((0x000, 0x07F), (0x080, 0x080), (0x100, 0x180), (0x581, 0x5FF), (0x601, 0x67F),
+               (0x6E0, 0x6FF), (0x701, 0x77F), (0x780, 0x7FF))
+
+
+@dataclass(frozen=True)
+class PatchConfig:
+    """One patch the host manages, and the force node that publishes its forces."""
+
+    node_id: int
+    decoder: str = ""  # a registered decoder name; "" = the model file's, else "analytic"
+    model: Path | None = None  # a model file (msgpack) of that decoder
+    mode: str = "xyz"  # the TPDO mapping the host writes: "z" (9 values) or "xyz" (27)
+    force_node: int = 0  # 0 in the constructor means node_id + 64
+    force_cob_ids: tuple[int, ...] | None = None  # the force node's 7 TPDO COB-IDs
+    constants: SensorConstants | None = None  # what the patch reports (0x2001, 0x2003)
+    r0_ohm: tuple[float, ...] | None = None  # its R0 (0x2002): 27 values, or 3 (z, x, y)
+
+    def __post_init__(self) -> None:
+        if self.force_node == 0:
+            object.__setattr__(self, "force_node", self.node_id + FORCE_NODE_OFFSET)
+
+    @property
+    def pillars(self) -> int:
+        return 1 if self.mode == "z" else 3
+
+
+@dataclass(frozen=True)
+class DriftConfig:
+    """Baseline-drift tracking: an EMA of the resistance of taxels not in contact."""
+
+    time_constant_s: float = 30.0
+    contact_N: float = 0.1  # a taxel with |F| above this is in contact: its baseline freezes
+
+
+@dataclass(frozen=True)
+class HostConfig:
+    patches: tuple[PatchConfig, ...]
+    sync_period_ms: float = 10.0
+    sync_window_ms: float = 0.0  # 0 in the constructor means 80 % of the period
+    sync_counter: bool = True
+    heartbeat_ms: int = 100  # written to every patch's 0x1017; lost after ~1.5 periods
+    force_heartbeat_ms: int = 1000
+    sdo_timeout_ms: int = 1000
+    scan: bool = True
+    scan_ms: int = 200
+    other_nodes: tuple[int, ...] = ()
+    tare_threshold_N: float = 0.05
+    queue_size: int = 1024
+    listen_only: bool = False  # follow another master's patches; transmit nothing
+    drift: DriftConfig | None = None
+    source: str = field(default="<config>", compare=False)
+
+    def __post_init__(self) -> None:
+        if self.sync_window_ms == 0.0:
+            object.__setattr__(self, "sync_window_ms", 0.8 * self.sync_period_ms)
+
+    def patch(self, node_id: int) -> PatchConfig:
+        for patch in self.patches:
+            if patch.node_id == node_id:
+                return patch
+        raise KeyError(node_id)
+
+    def check(self) -> HostConfig:
+        """Every check of :func:`load_host_config`; returns the config with decoder names
+        resolved (``""`` -> the model file's name or ``"analytic"``)."""
+        patches = tuple(_check_patch(p, f"patches[{i}]") for i, p in enumerate(self.patches))
+        return _checked(replace(self, patches=patches))
+
+
+def predefined_tpdo_cob_ids(node_id: int) -> tuple[int, ...]:
+    """TPDO 1..7 of the patch and force EDS: 0x180..0x480 and 0x200..0x400 + node-ID."""
+    return tuple(base + node_id for base in _TPDO_BASES)
+
+
+def node_cob_ids(node_id: int) -> dict[int, str]:
+    """Every COB-ID a CANopen node may transmit on in the predefined connection set."""
+    ids = {0x080 + node_id: "EMCY", 0x580 + node_id: "SDO tx", 0x600 + node_id: "SDO rx",
+           0x700 + node_id: "heartbeat"}
+    for n, base in enumerate(_TPDO_BASES[:4], start=1):
+        ids[base + node_id] = f"TPDO {n}"
+    for n, base in enumerate(_RPDO_BASES, start=1):
+        ids.setdefault(base + node_id, f"RPDO {n}")
+    return ids
+
+
+def force_cob_ids(patch: PatchConfig) -> frozenset[int]:
+    """Every COB-ID the force node of ``patch`` transmits on: its TPDOs as configured,
+    EMCY, SDO responses and heartbeat."""
+    node = patch.force_node
+    tpdos = patch.force_cob_ids or predefined_tpdo_cob_ids(node)
+    return frozenset({0x080 + node, 0x580 + node, 0x700 + node, *tpdos})
+
+
+def restricted(cob_id: int) -> bool:
+    """A COB-ID CiA 301 reserves for other services (no PDO may use it)."""
+    return any(lo <= cob_id <= hi for lo, hi in _RESTRICTED)
+
+
+def check_cob_ids(config: HostConfig) -> None:
+    """Refuse a config in which two transmitters could share a COB-ID."""
+    owner: dict[int, str] = {NMT: "NMT", SYNC: "SYNC", TIME: "TIME"}
+    nodes: dict[int, str] = {}
+
+    def claim_node(node_id: int, where: str) -> None:
+        if node_id in nodes:
+            raise ConfigError(where, f"node-ID {node_id} is also {nodes[node_id]}")
+        nodes[node_id] = where
+
+    def claim(cob_id: int, what: str, where: str) -> None:
+        if cob_id in owner:
+            raise ConfigError(where, f"0x{cob_id:03X} ({what}) is also {owner[cob_id]}")
+        owner[cob_id] = what
+
+    for i, node in enumerate(config.other_nodes):
+        claim_node(node, f"host.other_nodes[{i}]")
+    for i, patch in enumerate(config.patches):
+        claim_node(patch.node_id, f"patches[{i}].node_id")
+        claim_node(patch.force_node, f"patches[{i}].force_node")
+    for i, node in enumerate(config.other_nodes):
+        for cob_id, service in node_cob_ids(node).items():
+            claim(cob_id, f"host.other_nodes[{i}] {service}", f"host.other_nodes[{i}]")
+    for i, patch in enumerate(config.patches):
+        where = f"patches[{i}]"
+        own = {**node_cob_ids(patch.node_id), **_tpdos(predefined_tpdo_cob_ids(patch.node_id))}
+        for cob_id, service in own.items():
+            claim(cob_id, f"{where}.node_id {service}", f"{where}.node_id")
+    for i, patch in enumerate(config.patches):
+        where = f"patches[{i}]"
+        services = node_cob_ids(patch.force_node)
+        default_tpdos = predefined_tpdo_cob_ids(patch.force_node)
+        for cob_id in set(services) - set(default_tpdos):
+            claim(cob_id, f"{where}.force_node {services[cob_id]}", f"{where}.force_node")
+        if patch.force_cob_ids is None:
+            for cob_id, service in _tpdos(default_tpdos).items():
+                claim(cob_id, f"{where}.force_node {service}", f"{where}.force_node")
+        else:
+            for k, cob_id in enumerate(patch.force_cob_ids):
+                claim(cob_id, f"{where}.force_node TPDO {k + 1}", f"{where}.force_cob_ids[{k}]")
+
+
+def _tpdos(cob_ids: tuple[int, ...]) -> dict[int, str]:
+    return {cob_id: f"TPDO {n}" for n, cob_id in enumerate(cob_ids, start=1)}
+
+
+def load_host_config(path: str | os.PathLike[str]) -> HostConfig:
+    """Read and check a host config file; model paths are relative to the file's folder."""
+    where = os.fspath(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError as err:
+        raise ConfigError("config", f"no such file {where!r}") from err
+    except OSError as err:
+        raise ConfigError("config", f"cannot read {where!r}: {err.strerror}") from err
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError("config", f"{where}: not valid TOML: {err}") from err
+    return host_config_from_dict(data, base=Path(path).parent, source=where)
+
+
+def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
+                          source: str = "<config>") -> HostConfig:
+    """Validate a parsed TOML document into a :class:`HostConfig`."""
+    _known(data, ("host", "drift", "patches"), "config")
+    host = data.get("host", {})
+    if not isinstance(host, dict):
+        raise ConfigError("host", "must be a table ([host])")
+    _known(host, _HOST_FIELDS, "host")
+    kwargs: dict[str, Any] = {}
+    for key, value in host.items():
+        kind = _HOST_FIELDS[key]
+        if key == "other_nodes":
+            kwargs[key] = tuple(_int_list(value, "host.other_nodes"))
+        else:
+            kwargs[key] = _typed(value, kind, f"host.{key}")
+    drift = data.get("drift")
+    if drift is not None:
+        if not isinstance(drift, dict):
+            raise ConfigError("drift", "must be a table ([drift])")
+        _known(drift, ("time_constant_s", "contact_N"), "drift")
+        kwargs["drift"] = DriftConfig(**{k: _typed(v, float, f"drift.{k}")
+                                         for k, v in drift.items()})
+    tables = data.get("patches")
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        raise ConfigError("patches", "missing: list the patches as [[patches]] tables")
+    patches = tuple(_patch(t, f"patches[{i}]", base) for i, t in enumerate(tables))
+    return _checked(HostConfig(patches=patches, source=source, **kwargs))
+
+
+def _checked(config: HostConfig) -> HostConfig:
+    _check_host(config)
+    check_cob_ids(config)
+    return config
+
+
+_HOST_FIELDS: dict[str, type] = {
+    "sync_period_ms": float, "sync_window_ms": float, "sync_counter": bool,
+    "heartbeat_ms": int, "force_heartbeat_ms": int, "sdo_timeout_ms": int, "scan": bool,
+    "scan_ms": int, "other_nodes": list, "tare_threshold_N": float, "queue_size": int,
+    "listen_only": bool,
+}
+_PATCH_FIELDS = ("node_id", "decoder", "model", "mode", "force_node", "force_cob_ids",
+                 "constants", "r0_ohm")
+# What a patch reports about itself: 0x2001 (LSB) and 0x2003 (adc_bits is not reported).
+CONSTANT_KEYS = ("resistance_lsb_ohm", "youngs_modulus_pa", "resistivity_ohm_m", "length_m",
+                 "area_m2", "max_strain", "full_scale_force_N", "taxel_pitch_m")
+
+
+def _patch(table: dict[str, Any], where: str, base: Path) -> PatchConfig:
+    _known(table, _PATCH_FIELDS, where)
+    if "node_id" not in table:
+        raise ConfigError(f"{where}.node_id", "missing")
+    kwargs: dict[str, Any] = {"node_id": _typed(table["node_id"], int, f"{where}.node_id")}
+    for key in ("decoder", "mode"):
+        if key in table:
+            kwargs[key] = _typed(table[key], str, f"{where}.{key}")
+    if "force_node" in table:
+        kwargs["force_node"] = _typed(table["force_node"], int, f"{where}.force_node")
+    if "force_cob_ids" in table:
+        kwargs["force_cob_ids"] = tuple(_int_list(table["force_cob_ids"],
+                                                  f"{where}.force_cob_ids"))
+    if "model" in table:
+        model = Path(_typed(table["model"], str, f"{where}.model"))
+        kwargs["model"] = model if model.is_absolute() else base / model
+    if "constants" in table:
+        kwargs["constants"] = _constants(table["constants"], f"{where}.constants")
+    if "r0_ohm" in table:
+        values = table["r0_ohm"]
+        if not isinstance(values, list):
+            raise ConfigError(f"{where}.r0_ohm", f"must be a list of numbers, got "
+                              f"{type(values).__name__}")
+        kwargs["r0_ohm"] = tuple(_typed(v, float, f"{where}.r0_ohm[{k}]")
+                                 for k, v in enumerate(values))
+    patch = PatchConfig(**kwargs)
+    return _check_patch(patch, where)
+
+
+def _constants(table: Any, where: str) -> SensorConstants:
+    if not isinstance(table, dict):
+        raise ConfigError(where, "must be a table of sensor constants")
+    _known(table, CONSTANT_KEYS, where)
+    values = {key: _typed(value, float, f"{where}.{key}") for key, value in table.items()}
+    try:
+        return SensorConstants(**values)
+    except ConfigError as err:
+        raise ConfigError(f"{where}.{err.field}", err.problem) from err
+
+
+def _check_patch(patch: PatchConfig, where: str) -> PatchConfig:
+    _node_id(patch.node_id, f"{where}.node_id")
+    _node_id(patch.force_node, f"{where}.force_node")
+    if patch.mode not in MODES:
+        raise ConfigError(f"{where}.mode", f"must be one of {', '.join(MODES)}, got {patch.mode!r}")
+    if patch.force_cob_ids is not None:
+        if len(patch.force_cob_ids) != TPDO_COUNT:
+            raise ConfigError(f"{where}.force_cob_ids", f"must list {TPDO_COUNT} COB-IDs "
+                              f"(TPDO 1..{TPDO_COUNT}), got {len(patch.force_cob_ids)}")
+        for k, cob_id in enumerate(patch.force_cob_ids):
+            if not 0 < cob_id <= 0x7FF or restricted(cob_id):
+                raise ConfigError(f"{where}.force_cob_ids[{k}]",
+                                  f"0x{cob_id:X} is not an 11-bit COB-ID a PDO may use")
+    if patch.r0_ohm is not None:
+        if len(patch.r0_ohm) not in (3, 3 * TAXELS_PER_PATCH):
+            raise ConfigError(f"{where}.r0_ohm", "must list 27 values (taxel 0 z, x, y, taxel "
+                              f"1 ...) or 3 (z, x, y of every taxel), got {len(patch.r0_ohm)}")
+        for k, value in enumerate(patch.r0_ohm):
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"{where}.r0_ohm[{k}]", f"must be > 0 ohm, got {value!r}")
+    return _check_decoder(patch, where)
+
+
+def _check_decoder(patch: PatchConfig, where: str) -> PatchConfig:
+    if patch.model is None:
+        name = patch.decoder or "analytic"
+        try:
+            cls = decoder_class(name)
+        except ConfigError as err:
+            raise ConfigError(f"{where}.decoder", err.problem) from err
+        _check_unfitted(cls, patch.pillars, where)
+        return replace(patch, decoder=name)
+    if not patch.model.is_file():
+        raise ConfigError(f"{where}.model", f"no such file {os.fspath(patch.model)!r}")
+    try:
+        model = load_decoder(patch.model)
+    except ModelFileError as err:
+        raise ConfigError(f"{where}.model", str(err)) from err
+    if patch.decoder and patch.decoder != model.name:
+        raise ConfigError(f"{where}.decoder", f"{patch.decoder!r} but the model file holds "
+                          f"a {model.name!r} model")
+    pillars = getattr(model, "pillars_", None)
+    if pillars is not None and pillars != patch.pillars:
+        raise ConfigError(f"{where}.mode", f"{patch.mode!r} reads {patch.pillars} pillar(s) "
+                          f"but the model was fitted on {pillars}")
+    return replace(patch, decoder=model.name)
+
+
+def _check_unfitted(cls: type[Decoder], pillars: int, where: str) -> None:
+    """A decoder used without a model file must decode as built (e.g. ``analytic``)."""
+    rest = np.broadcast_to(DEFAULT_CONSTANTS.nominal_resistance_ohm[:pillars], (1, 9, pillars))
+    try:
+        cls().decode(rest)
+    except NotFittedError as err:
+        raise ConfigError(f"{where}.model", f"decoder {cls.name!r} must be fitted: give the "
+                          "model file it was trained into") from err
+
+
+def _check_host(config: HostConfig) -> None:
+    if not config.patches:
+        raise ConfigError("patches", "the host needs at least one [[patches]]")
+    for name in ("sync_period_ms", "sync_window_ms", "tare_threshold_N"):
+        value = getattr(config, name)
+        if not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"host.{name}", f"must be > 0, got {value!r}")
+    if config.sync_window_ms > config.sync_period_ms:
+        raise ConfigError("host.sync_window_ms", f"{config.sync_window_ms:g} is longer than "
+                          f"the SYNC period {config.sync_period_ms:g}")
+    for name, low in (("heartbeat_ms", 1), ("force_heartbeat_ms", 0), ("sdo_timeout_ms", 1),
+                      ("scan_ms", 0), ("queue_size", 1)):
+        value = getattr(config, name)
+        if not low <= value <= (0xFFFF if name.endswith("heartbeat_ms") else 10**9):
+            raise ConfigError(f"host.{name}", f"out of range: {value!r}")
+    for i, node in enumerate(config.other_nodes):
+        _node_id(node, f"host.other_nodes[{i}]")
+    if config.drift is not None:
+        for name in ("time_constant_s", "contact_N"):
+            value = getattr(config.drift, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"drift.{name}", f"must be > 0, got {value!r}")
+
+
+def _node_id(value: int, where: str) -> None:
+    if not 1 <= value <= 127:
+        raise ConfigError(where, f"must be a node-ID in 1..127, got {value!r}")
+
+
+def _known(table: Mapping[str, Any], known: Mapping[str, Any] | tuple[str, ...],
+           where: str) -> None:
+    for key in table:
+        if key not in known:
+            raise ConfigError(f"{where}.{key}" if where != "config" else key,
+                              f"unknown key; known: {', '.join(sorted(known))}")
+
+
+def _typed(value: Any, kind: type, where: str) -> Any:
+    if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
+        if not math.isfinite(value):
+            raise ConfigError(where, f"must be a finite number, got {value!r}")
+        return float(value)
+    if kind is bool and isinstance(value, bool):
+        return value
+    if kind in (int, str) and isinstance(value, kind) and not isinstance(value, bool):
+        return value
+    raise ConfigError(where, f"must be {kind.__name__}, got {type(value).__name__} {value!r}")
+
+
+def _int_list(value: Any, where: str) -> list[int]:
+    if not isinstance(value, list):
+        raise ConfigError(where, f"must be a list of integers, got {type(value).__name__}")
+    return [_typed(v, int, f"{where}[{k}]") for k, v in enumerate(value)]

@@ -1,0 +1,158 @@
+"""Configuring one patch over SDO: read its constants, write its TPDO mapping and heartbeat.
+
+The host reads 0x2001 (resistance LSB), 0x2002 (nominal resistances R0) and 0x2003
+(sensor constants), writes the TPDO mapping of the decoder's mode with the CiA 301
+sequence (invalidate, sub-index 0 = 0, entries, sub-index 0 = count, validate; unused
+TPDOs invalid), synchronous transmission (type 1), and the producer heartbeat time
+0x1017. The :class:`~canbus.pdo_codec.PdoCodec` is built from what was written, so the
+data plane decodes exactly the layout the patch was told to send.
+
+A listen-only host (another master configures the patches) builds the same
+:class:`PatchSetup` without SDO: :func:`patch_info` is what :func:`read_patch_info` would
+read from a patch with given constants (every value through REAL32, as the patch stores
+it), and :func:`plan_setup` is the mapping :func:`setup_patch` writes for a mode.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import canopen
+import numpy as np
+from canopen.sdo.client import SdoClient
+from numpy.typing import ArrayLike, NDArray
+
+from canbus.hostconfig import TPDO_COUNT, predefined_tpdo_cob_ids
+from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM, TPDO_MAP, MappedEntry, PdoCodec, TpdoLayout
+from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
+
+RESISTANCES, LSB, NOMINAL, CONSTANTS = 0x2000, 0x2001, 0x2002, 0x2003
+HEARTBEAT_TIME = 0x1017
+SYNCHRONOUS = 1  # transmission type: every SYNC
+ENTRIES_PER_TPDO = 4  # 4 x UNSIGNED16 = 8 bytes
+CONSTANT_FIELDS = ("youngs_modulus_pa", "resistivity_ohm_m", "length_m", "area_m2",
+                   "max_strain", "full_scale_force_N", "taxel_pitch_m")
+"""0x2003 sub-indexes 1..7, in order (eds/skin-patch.eds)."""
+_U8, _U16, _U32, _F32 = struct.Struct("<B"), struct.Struct("<H"), struct.Struct("<I"), \
+    struct.Struct("<f")
+
+
+@dataclass(frozen=True)
+class PatchInfo:
+    """What a patch says about itself."""
+
+    node_id: int
+    lsb_ohm: float
+    r0_ohm: NDArray[np.float64]  # (9, 3) pillars z, x, y
+    constants: SensorConstants
+
+
+@dataclass(frozen=True)
+class PatchSetup:
+    """A configured patch: its info, the mode the host mapped and the codec of that mapping."""
+
+    info: PatchInfo
+    mode: str
+    layouts: tuple[TpdoLayout, ...]
+    codec: PdoCodec
+
+    @property
+    def pillars(self) -> int:
+        return 1 if self.mode == "z" else 3
+
+
+def _real32(value: float) -> float:
+    """The shortest decimal of a REAL32: 0.4f reads back as 0.4, not 0.4000000059604645."""
+    return float(str(np.float32(value)))
+
+
+def read_patch_info(sdo: SdoClient, node_id: int) -> PatchInfo:
+    """Upload 0x2001, 0x2002 (27 values) and 0x2003 (E, rho, L, S, max strain, full-scale
+    force, taxel pitch: eds/skin-patch.eds)."""
+
+    def real(index: int, subindex: int) -> float:
+        return float(_F32.unpack(sdo.upload(index, subindex)[:4])[0])
+
+    return _reported(node_id, real(LSB, 0), [real(NOMINAL, k) for k in range(1, 28)],
+                     [real(CONSTANTS, s) for s in range(1, len(CONSTANT_FIELDS) + 1)])
+
+
+def patch_info(node_id: int, constants: SensorConstants = DEFAULT_CONSTANTS,
+               r0_ohm: ArrayLike | None = None) -> PatchInfo:
+    """What :func:`read_patch_info` reads from a patch holding ``constants`` and ``r0_ohm``
+    (``(9, 3)`` or anything that broadcasts to it, pillars z, x, y; default the nominal
+    R0 of ``constants``, as a patch reports at power-on), without asking it."""
+    r0 = constants.nominal_resistance_ohm if r0_ohm is None else r0_ohm
+    table = np.broadcast_to(np.asarray(r0, dtype=np.float64), (TAXELS_PER_PATCH, 3))
+    return _reported(node_id, constants.resistance_lsb_ohm, table.reshape(-1).tolist(),
+                     [float(getattr(constants, name)) for name in CONSTANT_FIELDS])
+
+
+def _reported(node_id: int, lsb: float, r0: list[float], fields: list[float]) -> PatchInfo:
+    """A patch's info from its values as REAL32 (0x2001, 0x2002 sub 1..27, 0x2003 sub 1..7),
+    each read back as its shortest decimal."""
+    lsb = _real32(lsb)
+    table = np.array([_real32(v) for v in r0], dtype=np.float64).reshape(TAXELS_PER_PATCH, 3)
+    e, rho, length, area, strain, full_scale, pitch = (_real32(v) for v in fields)
+    constants = SensorConstants(youngs_modulus_pa=e, resistivity_ohm_m=rho, length_m=length,
+                                area_m2=area, max_strain=strain, resistance_lsb_ohm=lsb,
+                                full_scale_force_N=full_scale, taxel_pitch_m=pitch)
+    return PatchInfo(node_id, lsb, table, constants)
+
+
+def tpdo_layouts(node_id: int, mode: str) -> tuple[TpdoLayout, ...]:
+    """The mapping for ``mode``: xyz = 27 codes, 4 per TPDO, in TPDO 1..7; z = pillar z of
+    each taxel, one grid row (3 taxels) per TPDO, in TPDO 1..3. Predefined COB-IDs."""
+    if mode == "xyz":
+        subs = list(range(1, 28))
+        groups = [subs[k:k + ENTRIES_PER_TPDO] for k in range(0, 27, ENTRIES_PER_TPDO)]
+    elif mode == "z":
+        groups = [[3 * t + 1 for t in range(3 * row, 3 * row + 3)] for row in range(3)]
+    else:
+        raise ValueError(f"mode must be 'z' or 'xyz', got {mode!r}")
+    cob_ids = predefined_tpdo_cob_ids(node_id)
+    return tuple(TpdoLayout(n + 1, cob_ids[n], tuple(MappedEntry(RESISTANCES, s, 16)
+                                                     for s in group))
+                 for n, group in enumerate(groups))
+
+
+def write_tpdo_mapping(sdo: SdoClient, node_id: int, layouts: tuple[TpdoLayout, ...]) -> None:
+    """Write ``layouts`` with the CiA 301 sequence; every other TPDO is invalidated."""
+    by_number = {layout.number: layout for layout in layouts}
+    defaults = predefined_tpdo_cob_ids(node_id)
+    for n in range(1, TPDO_COUNT + 1):
+        comm, mapping = TPDO_COMM + n - 1, TPDO_MAP + n - 1
+        layout = by_number.get(n)
+        cob_id = layout.cob_id if layout is not None else defaults[n - 1]
+        sdo.download(comm, 1, _U32.pack(cob_id | COB_ID_INVALID))
+        if layout is None:
+            continue
+        sdo.download(comm, 2, _U8.pack(SYNCHRONOUS))
+        sdo.download(mapping, 0, _U8.pack(0))
+        for s, entry in enumerate(layout.entries, start=1):
+            sdo.download(mapping, s, _U32.pack(entry.to_raw()))
+        sdo.download(mapping, 0, _U8.pack(len(layout.entries)))
+        sdo.download(comm, 1, _U32.pack(cob_id))
+
+
+def plan_setup(node_id: int, od: canopen.ObjectDictionary, mode: str,
+               info: PatchInfo) -> PatchSetup:
+    """The set-up :func:`setup_patch` makes for ``mode``: the TPDO layouts it writes and
+    their codec, for a patch that reports ``info``. Nothing is sent."""
+    layouts = tpdo_layouts(node_id, mode)
+    return PatchSetup(info, mode, layouts, PdoCodec(layouts, od))
+
+
+def setup_patch(node: canopen.RemoteNode, mode: str, *, heartbeat_ms: int) -> PatchSetup:
+    """Read the patch's info, map its TPDOs for ``mode`` and set its heartbeat.
+
+    The node should be PRE-OPERATIONAL (the caller sends the NMT command); SDO errors
+    (``canopen.SdoError``) propagate.
+    """
+    node_id = int(node.id or 0)
+    info = read_patch_info(node.sdo, node_id)
+    setup = plan_setup(node_id, node.object_dictionary, mode, info)
+    write_tpdo_mapping(node.sdo, node_id, setup.layouts)
+    node.sdo.download(HEARTBEAT_TIME, 0, _U16.pack(heartbeat_ms))
+    return setup

@@ -1,0 +1,363 @@
+"""What a node's PDOs carry, as named values in units, from its EDS and what the bus said.
+
+A :class:`NodeView` starts from the EDS defaults (``canbus.pdo_codec.read_defaults``) and
+follows the SDO values it is shown (:meth:`NodeView.observe`): PDO communication and
+mapping parameters, the heartbeat time, the resistance LSB. So a mapping a master reads
+or writes by SDO is the mapping the view decodes with.
+
+Units: an EDS ``Factor``/``Unit`` (canopen reads both) applies to any node. The shipped
+products add theirs: a patch's resistance codes (0x2000) are ohms by its LSB (0x2001)
+with the reserved codes named (short, saturated, open); a force node's forces (0x2000,
+INTEGER16 mN) are newtons with 0x8000 as "no value"; taxel status bytes and the valid
+taxel mask (0x2005) are spelled out.
+
+:class:`Dictionary` chooses the EDS per node-ID: 1..64 the patch, 65..127 the force node
+(the host's default is patch node-ID + 64), unless told otherwise; an identity read by
+SDO (0x1018:02 product code) switches a node to the shipped EDS of that product.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+
+import canopen
+import numpy as np
+
+from canbus import codes
+from canbus.od import load_od
+from canbus.pdo_codec import PdoCodec, Reader, TpdoLayout, read_defaults, read_layouts
+from skin.errors import ConfigError
+
+PATCH_PRODUCT, FORCES_PRODUCT = 1, 2
+SHIPPED_BY_PRODUCT = {PATCH_PRODUCT: "skin-patch", FORCES_PRODUCT: "skin-forces"}
+RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
+NO_FORCE = -0x8000
+_PDO_LAST = 0x1BFF  # RPDO/TPDO communication and mapping parameters: 0x1400..0x1BFF
+_PATCH_UNITS = {0x2001: "Ω", 0x2002: "Ω"}
+_PATCH_CONSTANT_UNITS = ("Pa", "Ω·m", "m", "m²", "", "N", "m")  # 0x2003 sub 1..7
+_PILLARS, _AXES = "zxy", "xyz"
+EdsChoice = str | os.PathLike[str]
+
+
+@dataclass(frozen=True, slots=True)
+class NamedValue:
+    """One mapped variable of a PDO: a short name, its value in ``unit`` and as text."""
+
+    name: str
+    value: float | None
+    unit: str
+    text: str
+
+
+@dataclass(frozen=True, slots=True)
+class PdoEntry:
+    """A PDO the node sends (``TPDO``) or receives (``RPDO``), with its own codec."""
+
+    kind: str
+    layout: TpdoLayout
+    codec: PdoCodec
+
+    @property
+    def label(self) -> str:
+        return f"{self.kind}{self.layout.number}"
+
+
+def shipped_default(node_id: int) -> str:
+    """The shipped EDS a node-ID gets unless told otherwise."""
+    return "skin-patch" if node_id <= 64 else "skin-forces"
+
+
+class NodeView:
+    """One node's object dictionary plus the values seen on the bus.
+
+    ``od`` may have been loaded for another node-ID, ``od_node_id``, of the same EDS (it is
+    only read): defaults the EDS gives relative to ``$NODEID`` are moved to this node.
+    """
+
+    def __init__(self, node_id: int, od: canopen.ObjectDictionary,
+                 od_node_id: int | None = None) -> None:
+        self.node_id = node_id
+        self.od = od
+        self._shift = node_id - (node_id if od_node_id is None else od_node_id)
+        info = od.device_information
+        self.product = int(info.product_number or 0)
+        self.name = {PATCH_PRODUCT: "patch", FORCES_PRODUCT: "forces"}.get(self.product, "node")
+        self.seen: dict[tuple[int, int], int] = {}
+        self.heartbeat_ms: int | None = self._default(0x1017, 0)
+        lsb = self._variable(0x2001, 0)
+        self.lsb_ohm = float(lsb.default) if self.product == PATCH_PRODUCT and lsb is not None \
+            and lsb.default is not None else 0.05
+        self.pdos: dict[int, PdoEntry] = {}
+        self._namers: dict[tuple[int, int], Callable[[float], NamedValue]] = {}
+        self._rebuild()
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} {self.node_id}"
+
+    def observe(self, index: int, subindex: int, raw: bytes) -> bool:
+        """A value of ``index:subindex`` seen in an SDO transfer; True if the PDO table changed."""
+        var = self._variable(index, subindex)
+        if var is None:
+            return False
+        try:
+            value = var.decode_raw(raw[: _size(var) or len(raw)])
+        except (ValueError, TypeError, IndexError, UnicodeDecodeError):
+            return False
+        if index == 0x1017 and subindex == 0 and isinstance(value, int):
+            self.heartbeat_ms = value
+        if index == 0x2001 and self.product == PATCH_PRODUCT and isinstance(value, float):
+            self.lsb_ohm = value
+            self._namers.clear()
+        if not RPDO_COMM <= index <= _PDO_LAST or not isinstance(value, int):
+            return False
+        self.seen[(index, subindex)] = value
+        return self._rebuild()
+
+    def decode_pdo(self, cob_id: int, data: bytes) -> list[NamedValue] | None:
+        """The named values of PDO ``cob_id``; None if the node has no such PDO or it is short."""
+        return self.decode_pdos(cob_id, [data])[0]
+
+    def decode_pdos(self, cob_id: int, payloads: Sequence[bytes]
+                    ) -> list[list[NamedValue] | None]:
+        """Many frames of one PDO at once (one numpy unpack); None for a frame too short."""
+        out: list[list[NamedValue] | None] = [None] * len(payloads)
+        entry = self.pdos.get(cob_id)
+        if entry is None:
+            return out
+        whole = [k for k, p in enumerate(payloads) if len(p) >= entry.layout.size]
+        if not whole:
+            return out
+        joined = b"".join(bytes(payloads[k][:8]).ljust(8, b"\0") for k in whole)
+        values = entry.codec.unpack(np.frombuffer(joined, dtype=np.uint8).reshape(-1, 1, 8))
+        namers = [self.namer(index, subindex) for index, subindex in entry.codec.variables]
+        for k, row in zip(whole, values.tolist(), strict=True):
+            out[k] = [name(value) for name, value in zip(namers, row, strict=True)]
+        return out
+
+    def named(self, index: int, subindex: int, value: float) -> NamedValue:
+        """``value`` (as the object holds it) of ``index:subindex`` in its unit."""
+        return self.namer(index, subindex)(value)
+
+    def namer(self, index: int, subindex: int) -> Callable[[float], NamedValue]:
+        """The function that names and scales values of ``index:subindex`` (cached)."""
+        key = (index, subindex)
+        if key not in self._namers:
+            self._namers[key] = self._make_namer(index, subindex)
+        return self._namers[key]
+
+    def _make_namer(self, index: int, subindex: int) -> Callable[[float], NamedValue]:
+        product = self.product
+        if product == PATCH_PRODUCT and index == 0x2000 and subindex:
+            taxel, pillar = divmod(subindex - 1, 3)
+            name, lsb = f"R{taxel}{_PILLARS[pillar]}", self.lsb_ohm
+            return lambda value: _resistance(name, int(value), lsb)
+        if product == FORCES_PRODUCT and index == 0x2000 and subindex:
+            taxel, axis = divmod(subindex - 1, 3)
+            return functools.partial(_force, f"F{taxel}{_AXES[axis]}")
+        if product in SHIPPED_BY_PRODUCT and index == 0x2004 and subindex:
+            return lambda value: _status(f"S{subindex - 1}", int(value))
+        if product == FORCES_PRODUCT and index == 0x2005:
+            return _valid_taxels
+        if index == 0x1001:
+            return lambda value: NamedValue("ER", value, "", f"ER=0x{int(value):02X}")
+        var = self._variable(index, subindex)
+        name = var.name if var is not None else f"0x{index:04X}:{subindex:02X}"
+        factor = var.factor if var is not None else 1.0
+        unit = (var.unit if var is not None else "") or _CIA301_UNITS.get(index, "")
+        if product == PATCH_PRODUCT and index in _PATCH_UNITS:
+            unit = _PATCH_UNITS[index]
+        if product == PATCH_PRODUCT and index == 0x2003 and 1 <= subindex <= 7:
+            unit = _PATCH_CONSTANT_UNITS[subindex - 1]
+        return functools.partial(_scaled, name, factor, unit)
+
+    def object_name(self, index: int, subindex: int) -> str:
+        """``0x1018:01 Identity object.Vendor-ID`` (the name if the EDS has the object)."""
+        var = self._variable(index, subindex)
+        where = f"0x{index:04X}:{subindex:02X}"
+        return f"{where} {var.qualname}" if var is not None else where
+
+    def format_raw(self, index: int, subindex: int, raw: bytes) -> str:
+        """An SDO value as the object's type says, in its unit where one is known."""
+        var = self._variable(index, subindex)
+        if var is None:
+            return raw.hex(" ")
+        try:
+            value = var.decode_raw(raw[: _size(var) or len(raw)])
+        except (ValueError, TypeError, IndexError, UnicodeDecodeError):
+            return raw.hex(" ")
+        if isinstance(value, str):
+            return repr(value)
+        if isinstance(value, bytes | bytearray):
+            return bytes(value).hex(" ")
+        if var.data_type == _UNSIGNED32 and index < 0x2000:
+            return f"0x{int(value):08X}"
+        return self.named(index, subindex, float(value)).text.split("=", 1)[1]
+
+    def _variable(self, index: int, subindex: int) -> canopen.objectdictionary.ODVariable | None:
+        try:
+            obj = self.od[index]
+        except KeyError:
+            return None
+        if isinstance(obj, canopen.objectdictionary.ODVariable):
+            return obj if subindex == 0 else None
+        if isinstance(obj, canopen.objectdictionary.ODArray) and subindex > 0:
+            count = obj[0].default  # canopen invents any sub-index of an ARRAY; we do not
+            if count is None or subindex > int(count):
+                return None
+        try:
+            return obj[subindex]
+        except KeyError:
+            return None
+
+    def _default(self, index: int, subindex: int) -> int | None:
+        var = self._variable(index, subindex)
+        return None if var is None or var.default is None else int(var.default)
+
+    def _reader(self) -> Reader:
+        defaults, shift = read_defaults(self.od), self._shift
+
+        def read(index: int, subindex: int) -> int:
+            key = (index, subindex)
+            if key in self.seen:
+                return self.seen[key]
+            var = self._variable(index, subindex)
+            relative = var is not None and var.relative
+            return defaults(index, subindex) + (shift if relative else 0)
+
+        return read
+
+    def _rebuild(self) -> bool:
+        read, table = self._reader(), {}
+        for kind, comm, mapping in (("TPDO", TPDO_COMM, TPDO_MAP), ("RPDO", RPDO_COMM, RPDO_MAP)):
+            count = 0
+            while comm + count in self.od and mapping + count in self.od:
+                count += 1
+            try:
+                layouts = read_layouts(read, count, comm=comm, mapping=mapping)
+                for layout in layouts:
+                    table[layout.cob_id] = PdoEntry(kind, layout, PdoCodec([layout], self.od))
+            except (ConfigError, KeyError):
+                continue  # a mapping half-way through a rewrite: keep the rest
+        changed = {c: e.layout for c, e in table.items()} != \
+            {c: e.layout for c, e in self.pdos.items()}
+        self.pdos = table
+        return changed
+
+
+class Dictionary:
+    """Node-ID -> :class:`NodeView`, built on first use; ``assignments`` pin nodes' EDS.
+
+    Each EDS is parsed once (``canopen.import_od`` takes ~10 ms) and shared by the views
+    of every node that uses it, so a burst of new nodes does not stall the receive thread.
+    ``version`` grows whenever a view appears or a view's PDO table changes.
+    """
+
+    def __init__(self, assignments: Mapping[int, EdsChoice] | None = None) -> None:
+        self.assignments: dict[int, EdsChoice] = dict(assignments or {})
+        self._views: dict[int, NodeView | None] = {}
+        self._ods: dict[str, tuple[canopen.ObjectDictionary, int]] = {}
+        self.version = 0
+
+    def view(self, node_id: int) -> NodeView | None:
+        """The node's view, or None for a node-ID outside 1..127."""
+        if node_id in self._views:
+            return self._views[node_id]
+        view = None
+        if 1 <= node_id <= 127:
+            view = self._new_view(node_id, self.assignments.get(node_id,
+                                                                shipped_default(node_id)))
+        self._views[node_id] = view
+        self.version += 1
+        return view
+
+    def _new_view(self, node_id: int, eds: EdsChoice) -> NodeView:
+        key = os.fspath(eds)
+        if key not in self._ods:
+            self._ods[key] = (load_od(eds, node_id), node_id)
+        od, od_node_id = self._ods[key]
+        return NodeView(node_id, od, od_node_id)
+
+    def observe(self, node_id: int, index: int, subindex: int, raw: bytes) -> None:
+        """Feed an SDO value to the node's view (and follow an identity it reveals)."""
+        view = self.view(node_id)
+        if view is None:
+            return
+        if (index, subindex) == (0x1018, 2) and node_id not in self.assignments:
+            product = int.from_bytes(raw[:4], "little")
+            if product in SHIPPED_BY_PRODUCT and product != view.product:
+                self._views[node_id] = self._new_view(node_id, SHIPPED_BY_PRODUCT[product])
+                self.version += 1
+                return
+        if view.observe(index, subindex, raw):
+            self.version += 1
+
+
+def parse_assignment(text: str) -> dict[int, str]:
+    """``NODE=FILE`` or ``FIRST-LAST=FILE`` (FILE: a path or a shipped EDS name)."""
+    nodes, sep, eds = text.partition("=")
+    if not sep or not eds:
+        raise ConfigError("--eds", f"expected NODE=FILE or FIRST-LAST=FILE, got {text!r}")
+    first, _, last = nodes.partition("-")
+    try:
+        low, high = int(first, 0), int(last or first, 0)
+    except ValueError as err:
+        raise ConfigError("--eds", f"{nodes!r} is not a node-ID or range") from err
+    if not 1 <= low <= high <= 127:
+        raise ConfigError("--eds", f"node-IDs must be in 1..127, got {nodes!r}")
+    load_od(eds, low)  # fail now, with the file's own error, not in the receive thread
+    return dict.fromkeys(range(low, high + 1), eds)
+
+
+_UNSIGNED32 = 0x0007
+_CIA301_UNITS = {0x1006: "µs", 0x1007: "µs", 0x1017: "ms"}
+
+
+def _size(var: canopen.objectdictionary.ODVariable) -> int | None:
+    struct = canopen.objectdictionary.ODVariable.STRUCT_TYPES.get(int(var.data_type or 0))
+    return None if struct is None else int(struct.size)
+
+
+def _resistance(name: str, code: int, lsb_ohm: float) -> NamedValue:
+    if code == codes.OPEN:
+        return NamedValue(name, math.inf, "Ω", f"{name}=open")
+    if code == codes.SATURATED:
+        return NamedValue(name, math.inf, "Ω", f"{name}=saturated")
+    if code == codes.SHORT:
+        return NamedValue(name, 0.0, "Ω", f"{name}=short")
+    ohm = code * lsb_ohm
+    return NamedValue(name, ohm, "Ω", f"{name}={ohm:.2f} Ω")
+
+
+def _force(name: str, value: float) -> NamedValue:
+    if int(value) == NO_FORCE:
+        return NamedValue(name, None, "N", f"{name}=none")
+    return NamedValue(name, value / 1000.0, "N", f"{name}={value / 1000.0:+.3f} N")
+
+
+def _valid_taxels(value: float) -> NamedValue:
+    bits = int(value)
+    valid = bin(bits & 0x1FF).count("1")
+    complete = "" if bits & 0x8000 else " incomplete"
+    return NamedValue("valid", value, "", f"valid={valid}/9{complete}")
+
+
+def _scaled(name: str, factor: float, unit: str, value: float) -> NamedValue:
+    scaled = value * factor
+    number = f"{int(scaled)}" if float(scaled).is_integer() else f"{scaled:g}"
+    return NamedValue(name, scaled, unit, f"{name}={number}{' ' + unit if unit else ''}")
+
+
+def _status(name: str, status: int) -> NamedValue:
+    faults = [f"{p} {codes.FAULT_NAMES[(status >> (2 * k)) & 3]}"
+              for k, p in enumerate(_PILLARS) if (status >> (2 * k)) & 3]
+    return NamedValue(name, float(status), "", f"{name}={'ok' if not faults else ','.join(faults)}")
+
+
+def describe_taxel_fault(taxel: int, status: int) -> str:
+    """The manufacturer bytes of a patch EMCY (taxel, status byte) in words."""
+    return f"taxel {taxel}: {_status('', status).text.removeprefix('=')}"

@@ -1,0 +1,268 @@
+"""Read recordings back, checked frame by frame, and replay them onto a bus.
+
+Readers are python-can's (``CanutilsLogReader``, ``ASCReader``, ``BLFReader``) and our
+``canbus.pcap.PcapReader``. python-can's readers skip what they do not understand and
+stop quietly at a cut, so each is wrapped with the checks that make a damaged file an
+error, :class:`~skin.errors.RecordingError`, naming the first bad frame (1-based) and,
+for text files, its line. Nothing from that frame on is yielded, so nothing past it is
+replayed:
+
+- every frame: a valid identifier, a data length that matches the DLC (0..8, or a CAN FD
+  length), a finite timestamp;
+- .log and .asc: UTF-8, every line ends with a newline (a cut line is a truncated file);
+  every .log line is a ``candump -L`` frame; every .asc frame line yields a frame; an
+  .asc ends with ``End TriggerBlock``;
+- .blf: the file is as long as its header says; parse and zlib errors;
+- .pcap: see ``canbus.pcap``.
+
+A .log cut exactly at the end of a line is indistinguishable from a shorter recording.
+
+:class:`Replayer` sends a recording with its original timing (python-can's ``MessageSync``)
+or as fast as the bus takes it, once, N times or until stopped. The bus stamps what it
+sends (a virtual bus with its send time unless built with ``preserve_timestamps``), so a
+receiver sees the replay's time, as it would see a live bus's. To decode a recording,
+replay it to a listen-only host (``skin run CONFIG --listen-only``): it follows the
+recorded SYNCs, NMT commands, heartbeats and EMCYs and gives back the recorded run's
+forces.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import struct
+import threading
+import time
+import zlib
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, BinaryIO, TextIO, cast
+
+import can
+from can.io.blf import BLFParseError
+
+from canbus.pcap import FD_LENGTHS, PcapReader
+from skin.errors import ConfigError, RecordingError
+
+__all__ = ["READERS", "Recording", "RecordingError", "ReplayResult", "Replayer",
+           "recording_reader"]
+
+READERS: dict[str, Callable[..., can.io.generic.MessageReader]] = {
+    ".log": can.CanutilsLogReader, ".asc": can.ASCReader, ".blf": can.BLFReader,
+    ".pcap": PcapReader,
+}
+_LOG_LINE = re.compile(
+    r"\(\d+\.\d+\) \S+ (?:[0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})#"
+    r"(?:R\d?|#[0-9A-Fa-f](?:[0-9A-Fa-f]{2})*|(?:[0-9A-Fa-f]{2})*)(?: [RT])?\r?\n")
+_ASC_FRAME = re.compile(r"\s*\d+\.\d+\s+(?:\d+\s+[0-9A-Fa-f]+x?\s+(?:Rx|Tx)\s|\d+\s+ErrorFrame"
+                        r"|CANFD\s+\d+\s+(?:Rx|Tx)\s)")
+_READ_ERRORS = (ValueError, IndexError, KeyError, struct.error, zlib.error, BLFParseError,
+                UnicodeDecodeError)
+
+
+def recording_reader(path: str | os.PathLike[str], *, field: str = "FILE") -> str:
+    """The suffix of a recording we can read; ConfigError for any other (no file opened)."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in READERS:
+        raise ConfigError(field, f"unknown recording format {suffix or '(no suffix)'!r} of "
+                          f"{os.fspath(path)!r}; use one of {', '.join(READERS)}")
+    return suffix
+
+
+class _Lines:
+    """A text recording line by line for python-can's reader, with the checks it lacks."""
+
+    def __init__(self, path: Path, suffix: str, frames: Callable[[], int]) -> None:
+        self._file: BinaryIO = path.open("rb")
+        self._source = str(path)
+        self._suffix = suffix
+        self._frames = frames  # how many frames the reader has yielded so far
+        self.line = 0
+        self._frame_line: tuple[int, int] | None = None  # (line, frames before it)
+        self._last = ""
+
+    def __iter__(self) -> _Lines:
+        return self
+
+    def _fail(self, problem: str, line: int | None = None) -> RecordingError:
+        return RecordingError(self._source, self._frames() + 1,
+                              f"line {line or self.line}: {problem}")
+
+    def _check_skipped(self) -> None:
+        if self._frame_line is not None and self._frames() == self._frame_line[1]:
+            raise self._fail("a frame line that does not parse", self._frame_line[0])
+        self._frame_line = None
+
+    def __next__(self) -> str:
+        self._check_skipped()
+        raw = self._file.readline()
+        if not raw:
+            if self._suffix == ".asc" and self._last.strip().lower() != "end triggerblock":
+                raise RecordingError(self._source, self._frames() + 1,
+                                     "the file ends here without 'End TriggerBlock' "
+                                     "(truncated)")
+            raise StopIteration
+        self.line += 1
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as err:
+            raise self._fail(f"not UTF-8 text ({err.reason} at byte {err.start})") from err
+        if not text.endswith("\n"):
+            raise self._fail("cut short before its end of line (truncated file)")
+        if text.strip():
+            self._last = text
+            if self._suffix == ".log" and not _LOG_LINE.fullmatch(text):
+                raise self._fail(f"not a candump -L frame: {text.strip()[:60]!r}")
+            if self._suffix == ".asc" and _ASC_FRAME.match(text):
+                self._frame_line = (self.line, self._frames())
+        return text
+
+    def close(self) -> None:
+        self._file.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._file.closed
+
+
+class Recording:
+    """A recording opened and checked: iterate it for its messages (once per instance)."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        self.suffix = recording_reader(path)
+        self.frames = 0
+        self._lines: _Lines | None = None
+        source = str(self.path)
+        try:
+            if self.suffix in (".log", ".asc"):
+                self._lines = _Lines(self.path, self.suffix, lambda: self.frames)
+                self._reader = READERS[self.suffix](cast(TextIO, self._lines))
+            else:
+                self._reader = READERS[self.suffix](source)
+        except RecordingError:
+            raise
+        except _READ_ERRORS as err:
+            raise RecordingError(source, None, f"not a {self.suffix} file: {err}") from err
+
+    def __enter__(self) -> Recording:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._reader.stop()
+
+    def __iter__(self) -> Iterator[can.Message]:
+        source = str(self.path)
+        messages = iter(self._reader)
+        while True:
+            try:
+                msg = next(messages)
+            except StopIteration:
+                break
+            except RecordingError:
+                raise
+            except _READ_ERRORS as err:
+                where = f"line {self._lines.line}: " if self._lines is not None else ""
+                raise RecordingError(source, self.frames + 1,
+                                     f"{where}{type(err).__name__}: {err}") from err
+            problem = _problem(msg)
+            if problem is not None:
+                where = f"line {self._lines.line}: " if self._lines is not None else ""
+                raise RecordingError(source, self.frames + 1, where + problem)
+            self.frames += 1
+            yield msg
+        if self.suffix == ".blf":
+            expected = cast(can.BLFReader, self._reader).file_size
+            actual = self.path.stat().st_size
+            if actual < expected:
+                raise RecordingError(source, self.frames + 1, f"the file ends here, at {actual}"
+                                     f" of the {expected} bytes its header promises (truncated)")
+
+
+def _problem(msg: can.Message) -> str | None:
+    """What is wrong with a message read from a file, or None."""
+    if not math.isfinite(msg.timestamp):
+        return f"timestamp {msg.timestamp} is not finite"
+    if msg.is_error_frame:
+        return None
+    limit = 0x1FFF_FFFF if msg.is_extended_id else 0x7FF
+    if not 0 <= msg.arbitration_id <= limit:
+        return f"identifier 0x{msg.arbitration_id:X} is out of range"
+    length = len(msg.data)
+    if msg.is_fd:
+        return None if length in FD_LENGTHS else f"CAN FD length {length} is not an FD length"
+    if msg.is_remote_frame:
+        return None if 0 <= msg.dlc <= 8 else f"remote frame DLC {msg.dlc} is above 8"
+    if length > 8:
+        return f"{length} data bytes in a classic CAN frame"
+    if msg.dlc != length:
+        return f"DLC {msg.dlc} but {length} data bytes"
+    return None
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    frames_sent: int
+    error_frames_skipped: int
+    passes: int
+    seconds: float
+
+
+def _outgoing(msg: can.Message) -> can.Message:
+    return can.Message(
+        timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
+        is_extended_id=msg.is_extended_id, is_remote_frame=msg.is_remote_frame,
+        is_error_frame=msg.is_error_frame, is_fd=msg.is_fd, bitrate_switch=msg.bitrate_switch,
+        error_state_indicator=msg.error_state_indicator, dlc=msg.dlc, data=msg.data,
+        is_rx=False)
+
+
+class Replayer:
+    """Sends ``path`` onto ``bus``: ``passes`` times (0: until stopped), checked as it goes.
+
+    ``realtime`` keeps the recorded intervals (python-can's ``MessageSync``; pauses longer
+    than ``skip_s`` are cut to it); otherwise frames go as fast as ``bus.send`` takes
+    them. Error frames are sent only with ``error_frames`` (most interfaces cannot). The
+    counters are live, so a caller still knows what was sent when a damaged frame stops
+    the replay with RecordingError.
+    """
+
+    def __init__(self, bus: can.BusABC, path: str | os.PathLike[str], *, realtime: bool = True,
+                 passes: int = 1, skip_s: float = 60.0, error_frames: bool = False) -> None:
+        recording_reader(path)
+        self.bus, self.path = bus, path
+        self.realtime, self.passes, self.skip_s = realtime, passes, skip_s
+        self.error_frames = error_frames
+        self.sent = self.skipped = self.done = 0
+
+    def run(self, stop: threading.Event | None = None,
+            on_pass: Callable[[int, int], Any] | None = None) -> ReplayResult:
+        """Replay until the passes are done or ``stop`` is set; ``on_pass(pass, frames)``."""
+        started = time.monotonic()
+        while self.passes == 0 or self.done < self.passes:
+            with Recording(self.path) as recording:
+                messages: Any = recording if not self.realtime else \
+                    can.MessageSync(recording, timestamps=True, skip=self.skip_s)
+                for msg in messages:
+                    if stop is not None and stop.is_set():
+                        return self._result(started)
+                    if msg.is_error_frame and not self.error_frames:
+                        self.skipped += 1
+                        continue
+                    self.bus.send(_outgoing(msg))
+                    self.sent += 1
+            self.done += 1
+            if on_pass is not None:
+                on_pass(self.done, recording.frames)
+            if recording.frames == 0:
+                break  # an empty recording would loop for ever without sending anything
+        return self._result(started)
+
+    def _result(self, started: float) -> ReplayResult:
+        return ReplayResult(self.sent, self.skipped, self.done, time.monotonic() - started)
+

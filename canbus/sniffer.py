@@ -1,0 +1,351 @@
+"""Bus statistics for the sniffer: per COB-ID counts, rate and Δt, bus load, anomalies.
+
+:class:`Sniffer` is a ``can.Listener``. Its receive path does little per frame: a table
+lookup for the service (``canbus.services.route``), a few counters under a short lock,
+and the word decoding only for the rare management frames (NMT, EMCY, SDO, TIME, LSS,
+heartbeat state changes), which become events. PDO values are decoded only when a view
+asks for them, from the last frame of each COB-ID. A view reads :meth:`Sniffer.snapshot`
+(an immutable copy); it never holds up the receive path for longer than that copy.
+
+Bus load counts bits as ``skin plan`` does (``canbus.busload``): 47 + 8n bits per classic
+frame with an 11-bit id without stuffing, plus floor((34 + 8n - 1) / 4) stuff bits in the
+worst case; a 29-bit id adds 20 bits to the stuffed part (SRR, IDE and 18 more id bits);
+a remote frame carries no data bits; error frames are not counted.
+
+Anomalies:
+- missed SYNC cycles: gaps in the SYNC counter; without a counter, intervals longer
+  than 1.5 times the median of the last 8 are counted as that many periods;
+- incomplete samples: after a SYNC, a node that sent some PDOs in the cycle but not all it
+  sends in other cycles, or one of them twice (frames before the first SYNC are not judged);
+- heartbeat gaps: a node's heartbeat interval over 1.5 times the median of its last 8;
+- unknown COB-IDs: frames outside the predefined connection set, 29-bit ids, and PDOs that
+  no node's mapping (EDS defaults plus SDO values seen) explains;
+- error frames.
+"""
+
+from __future__ import annotations
+
+import statistics
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Collection
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import can
+
+from canbus.busload import classic_frame_bits, fd_frame_time_s, fd_length
+from canbus.services import Decoded, Route, Service, ServiceDecoder, route
+
+_MANAGEMENT = frozenset((Service.NMT, Service.EMCY, Service.SDO, Service.TIME, Service.LSS))
+_WINDOW = 8
+
+
+def frame_bits(msg: can.Message, bitrate: int, data_bitrate: int | None) -> tuple[float, float]:
+    """Bits one frame occupies on the wire at ``bitrate``: (no stuffing, worst-case stuffing)."""
+    data = 0 if msg.is_remote_frame else len(msg.data)
+    if msg.is_fd:
+        fast = (data_bitrate or bitrate) if msg.bitrate_switch else bitrate
+        length = fd_length(data)
+        return (bitrate * fd_frame_time_s(length, bitrate, fast, worst_case_stuffing=False),
+                bitrate * fd_frame_time_s(length, bitrate, fast, worst_case_stuffing=True))
+    best = classic_frame_bits(min(data, 8), worst_case_stuffing=False)
+    worst = classic_frame_bits(min(data, 8), worst_case_stuffing=True)
+    if msg.is_extended_id:
+        stuffed = 34 + 20 + 8 * min(data, 8)
+        best, worst = best + 20, stuffed + (stuffed - 1) // 4 + 13
+    return float(best), float(worst)
+
+
+class _Period:
+    """Judges an interval against the median of the last few."""
+
+    def __init__(self) -> None:
+        self.recent: deque[float] = deque(maxlen=_WINDOW)
+
+    def periods_missed(self, interval: float) -> int:
+        """0 for a normal interval, else how many periods it skipped (at least 1)."""
+        missed = 0
+        if self.recent:
+            typical = statistics.median(self.recent)
+            if typical > 0 and interval > 1.5 * typical:
+                missed = max(1, round(interval / typical) - 1)
+        self.recent.append(interval)
+        return missed
+
+
+@dataclass(slots=True)
+class _Cob:
+    route: Route
+    known: bool
+    version: int
+    count: int = 0
+    first: float = 0.0
+    last: float = 0.0
+    dt_last: float = 0.0
+    dt_min: float = float("inf")
+    dt_max: float = 0.0
+    msg: can.Message | None = None
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class CobRow:
+    """One COB-ID at the moment of a snapshot."""
+
+    cob_id: int
+    extended: bool
+    service: Service
+    node: int | None
+    label: str
+    count: int
+    first: float
+    last: float
+    dt_last_s: float
+    dt_min_s: float
+    dt_max_s: float
+    known: bool
+    last_msg: can.Message | None = field(compare=False, repr=False)
+    last_text: str = ""
+
+    @property
+    def route(self) -> Route:
+        return Route(self.service, self.node, self.label)
+
+    @property
+    def rate_hz(self) -> float:
+        """Mean frame rate between the first and the last frame."""
+        span = self.last - self.first
+        return (self.count - 1) / span if self.count > 1 and span > 0 else 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        mean_dt = (self.last - self.first) / (self.count - 1) if self.count > 1 else None
+        return {"cob_id": self.cob_id, "extended": self.extended, "service": str(self.service),
+                "node": self.node, "label": self.label, "frames": self.count,
+                "rate_hz": self.rate_hz, "dt_mean_s": mean_dt,
+                "dt_min_s": self.dt_min_s if self.count > 1 else None,
+                "dt_max_s": self.dt_max_s if self.count > 1 else None, "known": self.known}
+
+
+@dataclass(frozen=True)
+class Anomalies:
+    missed_sync: int = 0
+    incomplete_samples: int = 0
+    complete_samples: int = 0
+    heartbeat_gaps: int = 0
+    unknown_frames: int = 0
+    unknown_cob_ids: tuple[int, ...] = ()
+    error_frames: int = 0
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """Everything a view shows, copied at one instant."""
+
+    taken_at: float
+    frames: int
+    first: float | None
+    last: float | None
+    bits_best: float
+    bits_worst: float
+    bitrate: int
+    by_service: dict[str, int]
+    rows: tuple[CobRow, ...]
+    anomalies: Anomalies
+    events: tuple[Decoded, ...]
+    states: dict[int, str]
+
+    def load_pct(self, seconds: float) -> tuple[float, float]:
+        """Bus load over ``seconds``: (no stuffing, worst case) in %."""
+        if seconds <= 0:
+            return 0.0, 0.0
+        scale = 100.0 / (self.bitrate * seconds)
+        return self.bits_best * scale, self.bits_worst * scale
+
+    def to_dict(self, seconds: float) -> dict[str, Any]:
+        best, worst = self.load_pct(seconds)
+        return {"seconds": seconds, "frames": self.frames, "bitrate": self.bitrate,
+                "bus_load_pct": {"no_stuffing": best, "worst_case": worst},
+                "by_service": self.by_service, "anomalies": asdict(self.anomalies),
+                "nmt_states": {str(k): v for k, v in sorted(self.states.items())},
+                "cob_ids": [row.to_dict() for row in self.rows]}
+
+
+class FrameFilter:
+    """Which frames a view shows: by node-ID and by service (empty: all)."""
+
+    def __init__(self, nodes: Collection[int] = (), services: Collection[str] = ()) -> None:
+        self.nodes = frozenset(nodes)
+        self.services = frozenset(Service(s) for s in services)
+
+    def __call__(self, where: Route) -> bool:
+        if self.nodes and where.node not in self.nodes:
+            return False
+        return not self.services or where.service in self.services
+
+
+class Sniffer(can.Listener):
+    """Counts, times and judges every frame; decodes management frames into events."""
+
+    def __init__(self, decoder: ServiceDecoder | None = None, *, bitrate: int = 1_000_000,
+                 data_bitrate: int | None = None, events: int = 200,
+                 on_frame: Callable[[can.Message, Route, Decoded | None], None] | None = None
+                 ) -> None:
+        self.decoder = decoder or ServiceDecoder()
+        self.bitrate = bitrate
+        self.data_bitrate = data_bitrate
+        self.on_frame = on_frame
+        self._lock = threading.Lock()
+        self._cobs: dict[tuple[int, bool, bool], _Cob] = {}
+        self._bits: dict[tuple[int, bool, bool, bool, bool], tuple[float, float]] = {}
+        self._events: deque[Decoded] = deque(maxlen=events)
+        self._by_service: dict[str, int] = {}
+        self.frames = 0
+        self._first: float | None = None
+        self._last: float | None = None
+        self._best = self._worst = 0.0
+        self._missed_sync = self._incomplete = self._complete = 0
+        self._gaps = self._unknown = self._errors = 0
+        self._unknown_ids: set[int] = set()
+        self._sync_counter: int | None = None
+        self._sync_top = 0
+        self._sync_period = _Period()
+        self._last_sync: float | None = None
+        self._cycle: dict[int, set[int]] | None = None
+        self._duplicates: set[int] = set()
+        self._expected: dict[int, set[int]] = {}
+        self._heartbeats: dict[int, tuple[float | None, _Period, int | None]] = {}
+        self._states: dict[int | None, int] = {}
+
+    def on_message_received(self, msg: can.Message) -> None:
+        where = route(msg)
+        decoded = None
+        service = where.service
+        if service in _MANAGEMENT or (service is Service.HEARTBEAT and self._new_state(
+                where.node, msg)):
+            decoded = self.decoder.decode(msg, where)
+        with self._lock:
+            self._count(msg, where, decoded)
+        if self.on_frame is not None:
+            self.on_frame(msg, where, decoded)
+
+    def _new_state(self, node: int | None, msg: can.Message) -> bool:
+        """A heartbeat is an event when it is a boot-up or its state is new (receive thread)."""
+        state = msg.data[0] if len(msg.data) == 1 else -1
+        changed = state == 0 or self._states.get(node) != state
+        self._states[node] = state
+        return changed
+
+    def _count(self, msg: can.Message, where: Route, decoded: Decoded | None) -> None:
+        """Every counter one frame moves (lock held)."""
+        self.frames += 1
+        if self._first is None:
+            self._first = msg.timestamp
+        self._last = msg.timestamp
+        service = where.service
+        self._by_service[service] = self._by_service.get(service, 0) + 1
+        cob = self._cob(msg, where)
+        if decoded is not None:
+            cob.text = decoded.text
+            self._events.append(decoded)
+        if not msg.is_error_frame:
+            self._add_bits(msg)
+        if not cob.known:
+            self._unknown += 1
+            self._unknown_ids.add(msg.arbitration_id)
+        if service is Service.PDO and self._cycle is not None and where.node is not None:
+            seen = self._cycle.setdefault(where.node, set())
+            if msg.arbitration_id in seen:
+                self._duplicates.add(where.node)
+            seen.add(msg.arbitration_id)
+        elif service is Service.SYNC:
+            self._on_sync(msg)
+        elif service is Service.HEARTBEAT and where.node is not None:
+            self._on_heartbeat(where.node, msg)
+        elif service is Service.ERROR:
+            self._errors += 1
+
+    def _cob(self, msg: can.Message, where: Route) -> _Cob:
+        """The COB-ID's entry with this frame counted and timed."""
+        key = (msg.arbitration_id, msg.is_extended_id, msg.is_error_frame)
+        cob = self._cobs.get(key)
+        version = self.decoder.dictionary.version
+        if cob is None:
+            cob = self._cobs[key] = _Cob(where, self._known(msg, where), version,
+                                          first=msg.timestamp)
+        elif cob.version != version:  # an EDS or a PDO mapping changed: known again?
+            cob.known, cob.version = self._known(msg, where), version
+        if cob.count:
+            interval = msg.timestamp - cob.last
+            cob.dt_last = interval
+            cob.dt_min = min(cob.dt_min, interval)
+            cob.dt_max = max(cob.dt_max, interval)
+        cob.count += 1
+        cob.last = msg.timestamp
+        cob.msg = msg
+        return cob
+
+    def _add_bits(self, msg: can.Message) -> None:
+        key = (len(msg.data), msg.is_extended_id, msg.is_fd, msg.bitrate_switch,
+               msg.is_remote_frame)
+        bits = self._bits.get(key)
+        if bits is None:
+            bits = self._bits[key] = frame_bits(msg, self.bitrate, self.data_bitrate)
+        self._best += bits[0]
+        self._worst += bits[1]
+
+    def _known(self, msg: can.Message, where: Route) -> bool:
+        if where.service is Service.UNKNOWN:
+            return False
+        if where.service is Service.PDO and where.node is not None:
+            view = self.decoder.dictionary.view(where.node)
+            return view is not None and msg.arbitration_id in view.pdos
+        return True
+
+    def _on_sync(self, msg: can.Message) -> None:
+        if self._cycle is not None:
+            for node, seen in self._cycle.items():
+                expected = self._expected.setdefault(node, set())
+                if expected - seen or node in self._duplicates:
+                    self._incomplete += 1
+                else:
+                    self._complete += 1
+                expected |= seen
+        self._cycle, self._duplicates = {}, set()
+        if len(msg.data) == 1:
+            counter = msg.data[0]
+            if self._sync_counter is not None:
+                gap = counter - self._sync_counter - 1
+                self._missed_sync += gap if gap >= 0 else gap + self._sync_top
+            self._sync_counter, self._sync_top = counter, max(self._sync_top, counter)
+        elif self._last_sync is not None:
+            self._missed_sync += self._sync_period.periods_missed(msg.timestamp - self._last_sync)
+        self._last_sync = msg.timestamp
+
+    def _on_heartbeat(self, node: int, msg: can.Message) -> None:
+        view = self.decoder.dictionary.view(node)
+        period_ms = view.heartbeat_ms if view is not None else None
+        last, period, was_ms = self._heartbeats.get(node, (None, _Period(), period_ms))
+        if was_ms != period_ms:  # 0x1017 was written or read: a new period, judge afresh
+            period = _Period()
+        elif last is not None and period.periods_missed(msg.timestamp - last):
+            self._gaps += 1
+        if msg.data[:1] == b"\0":  # boot-up: the period starts over
+            self._heartbeats[node] = (None, _Period(), period_ms)
+        else:
+            self._heartbeats[node] = (msg.timestamp, period, period_ms)
+
+    def snapshot(self) -> Snapshot:
+        with self._lock:
+            rows = tuple(CobRow(cob_id, ext, c.route.service, c.route.node, c.route.label,
+                                c.count, c.first, c.last, c.dt_last, c.dt_min, c.dt_max,
+                                c.known, c.msg, c.text)
+                         for (cob_id, ext, _), c in sorted(self._cobs.items()))
+            anomalies = Anomalies(self._missed_sync, self._incomplete, self._complete,
+                                  self._gaps, self._unknown, tuple(sorted(self._unknown_ids)),
+                                  self._errors)
+            return Snapshot(time.monotonic(), self.frames, self._first, self._last, self._best,
+                            self._worst, self.bitrate, dict(self._by_service), rows, anomalies,
+                            tuple(self._events), dict(self.decoder.states))
+

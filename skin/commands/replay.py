@@ -1,0 +1,87 @@
+"""``skin replay FILE``: a recording (.log, .asc, .blf, .pcap) back onto a bus.
+
+The bus stamps what it sends, in both timings (the recorded timestamps are not carried:
+a consumer sees the bus's time, as it would live). To decode the forces of a recording,
+replay it to ``skin run CONFIG --listen-only`` on the same bus.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+
+def _replay(args: argparse.Namespace) -> int:
+    import can.cli
+    from can.interfaces.udp_multicast import UdpMulticastBus
+
+    from canbus.replay import Recording, RecordingError, Replayer
+    from skin.atomic import atomic_write
+    from skin.errors import ConfigError
+
+    if args.loop is not None and args.loop < 0:
+        raise ConfigError("--loop", f"must be 0 (for ever) or a positive count, got {args.loop}")
+    if not args.skip > 0:
+        raise ConfigError("--skip", f"must be positive, got {args.skip}")
+    with Recording(args.file):  # suffix and file header checked before the bus is opened
+        pass
+    if not hasattr(args, "channel"):
+        args.channel = ("skin" if args.interface == "virtual"
+                        else UdpMulticastBus.DEFAULT_GROUP_IPv4)
+    passes = 1 if args.loop is None else args.loop
+
+    def progress(done: int, frames: int) -> None:
+        if passes != 1:
+            print(f"pass {done}: {frames:,} frames", file=sys.stderr, flush=True)
+
+    with can.cli.create_bus_from_namespace(args) as bus:
+        replayer = Replayer(bus, args.file, realtime=not args.fast, passes=passes,
+                            skip_s=args.skip, error_frames=args.error_frames)
+        try:
+            result = replayer.run(on_pass=progress)
+        except RecordingError:
+            print(f"sent {replayer.sent:,} frames before the damaged one", file=sys.stderr)
+            raise
+        except KeyboardInterrupt:
+            print(f"interrupted after {replayer.sent:,} frames", file=sys.stderr)
+            return 130
+    rate = result.frames_sent / result.seconds if result.seconds > 0 else 0.0
+    print(f"sent {result.frames_sent:,} frames in {result.seconds:.2f} s ({rate:,.0f} frames/s, "
+          f"{result.passes} pass{'es' if result.passes != 1 else ''}"
+          f"{', original timing' if not args.fast else ', as fast as possible'})"
+          + (f"; skipped {result.error_frames_skipped:,} error frames"
+             if result.error_frames_skipped else ""))
+    if args.json:
+        record = {"file": args.file, "frames_sent": result.frames_sent,
+                  "error_frames_skipped": result.error_frames_skipped,
+                  "passes": result.passes, "seconds": result.seconds,
+                  "timing": "fast" if args.fast else "original"}
+        with atomic_write(args.json) as handle:
+            handle.write(json.dumps(record, indent=2).encode() + b"\n")
+    return 0
+
+
+def add_subparser(subparsers: Any) -> None:
+    import can.cli
+
+    parser = subparsers.add_parser(
+        "replay", help="a recording back onto a bus",
+        description="Send a recording (.log, .asc, .blf, .pcap) onto a bus with its original "
+                    "timing or as fast as possible. A truncated or corrupt file stops at its "
+                    "first bad frame, which the error names; nothing past it is sent. "
+                    "Receivers see the bus's own timestamps, as live; `skin run CONFIG "
+                    "--listen-only` on the same bus decodes the forces.")
+    parser.add_argument("file", metavar="FILE", help="the recording")
+    parser.add_argument("--fast", action="store_true",
+                        help="as fast as the bus takes frames (default: original timing)")
+    parser.add_argument("--loop", type=int, nargs="?", const=0, default=None, metavar="N",
+                        help="play N times in all; without N, until Ctrl-C")
+    parser.add_argument("--skip", type=float, default=60.0, metavar="S",
+                        help="cut recorded pauses longer than S seconds to S (default 60)")
+    parser.add_argument("--error-frames", action="store_true",
+                        help="also send error frames (most interfaces cannot)")
+    parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
+    can.cli.add_bus_arguments(parser)
+    parser.set_defaults(func=_replay, interface="virtual")

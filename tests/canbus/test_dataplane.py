@@ -1,0 +1,455 @@
+# mypy: disable-error-code="no-untyped-call"
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import can
+import canopen
+import numpy as np
+import pytest
+from numpy.typing import ArrayLike
+
+from canbus.codes import code_to_resistance, resistance_to_code
+from canbus.dataplane import DataPlane, ForceFrame, PatchChannel
+from canbus.dataplane_bench import SinkBus
+from canbus.forcenode import COMPLETE, NO_VALUE, ForceNode
+from canbus.od import load_od
+from canbus.patch_node import PatchNode
+from canbus.patch_server import PatchServer
+from canbus.source import ArraySource
+from decoder.protocol import Decoded
+from decoder.reasons import Reason
+from decoder.registry import create_decoder
+from skin.constants import DEFAULT_CONSTANTS
+from skin.errors import ConfigError
+from skin.tripod import resistance_from_force
+
+LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
+WINDOW_S = 0.005
+T0 = 1000.0  # SYNC k is sent at T0 + k / 100 on the test's clock
+
+
+def _load(scale: float = 1.0) -> np.ndarray:
+    force = np.zeros((9, 3))
+    force[:, 2] = np.linspace(0.5, 4.0, 9) * scale
+    force[:, 0], force[:, 1] = 0.2 * scale, -0.15 * scale
+    return force
+
+
+def _sync_time(cycle: int) -> float:
+    return T0 + cycle / 100
+
+
+class Patch:
+    """A patch node that encodes chosen forces, and its force node."""
+
+    def __init__(self, node_id: int, mode: str = "xyz") -> None:
+        self.node = PatchNode(node_id, mode=mode)
+        self.force_node = ForceNode(node_id + 64, node_id, heartbeat_ms=0)
+
+    @property
+    def codec(self) -> Any:
+        return self.node.tpdo.codec
+
+    def channel(self, decoder: Any) -> PatchChannel:
+        return PatchChannel(self.node.node_id, self.codec, self.node.pillars, LSB, decoder,
+                            self.force_node)
+
+    def frames(self, force_N: ArrayLike, cycle: int, **faults: float) -> list[can.Message]:
+        """The TPDOs answering SYNC ``cycle``; ``faults``: {"t<k>": ohm} on pillar z."""
+        r = resistance_from_force(np.asarray(force_N), DEFAULT_CONSTANTS)[:, : self.node.pillars]
+        for name, ohm in faults.items():
+            r[int(name[1:]), 0] = ohm
+        self.node.update(r)
+        payloads = self.codec.pack(self.node.values())[0]
+        t = _sync_time(cycle)
+        return [can.Message(timestamp=t + 1e-4 * (p + 1), arbitration_id=int(cob),
+                            data=payloads[p, :size].tobytes(), is_extended_id=False)
+                for p, (cob, size) in enumerate(zip(self.codec.cob_ids, self.codec.sizes,
+                                                    strict=True))]
+
+    def expected(self, decoder: Any) -> Decoded:
+        """What the decoder makes of the codes the node sent last."""
+        r = code_to_resistance(self.node.codes[:, : self.node.pillars], LSB)
+        decoded: Decoded = decoder.decode(r[None])
+        return decoded
+
+    def carried(self, pdo: int) -> list[int]:
+        """The taxels PDO ``pdo`` (0-based) carries values of."""
+        return sorted({(e.subindex - 1) // 3 for e in self.codec.layouts[pdo].entries})
+
+
+class Host:
+    """A data plane publishing to a sink, two patches, and what it published."""
+
+    def __init__(self, decoder: Any = None, *, mode: str = "xyz") -> None:
+        self.decoder = decoder or create_decoder("analytic")
+        self.sink = SinkBus()
+        self.network = canopen.Network(self.sink)
+        self.plane = DataPlane(self.sink, sync_window_s=WINDOW_S, background=False)
+        self.patches = [Patch(1, mode), Patch(2, mode)]
+        for patch in self.patches:
+            patch.force_node.attach(self.network)
+            patch.force_node.start()
+            self.plane.add_channel(patch.channel(self.decoder))
+        self.sink.sent.clear()
+        self.out: list[ForceFrame] = []
+        self.plane.subscribe(self.out.extend)
+
+    def feed(self, frames: list[can.Message]) -> None:
+        for msg in frames:
+            self.plane.on_message_received(msg)
+
+    def sync(self, cycle: int) -> None:
+        self.plane.on_sync(cycle, cycle % 240 + 1, _sync_time(cycle))
+
+    def published(self, force_node: int) -> dict[int, bytes]:
+        cobs = self.patches[force_node - 65].force_node.cob_ids()
+        return {cob: data for cob, data in self.sink.sent if cob in cobs and cob < 0x580}
+
+    def close(self) -> None:
+        self.plane.stop()
+        for patch in self.patches:
+            patch.force_node.detach()
+        self.sink.shutdown()
+
+
+@pytest.fixture
+def host() -> Iterator[Host]:
+    h = Host()
+    yield h
+    h.close()
+
+
+def _consume(frames: dict[int, bytes], node_id: int = 65) -> tuple[list[int], int]:
+    """A canopen master decoding a force node's TPDOs with eds/skin-forces.eds."""
+    node = canopen.Network().add_node(canopen.RemoteNode(node_id, load_od("skin-forces", node_id)))
+    node.tpdo.read(from_od=True)
+    values: dict[tuple[int, int], int] = {}
+    for pdo in node.tpdo.values():
+        pdo.on_message(pdo.cob_id, bytearray(frames[pdo.cob_id]), 0.0)
+        values.update({(v.index, v.subindex): v.raw for v in pdo})
+    return [values[(0x2000, k)] for k in range(1, 28)], values[(0x2005, 0)]
+
+
+def _mN(force_N: np.ndarray) -> list[int]:
+    return [int(v) for v in np.rint(force_N * 1000).reshape(27)]
+
+
+def test_complete_samples_decode_exactly_and_go_out_as_force_tpdos(host: Host) -> None:
+    host.sync(1)
+    a, b = host.patches
+    host.feed(a.frames(_load(), 1) + b.frames(_load(0.5), 1))
+    host.plane.publish_pending()  # the publishing thread's work, here in the test's thread
+    assert [(f.patch, f.force_node, f.cycle, f.sync_counter, f.complete, f.published)
+            for f in host.out] == [(1, 65, 1, 2, True, True), (2, 66, 1, 2, True, True)]
+    for frame, patch in zip(host.out, host.patches, strict=True):
+        expected = patch.expected(host.decoder)
+        np.testing.assert_allclose(frame.force_N, expected.force_N[0], rtol=1e-12, atol=0)
+        assert frame.valid.all() and not frame.reason.any() and frame.timestamp == _sync_time(1)
+    np.testing.assert_allclose(host.out[0].force_N, _load(), atol=2e-3)  # the forces applied
+    forces, bits = _consume(host.published(65))
+    assert forces == _mN(host.out[0].force_N) and bits == COMPLETE | 0x1FF
+    assert host.plane.stats.snapshot()["frames_out"] == 14
+
+
+def test_lost_frame_makes_the_sample_incomplete_with_missing_taxels(host: Host) -> None:
+    host.sync(1)
+    a, b = host.patches
+    frames = a.frames(_load(), 1)
+    host.feed(frames[:1] + frames[2:] + b.frames(_load(), 1))  # a's TPDO 2 is lost
+    host.plane.publish_pending()
+    assert [f.patch for f in host.out] == [2]  # b is complete: published without waiting
+    host.sync(2)  # closes cycle 1
+    late = host.out[1]
+    assert (late.patch, late.cycle, late.complete, late.published) == (1, 1, False, True)
+    lost = a.carried(1)
+    assert lost == [1, 2]
+    assert (late.reason[lost] == Reason.MISSING).all() and not late.valid[lost].any()
+    kept = [t for t in range(9) if t not in lost]
+    np.testing.assert_allclose(late.force_N[kept], a.expected(host.decoder).force_N[0][kept],
+                               rtol=1e-12)
+    forces, bits = _consume(host.published(65))
+    assert forces[3:9] == [NO_VALUE] * 6 and forces[:3] == _mN(late.force_N)[:3]
+    assert bits == sum(1 << t for t in kept)  # bit 15 clear: incomplete
+    assert host.plane.stats.incomplete_samples == 1
+
+
+def test_duplicate_frame_is_not_trusted(host: Host) -> None:
+    host.sync(1)
+    a = host.patches[0]
+    frames = a.frames(_load(), 1)
+    impostor = a.frames(_load(0.3), 1)[3]
+    host.feed([*frames[:4], impostor, *frames[4:]])  # TPDO 4 twice, different data
+    host.sync(2)
+    sample = next(f for f in host.out if f.patch == 1)
+    assert not sample.complete and host.plane.stats.duplicate_frames == 1
+    assert (sample.reason[a.carried(3)] == Reason.MISSING).all()
+    assert sample.valid.sum() == 9 - len(a.carried(3))
+
+
+def test_late_frame_beyond_the_window_is_dropped(host: Host) -> None:
+    host.sync(1)
+    a = host.patches[0]
+    frames = a.frames(_load(), 1)
+    frames[6].timestamp = _sync_time(1) + WINDOW_S + 1e-3
+    host.feed(frames)
+    host.plane.publish_pending()
+    assert not any(f.patch == 1 for f in host.out)
+    host.sync(2)
+    sample = next(f for f in host.out if f.patch == 1)
+    assert not sample.complete and host.plane.stats.late_frames == 1
+    assert (sample.reason[a.carried(6)] == Reason.MISSING).all()
+
+
+def test_cycles_are_never_mixed(host: Host) -> None:
+    a = host.patches[0]
+    old, new = a.frames(_load(), 1), a.frames(_load(0.5), 2)
+    expected_new = a.expected(host.decoder).force_N[0]
+    host.sync(1)
+    host.feed(old[:5])
+    host.sync(2)  # SYNC 2 overtakes cycle 1's last two frames
+    host.feed(old[5:] + new)
+    host.plane.publish_pending()
+    first, second = (f for f in host.out if f.patch == 1)
+    assert (first.cycle, first.complete, second.cycle, second.complete) == (1, False, 2, True)
+    assert host.plane.stats.late_frames == 2
+    np.testing.assert_allclose(second.force_N, expected_new, rtol=1e-12)
+    missing = sorted(set(a.carried(5) + a.carried(6)))
+    assert (first.reason[missing] == Reason.MISSING).all()
+    assert first.valid.sum() == 9 - len(missing)
+
+
+def test_frames_of_the_next_sync_before_on_sync_are_kept_for_it(host: Host) -> None:
+    a = host.patches[0]
+    host.sync(1)
+    host.feed(a.frames(_load(), 1))
+    host.feed(a.frames(_load(0.5), 2))  # the patch answered SYNC 2 before on_sync(2) ran
+    host.sync(2)
+    host.plane.publish_pending()
+    assert [(f.cycle, f.complete) for f in host.out if f.patch == 1] == [(1, True), (2, True)]
+    assert host.plane.stats.late_frames == 0
+
+
+def test_faulty_taxels_are_masked_and_neighbours_decode(host: Host) -> None:
+    a = host.patches[0]
+    host.plane.channel(1).masked[4] = True  # the host learnt taxel 4 is faulty (EMCY)
+    host.sync(1)
+    host.feed(a.frames(_load(), 1, t7=np.inf))  # and taxel 7's pillar z is open
+    host.plane.publish_pending()
+    sample = host.out[0]
+    assert sample.reason[4] == Reason.FAULTY and sample.reason[7] == Reason.OPEN
+    assert sample.complete and sample.published
+    good = [0, 1, 2, 3, 5, 6, 8]
+    assert sample.valid[good].all() and not sample.valid[[4, 7]].any()
+    assert not sample.force_N[[4, 7]].any()
+    np.testing.assert_allclose(sample.force_N[good], _load()[good], atol=2e-3)
+    forces, bits = _consume(host.published(65))
+    assert forces[12:15] == [NO_VALUE] * 3 and forces[21:24] == [NO_VALUE] * 3
+    assert bits == COMPLETE | 0x1FF & ~(1 << 4 | 1 << 7)
+
+
+def test_unknown_frames_are_counted_and_ignored(host: Host) -> None:
+    host.sync(1)
+    frames = host.patches[0].frames(_load(), 1)
+    strangers = [can.Message(arbitration_id=0x123, data=bytes(8), is_extended_id=False),
+                 can.Message(arbitration_id=0x181, data=bytes(8), is_extended_id=True),
+                 can.Message(arbitration_id=0x181, is_remote_frame=True, is_extended_id=False)]
+    host.feed(frames[:3] + strangers + frames[3:])
+    host.plane.publish_pending()
+    stats = host.plane.stats.snapshot()
+    assert stats["unknown_frames"] == 3 and stats["frames_in"] == 7
+    assert host.out[0].complete and host.out[0].valid.all()
+
+
+def test_short_frame_is_malformed() -> None:
+    host = Host()
+    try:
+        host.sync(1)
+        frames = host.patches[0].frames(_load(), 1)
+        frames[2].data = frames[2].data[:6]
+        frames[2].dlc = 6
+        host.feed(frames)
+        host.sync(2)
+        assert host.plane.stats.malformed_frames == 1 and not host.out[0].complete
+    finally:
+        host.close()
+
+
+def test_silent_and_removed_patches(host: Host) -> None:
+    host.sync(1)
+    host.feed(host.patches[0].frames(_load(), 1))
+    host.sync(2)  # patch 2 sent nothing in cycle 1
+    silent = next(f for f in host.out if f.patch == 2)
+    assert not silent.complete and not silent.published
+    assert (silent.reason == Reason.MISSING).all() and not host.published(66)
+    host.plane.remove_channel(2)
+    host.feed(host.patches[1].frames(_load(), 2))
+    assert host.plane.stats.unknown_frames == 7
+    with pytest.raises(ConfigError, match="no channel for patch 2"):
+        host.plane.channel(2)
+
+
+def test_raw_sample_and_scale(host: Host) -> None:
+    a = host.patches[0]
+    assert host.plane.raw_sample(1) is None
+    host.sync(1)
+    host.feed(a.frames(_load(), 1))
+    host.plane.publish_pending()
+    raw = host.plane.raw_sample(1)
+    assert raw is not None
+    np.testing.assert_array_equal(raw, code_to_resistance(a.node.codes, LSB))
+    # A drift of +1 % on every pillar, tared away by scale = r0_ref / baseline.
+    host.plane.channel(1).scale = np.full((9, 3), 1 / 1.01)
+    host.sync(2)
+    r = resistance_from_force(_load(), DEFAULT_CONSTANTS) * 1.01
+    a.node.update(r)
+    payloads = a.codec.pack(a.node.values())[0]
+    host.feed([can.Message(timestamp=_sync_time(2) + 1e-4, arbitration_id=int(cob),
+                           data=payloads[p].tobytes(), is_extended_id=False)
+               for p, cob in enumerate(a.codec.cob_ids)])
+    host.plane.publish_pending()
+    np.testing.assert_allclose(host.out[-1].force_N, _load(), atol=3e-3)
+
+
+class CountingDecoder:
+    """Delegates to the analytic decoder and records the batch shapes it is given."""
+
+    name = "counting"
+
+    def __init__(self) -> None:
+        self.inner = create_decoder("analytic")
+        self.calls: list[tuple[int, ...]] = []
+
+    def decode(self, resistance_ohm: ArrayLike) -> Decoded:
+        r = np.asarray(resistance_ohm)
+        self.calls.append(r.shape)
+        decoded: Decoded = self.inner.decode(r)
+        return decoded
+
+
+def test_one_decode_call_per_decoder_object() -> None:
+    counting = CountingDecoder()
+    host = Host(counting)
+    try:
+        host.sync(1)
+        host.feed(host.patches[0].frames(_load(), 1) + host.patches[1].frames(_load(), 1))
+        host.plane.publish_pending()
+        assert counting.calls == [(2, 9, 3)]
+        assert [f.complete for f in host.out] == [True, True]
+    finally:
+        host.close()
+
+
+def test_z_only_patches() -> None:
+    host = Host(mode="z")
+    try:
+        host.sync(1)
+        load = np.zeros((9, 3))
+        load[:, 2] = np.linspace(0.2, 4.5, 9)
+        host.feed(host.patches[0].frames(load, 1))
+        host.plane.publish_pending()
+        assert host.out[0].complete and host.out[0].valid.all()
+        np.testing.assert_allclose(host.out[0].force_N, load, atol=2e-3)
+        assert len(host.published(65)) == 7
+    finally:
+        host.close()
+
+
+def test_identifier_clashes_and_incomplete_mappings_are_refused(host: Host) -> None:
+    a = host.patches[0]
+    with pytest.raises(ConfigError, match="share COB-ID"):
+        host.plane.add_channel(PatchChannel(3, a.codec, 3, LSB, host.decoder,
+                                            ForceNode(67, 3, heartbeat_ms=0)))
+    with pytest.raises(ConfigError, match="share COB-ID"):  # force node 2 sends on 0x182...
+        host.plane.add_channel(PatchChannel(3, Patch(3).codec, 3, LSB, host.decoder,
+                                            ForceNode(2, 3, heartbeat_ms=0)))
+    z = Patch(3, mode="z")
+    with pytest.raises(ConfigError, match="do not map every 0x2000 code of 3 pillar"):
+        host.plane.add_channel(PatchChannel(3, z.codec, 3, LSB, host.decoder, z.force_node))
+    with pytest.raises(ConfigError, match="sync_window_s"):
+        DataPlane(host.sink, sync_window_s=-1.0, background=False)
+
+
+# -- end to end: patch nodes, the data plane's thread, a canopen consumer, one virtual bus -----
+
+def _network(channel: str) -> canopen.Network:
+    net = canopen.Network()
+    net.NOTIFIER_CYCLE = 0.05
+    return net.connect(interface="virtual", channel=channel)
+
+
+def test_end_to_end_published_before_the_window_closes(request: pytest.FixtureRequest) -> None:
+    channel = request.node.name
+    force = np.stack([_load(s) for s in (0.2, 1.0, 0.6)])  # samples 0, 1, 2
+    samples = np.stack([force, force[:, ::-1]], axis=1)  # patch 2 sees the mirrored loads
+    resistance = resistance_from_force(samples, DEFAULT_CONSTANTS)
+    device, host_net, consumer = _network(channel), _network(channel), _network(channel)
+    server = PatchServer(device, ArraySource(resistance, (1, 2)))
+    decoder = create_decoder("analytic")
+    window = 2.0  # generous: what is checked is that nothing waits for it to close
+    assert host_net.bus is not None
+    plane = DataPlane(host_net.bus, sync_window_s=window)
+    got: queue.Queue[tuple[float, ForceFrame]] = queue.Queue()
+
+    def on_frames(frames: list[ForceFrame]) -> None:
+        for f in frames:
+            got.put((time.time(), f))
+
+    plane.subscribe(on_frames)
+    force_nodes = []
+    try:
+        server.start()
+        for node in server.nodes:
+            force_node = ForceNode(node.node_id + 64, node.node_id, heartbeat_ms=0)
+            force_node.attach(host_net)
+            force_node.start()
+            force_nodes.append(force_node)
+            plane.add_channel(PatchChannel(node.node_id, node.tpdo.codec, node.pillars, LSB,
+                                           decoder, force_node))
+        assert host_net.notifier is not None
+        host_net.notifier.add_listener(plane)
+        remote = consumer.add_node(canopen.RemoteNode(65, load_od("skin-forces", 65)))
+        remote.tpdo.read(from_od=True)
+        received = threading.Event()
+        remote.tpdo[7].add_callback(lambda _: received.set())
+        host_net.nmt.send_command(0x01)  # start every patch
+        time.sleep(0.05)
+
+        sent_at = time.time()
+        plane.on_sync(1, 0, sent_at)
+        host_net.sync.transmit()
+        frames = [got.get(timeout=2.0), got.get(timeout=2.0)]
+        assert all(at < sent_at + window for at, _ in frames)  # the cycle is still open
+        by_patch = {f.patch: f for _, f in frames}
+        assert sorted(by_patch) == [1, 2] and all(f.complete and f.published for _, f in frames)
+        for p in (1, 2):
+            codes = resistance_to_code(resistance[1, p - 1], LSB)
+            expected = decoder.decode(code_to_resistance(codes, LSB)[None]).force_N[0]
+            np.testing.assert_allclose(by_patch[p].force_N, expected, rtol=1e-12)
+        assert received.wait(2.0)
+        mN = [v.raw for n in range(1, 8) for v in remote.tpdo[n]][:27]
+        assert mN == _mN(by_patch[1].force_N)
+        assert remote.tpdo[7]["Valid taxels"].raw == COMPLETE | 0x1FF
+
+        remote.nmt.send_command(0x02)  # another master stops force node 65
+        time.sleep(0.05)
+        received.clear()
+        plane.on_sync(2, 0, time.time())
+        host_net.sync.transmit()
+        frames = [got.get(timeout=2.0), got.get(timeout=2.0)]
+        published = {f.patch: f.published for _, f in frames}
+        assert published == {1: False, 2: True}  # 65 is silent, 66 still publishes
+        assert not received.wait(0.2)
+    finally:
+        plane.flush()
+        plane.stop()
+        server.stop()
+        for force_node in force_nodes:
+            force_node.detach()
+        for net in (consumer, host_net, device):
+            net.disconnect()

@@ -1,0 +1,187 @@
+# mypy: disable-error-code="no-untyped-call"
+from __future__ import annotations
+
+import queue
+import time
+from collections.abc import Iterator
+from functools import cache
+
+import can
+import canopen
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from canbus.forcenode import (
+    COMPLETE,
+    NO_VALUE,
+    ForceNode,
+    force_node_cob_ids,
+    forces_to_mN,
+)
+from canbus.nmt_slave import OPERATIONAL, PRE_OPERATIONAL, STOPPED
+from canbus.od import load_od
+from skin.errors import BusError, ConfigError
+
+CYCLE_S = 0.05
+
+
+@cache
+def _consumer() -> canopen.RemoteNode:
+    """A canopen master's view of force node 70, its TPDO maps read from eds/skin-forces.eds."""
+    node = canopen.Network().add_node(canopen.RemoteNode(70, load_od("skin-forces", 70)))
+    node.tpdo.read(from_od=True)
+    return node
+
+
+def _decode(frames: list[tuple[int, bytes]]) -> tuple[list[int], int]:
+    """canopen's own PDO decoding: the 27 forces (mN) and 0x2005."""
+    node = _consumer()
+    maps = {m.cob_id: m for m in node.tpdo.values() if m.enabled}
+    assert sorted(maps) == sorted(cob for cob, _ in frames)
+    raw = {}
+    for cob, payload in frames:
+        maps[cob].on_message(cob, bytearray(payload), 0.0)
+        raw.update({(v.index, v.subindex): v.raw for v in maps[cob]})
+    return [raw[(0x2000, k)] for k in range(1, 28)], raw[(0x2005, 0)]
+
+
+force_components = st.one_of(st.floats(-40.0, 40.0), st.sampled_from([np.nan, np.inf, -np.inf]))
+
+
+@given(hnp.arrays(np.float64, (9, 3), elements=force_components),
+       hnp.arrays(np.bool_, (9,)), st.booleans())
+def test_forces_round_trip_through_canopen_pdo_decoding(
+        force: np.ndarray, valid: np.ndarray, complete: bool) -> None:
+    node = ForceNode(70, 6, heartbeat_ms=0)
+    forces, bits = _decode(node.frames(force, valid, complete))
+    mN = np.rint(force * 1000.0)
+    fits = np.isfinite(mN) & (np.abs(mN) <= 32767) & valid[:, None]
+    expected = np.where(fits, np.nan_to_num(mN), NO_VALUE).astype(int).reshape(27)
+    assert forces == expected.tolist()  # exact mN; 0x8000 where there is no value
+    bus_valid = fits.all(axis=1)
+    assert bits == sum(1 << k for k in range(9) if bus_valid[k]) | (COMPLETE if complete else 0)
+
+
+def test_values_beyond_integer16_are_no_value_never_clipped() -> None:
+    force = np.zeros((9, 3))
+    force[0] = (32.767, -32.767, 32.7675)  # the last rounds to 32768 mN: does not fit
+    force[1] = (np.nan, 0.0, 0.0)
+    mN, valid = forces_to_mN(force, np.ones(9, dtype=bool))
+    assert mN[0].tolist() == [32767, -32767, NO_VALUE] and mN[1, 0] == NO_VALUE
+    assert valid.tolist() == [False, False] + [True] * 7
+
+
+def test_cob_ids_cover_every_transmitted_identifier() -> None:
+    node = ForceNode(70, 6)
+    expected = {0x1C6, 0x2C6, 0x3C6, 0x4C6, 0x246, 0x346, 0x446, 0xC6, 0x746, 0x5C6}
+    assert node.cob_ids() == force_node_cob_ids(70) == expected
+    assert {cob for cob, _ in node.frames(np.zeros((9, 3)), np.ones(9, bool), True)} < expected
+
+
+def test_eds_maps_valid_taxels_into_tpdo7_event_driven() -> None:
+    node = ForceNode(70, 6)
+    layout = node.codec.layouts[-1]
+    assert layout.number == 7 and layout.size == 8
+    assert [(e.index, e.subindex) for e in layout.entries] == [
+        (0x2000, 25), (0x2000, 26), (0x2000, 27), (0x2005, 0)]
+    assert {int(node.store.value(0x1800 + n, 2)) for n in range(7)} == {254}
+
+
+def test_bad_arguments_are_config_errors() -> None:
+    with pytest.raises(ConfigError, match="source_patch"):
+        ForceNode(70, 0)
+    with pytest.raises(ConfigError, match="heartbeat_ms"):
+        ForceNode(70, 6, heartbeat_ms=70000)
+    with pytest.raises(BusError, match="attached"):
+        ForceNode(70, 6).start()
+
+
+class Bench:
+    """A force node on a device network, a canopen master, and a raw listener."""
+
+    def __init__(self, channel: str) -> None:
+        self.device = canopen.Network()
+        self.device.NOTIFIER_CYCLE = CYCLE_S
+        self.device.connect(interface="virtual", channel=channel)
+        self.master = canopen.Network()
+        self.master.NOTIFIER_CYCLE = CYCLE_S
+        self.master.connect(interface="virtual", channel=channel)
+        self.raw = can.Bus(interface="virtual", channel=channel)
+        self.frames: queue.Queue[can.Message] = queue.Queue()
+        self.notifier = can.Notifier(self.raw, [self.frames.put], timeout=CYCLE_S)
+        self.force = ForceNode(70, 6, heartbeat_ms=50)
+        self.force.attach(self.device)
+        self.remote = self.master.add_node(canopen.RemoteNode(70, load_od("skin-forces", 70)))
+        self.remote.sdo.RESPONSE_TIMEOUT = 1.0
+
+    def collect(self, seconds: float) -> list[can.Message]:
+        end, got = time.monotonic() + seconds, []
+        while (left := end - time.monotonic()) > 0:
+            try:
+                got.append(self.frames.get(timeout=left))
+            except queue.Empty:
+                break
+        return got
+
+    def close(self) -> None:
+        self.force.detach()
+        self.notifier.stop(timeout=1.0)
+        self.raw.shutdown()
+        self.master.disconnect()
+        self.device.disconnect()
+
+
+@pytest.fixture
+def bench(request: pytest.FixtureRequest) -> Iterator[Bench]:
+    b = Bench(request.node.name)
+    yield b
+    b.close()
+
+
+def test_sdo_reads_the_last_published_sample(bench: Bench) -> None:
+    sdo = bench.remote.sdo
+    assert sdo[0x2001].raw == 6  # source patch
+    assert sdo[0x2005].raw == 0 and sdo[0x2000][1].raw == NO_VALUE  # nothing published yet
+    assert [sdo[0x1018][s].raw for s in (1, 2, 4)] == [0, 2, 70]  # vendor, product, serial
+    force = np.zeros((9, 3))
+    force[4] = (0.25, -0.5, 3.125)
+    valid = np.ones(9, dtype=bool)
+    valid[8] = False
+    reason = np.zeros(9, dtype=np.uint8)
+    reason[8] = 8
+    bench.force.frames(force, valid, True, reason=reason)
+    assert [sdo[0x2000][13 + k].raw for k in range(3)] == [250, -500, 3125]
+    assert sdo[0x2000][25].raw == NO_VALUE
+    assert sdo[0x2005].raw == 0x80FF
+    assert sdo[0x2004][9].raw == 8 and sdo[0x2004][1].raw == 0
+    sdo[0x2001].raw = 7  # rw: a master may re-label the source
+    assert sdo[0x2001].raw == 7
+
+
+def test_boot_heartbeat_start_and_nmt_stop(bench: Bench) -> None:
+    assert bench.force.state == PRE_OPERATIONAL and not bench.force.transmitting
+    bench.force.start()
+    assert bench.force.state == OPERATIONAL and bench.force.transmitting
+    beats = [m for m in bench.collect(0.3) if m.arbitration_id == 0x746]
+    assert len(beats) >= 2 and bytes(beats[-1].data) == bytes([OPERATIONAL])
+    bench.remote.nmt.send_command(0x02)  # another master stops the node
+    time.sleep(0.05)
+    assert bench.force.state == STOPPED and not bench.force.transmitting
+    beats = [m for m in bench.collect(0.15) if m.arbitration_id == 0x746]
+    assert beats and bytes(beats[-1].data) == bytes([STOPPED])
+    bench.remote.nmt.send_command(0x81)  # reset node: boot-up, pre-operational
+    after = [bytes(m.data) for m in bench.collect(0.1) if m.arbitration_id == 0x746]
+    assert b"\x00" in after and bench.force.state == PRE_OPERATIONAL
+
+
+def test_remap_by_sdo_changes_cob_ids_and_frames(bench: Bench) -> None:
+    sdo = bench.remote.sdo
+    sdo[0x1800][1].raw = 0x800001C6  # invalidate TPDO 1, then move it
+    sdo[0x1800][1].raw = 0x800001D0
+    sdo[0x1800][1].raw = 0x1D0
+    assert 0x1D0 in bench.force.cob_ids() and 0x1C6 not in bench.force.cob_ids()
+    frames = bench.force.frames(np.ones((9, 3)), np.ones(9, dtype=bool), True)
+    assert frames[0] == (0x1D0, (1000).to_bytes(2, "little") * 4)

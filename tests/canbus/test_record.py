@@ -1,0 +1,132 @@
+"""Recorder: every format read back frame for frame; can-utils reads our .log; atomic files."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import can
+import pytest
+
+from canbus.recorder import CandumpLogWriter, Recorder, enlarge_receive_buffer, recording_format
+from canbus.replay import Recording
+from skin.errors import ConfigError
+
+T0 = 1_700_000_000.0
+
+
+def _frames() -> list[can.Message]:
+    """SYNC, TPDOs, SDO, heartbeat, a 29-bit frame, a remote frame: what a bus carries."""
+    frames = [
+        can.Message(arbitration_id=0x080, data=b"\x07", is_extended_id=False),
+        can.Message(arbitration_id=0x181, data=bytes(range(8)), is_extended_id=False),
+        can.Message(arbitration_id=0x401, data=b"\x20\x4e\x7c\x6e\xff\xff",
+                    is_extended_id=False),
+        can.Message(arbitration_id=0x601, data=b"\x40\x18\x10\x01\0\0\0\0",
+                    is_extended_id=False),
+        can.Message(arbitration_id=0x701, data=b"\x05", is_extended_id=False),
+        can.Message(arbitration_id=0x1ABCDE, data=b"\xde\xad", is_extended_id=True),
+        can.Message(arbitration_id=0x123, is_remote_frame=True, dlc=4, is_extended_id=False),
+        can.Message(arbitration_id=0x000, data=b"\x01\x00", is_extended_id=False),
+    ]
+    for k, msg in enumerate(frames):
+        msg.timestamp = T0 + 0.001234 * k
+        msg.channel = "can0"
+    return frames
+
+
+def _key(msg: can.Message) -> tuple[object, ...]:
+    return (msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, msg.dlc,
+            bytes(msg.data))
+
+
+def _relative(messages: list[can.Message]) -> list[float]:
+    return [m.timestamp - messages[0].timestamp for m in messages]
+
+
+@pytest.mark.parametrize("suffix", [".log", ".asc", ".blf", ".pcap"])
+def test_every_format_reads_back_frame_for_frame(tmp_path: Path, suffix: str) -> None:
+    sent = _frames()
+    recorder = Recorder(tmp_path / f"rec{suffix}")
+    for msg in sent:
+        recorder.on_message_received(msg)
+    recorder.stop()
+    assert recorder.saved == tmp_path / f"rec{suffix}"
+    with can.LogReader(recorder.saved) if suffix != ".pcap" else Recording(recorder.saved) \
+            as reader:  # python-can's own reader for its formats
+        got = list(reader)
+    assert [_key(m) for m in got] == [_key(m) for m in sent]
+    assert _relative(got) == pytest.approx(_relative(sent), abs=1.5e-6)
+    if suffix in (".log", ".pcap"):  # absolute times kept to the microsecond
+        assert [m.timestamp for m in got] == pytest.approx([m.timestamp for m in sent],
+                                                           abs=1e-6, rel=0)
+
+
+@pytest.mark.skipif(shutil.which("log2asc") is None,
+                    reason="can-utils' log2asc is not installed (apt install can-utils)")
+def test_can_utils_log2asc_reads_our_log(tmp_path: Path) -> None:
+    sent = _frames()
+    recorder = Recorder(tmp_path / "rec.log")
+    for msg in sent:
+        recorder.on_message_received(msg)
+    recorder.stop()
+    out = tmp_path / "rec.asc"
+    run = subprocess.run(["log2asc", "-I", str(tmp_path / "rec.log"), "-O", str(out), "can0"],
+                         capture_output=True, text=True, timeout=30)
+    assert run.returncode == 0, run.stderr
+    with can.ASCReader(out) as reader:  # log2asc's output read by python-can
+        got = list(reader)
+    assert [_key(m) for m in got] == [_key(m) for m in sent]
+    assert _relative(got) == pytest.approx(_relative(sent), abs=1.5e-6)
+    assert [m.is_rx for m in got] == [m.is_rx for m in sent]
+
+
+def test_file_appears_only_when_complete(tmp_path: Path) -> None:
+    target = tmp_path / "rec.pcap"
+    recorder = Recorder(target)
+    for msg in _frames():
+        recorder.on_message_received(msg)
+    assert not target.exists()
+    assert [p.name.startswith(".rec.pcap.") for p in tmp_path.iterdir()] == [True]
+    recorder.stop()
+    recorder.stop()  # idempotent: python-can's Notifier.stop() calls it too
+    assert recorder.written == recorder.received == len(_frames())
+    assert [p.name for p in tmp_path.iterdir()] == ["rec.pcap"]
+    assert target.stat().st_mode & 0o644 == 0o644  # the mode open() would give, not 0600
+
+
+def test_abort_and_writer_errors_leave_nothing(tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    recorder = Recorder(tmp_path / "gone.log")
+    recorder.on_message_received(_frames()[0])
+    recorder.abort()
+    assert list(tmp_path.iterdir()) == []
+
+    def disk_full(self: object, msg: can.Message) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(CandumpLogWriter, "on_message_received", disk_full)
+    failing = Recorder(tmp_path / "full.log")
+    failing.on_message_received(_frames()[0])
+    with pytest.raises(OSError, match=r"recording to .*full\.log failed: .*No space left"):
+        failing.stop()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_unknown_suffix_is_refused_before_any_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"--record: unknown recording format '\.txt'"):
+        Recorder(tmp_path / "rec.txt")
+    with pytest.raises(ConfigError, match=r"'\(no suffix\)'"):
+        recording_format(tmp_path / "rec")
+    assert recording_format("X.PCAP") == ".pcap"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_receive_buffer(udp_channel: str) -> None:
+    with can.Bus(interface="virtual", channel="rcvbuf") as bus:
+        assert enlarge_receive_buffer(bus, 1 << 20) is None  # not a socket
+    with can.Bus(interface="udp_multicast", channel=udp_channel) as bus:
+        default = enlarge_receive_buffer(bus, 4096)
+        granted = enlarge_receive_buffer(bus, 1 << 20)
+        assert default is not None and granted is not None and granted > default

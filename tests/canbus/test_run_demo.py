@@ -1,0 +1,171 @@
+"""`skin run CONFIG` and `skin demo` as a user runs them."""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import canopen
+import numpy as np
+import pytest
+
+from canbus.patch_server import PatchServer
+from canbus.source import ArraySource
+from skin.cli import main
+from skin.commands.demo import _scene
+from skin.constants import DEFAULT_CONSTANTS
+from skin.tripod import resistance_from_force
+
+
+@pytest.fixture
+def patches(request: pytest.FixtureRequest) -> Iterator[str]:
+    """Patches 1 (3-axis) and 9 (z-only) on a virtual channel; yields the channel."""
+    channel = f"run-{request.node.name}"
+    net = canopen.Network()
+    net.NOTIFIER_CYCLE = 0.05
+    net.connect(interface="virtual", channel=channel)
+    force = np.zeros((1, 2, 9, 3))
+    force[0, :, 4, 2] = 1.5
+    r = resistance_from_force(force, DEFAULT_CONSTANTS)
+    servers = [PatchServer(net, ArraySource(r[:, :1], (1,))),
+               PatchServer(net, ArraySource(r[:, 1:, :, :1], (9,)))]
+    for server in servers:
+        server.start()
+    yield channel
+    for server in servers:
+        server.stop()
+    net.disconnect()
+
+
+def _in_thread(argv: list[str], timeout: float = 30.0) -> int:
+    code: list[int] = []
+    runner = threading.Thread(target=lambda: code.append(main(argv)))
+    runner.start()
+    runner.join(timeout)
+    assert not runner.is_alive(), f"skin {' '.join(argv)} did not stop"
+    return code[0]
+
+
+def test_skin_run_hosts_the_configured_patches_and_reports_the_rest(
+        patches: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = tmp_path / "host.toml"
+    config.write_text("[host]\nscan_ms = 100\n[[patches]]\nnode_id = 1\n", encoding="utf-8")
+    out = tmp_path / "run.json"
+    argv = ["run", str(config), "-i", "virtual", "-c", patches, "--seconds", "0.5",
+            "--json", str(out)]
+    assert _in_thread(argv) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("host: 1 patch on ") and "1->65" in lines[0]
+    assert "node 9: a patch that is not in the config; left alone" in lines
+    assert "patch 1: operational" in lines
+    assert lines[-1].startswith("published ")
+    record = json.loads(out.read_text())
+    assert record["patches"]["1"]["state"] == "operational" and record["unknown_nodes"] == [9]
+    assert record["stats"]["samples"] == record["patches"]["1"]["samples"] > 0
+
+
+@pytest.mark.parametrize(("text", "expected"), [
+    ("[[patches]]\nnode_id = 1\nmodel = 'gone.msgpack'\n",
+     "skin: error: patches[0].model: no such file"),
+    ("[[patches]]\nnode_id = 1\nforce_node = 2\n[[patches]]\nnode_id = 2\n",
+     "skin: error: patches[1].node_id: node-ID 2 is also patches[0].force_node"),
+])
+def test_skin_run_refuses_a_bad_config_in_one_line(tmp_path: Path, text: str, expected: str,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    config = tmp_path / "host.toml"
+    config.write_text(text, encoding="utf-8")
+    assert main(["run", str(config), "-i", "virtual", "-c", "never-opened"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(expected) and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("how", ["flag", "config"])
+def test_skin_run_listen_only_opens_the_bus_and_sends_nothing(
+        how: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import can
+
+    config = tmp_path / "host.toml"
+    host = "[host]\nlisten_only = true\n" if how == "config" else ""
+    config.write_text(host + "[[patches]]\nnode_id = 1\n", encoding="utf-8")
+    out = tmp_path / "run.json"
+    argv = ["run", str(config), "-i", "virtual", "-c", f"listen-{how}", "--seconds", "0.2",
+            "--json", str(out)] + (["--listen-only"] if how == "flag" else [])
+    with can.Bus(interface="virtual", channel=f"listen-{how}") as spy:
+        assert _in_thread(argv) == 0
+        assert spy.recv(timeout=0) is None  # no scan, no SYNC, no force node boot-up
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("host (listen-only): 1 patch on ")
+    assert lines[1] == "patch 1: absent" and lines[-1].startswith("decoded 0 samples ")
+    record = json.loads(out.read_text())
+    assert record["listen_only"] is True and record["patches"]["1"]["state"] == "absent"
+    assert record["stats"]["frames_out"] == record["stats"]["sync_cycles"] == 0
+
+
+def test_skin_run_listen_only_flag_is_off_by_default_and_still_checks_the_config(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from skin.cli import build_parser
+
+    parser = build_parser()
+    assert not parser.parse_args(["run", "host.toml"]).listen_only
+    assert parser.parse_args(["run", "host.toml", "--listen-only"]).listen_only
+    config = tmp_path / "host.toml"
+    config.write_text("[host]\nlisten_only = 1\n[[patches]]\nnode_id = 1\n", encoding="utf-8")
+    assert main(["run", str(config), "--listen-only", "-i", "virtual", "-c", "never"]) == 1
+    err = capsys.readouterr().err
+    assert err == "skin: error: host.listen_only: must be bool, got int 1\n"
+
+
+def test_skin_run_names_a_bus_it_cannot_open(tmp_path: Path,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    config = tmp_path / "host.toml"
+    config.write_text("[[patches]]\nnode_id = 1\n", encoding="utf-8")
+    assert main(["run", str(config), "-i", "socketcan", "-c", "no-such-can9"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("skin: error: cannot open the bus: ") and err.count("\n") == 1
+
+
+def test_skin_demo_reports_every_figure(tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "demo.json"
+    assert _in_thread(["demo", "--patches", "2", "--seconds", "0.5", "--json", str(out)]) == 0
+    record = json.loads(out.read_text())
+    assert record["patches"] == 2 and record["decoder"] == "analytic"
+    assert record["seconds"] >= 0.5 and record["samples"] > 0
+    assert record["samples"] == record["complete_samples"] + record["incomplete_samples"]
+    assert isinstance(record["dropped_frames"], int) and record["dropped_frames"] >= 0
+    assert record["samples_per_s"] > 0
+    assert 0 < record["latency_ms"]["p50"] <= record["latency_ms"]["p99"]
+    assert 0 < record["rmse_N"] < 0.2  # the indenter, 3-axis, exact inverse: crosstalk only
+    text = capsys.readouterr().out
+    assert "skin demo: 2 patches (indenter, xyz, analytic)" in text and "rmse" in text
+
+
+def test_skin_demo_defaults_end_by_themselves(capsys: pytest.CaptureFixture[str]) -> None:
+    from skin.cli import build_parser
+
+    args = build_parser().parse_args(["demo"])  # the README's line: a few seconds, exit 0
+    assert (args.patches, args.seconds, args.scene, args.json) == (4, 3.0, "indenter", None)
+    assert _in_thread(["demo", "--seconds", "0.5", "--scene", "paper"]) == 0
+    text = capsys.readouterr().out
+    assert "skin demo: 4 patches (paper, z, analytic)" in text
+
+
+def test_demo_scenes_put_every_load_on_every_patch() -> None:
+    hard = _scene("hard", 3)
+    assert hard.node_ids == (1, 2, 3)
+    assert all(load.patches == (1, 2, 3) for load in hard.loads)
+    faults = hard.effects["faults"].pillars
+    assert {f.node_id for f in faults} == {1, 2}  # faults of patches that still exist
+    assert _scene("indenter", None) is not None and _scene("indenter", 1).node_ids == (1,)
+
+
+def test_skin_demo_on_a_terminal_shows_a_live_table(capsys: pytest.CaptureFixture[str],
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
+    assert _in_thread(["demo", "--patches", "1", "--seconds", "0.6"]) == 0
+    text = capsys.readouterr().out
+    assert "peak |F| N" in text and "operational" in text and "rmse" in text

@@ -1,0 +1,253 @@
+"""Recording the real thing: two patches and the host manager on a virtual bus, and
+the recording replayed into a listen-only host.
+
+One live run (module fixture): patch nodes 1 and 2 (``PatchServer``; pressed taxels, and
+pillar x of patch 1's taxel 4 open for one sample, so EMCY and its reset go out) and a
+``HostManager`` (SDO scan and set-up, NMT, SYNC with counter, analytic decoding, force
+nodes 65 and 66 publishing), while a listener records the bus to .pcap and .log.
+
+- The .log replayed by ``canbus.replay.Replayer`` (what ``skin replay`` runs) onto a
+  fresh virtual bus, as fast as possible and with its original timing, into a
+  ``HostManager(listen_only=True)`` with the same config: that host follows the recorded
+  SYNCs, NMT commands, heartbeats and EMCYs and gives every force frame of the live run
+  (cycle, SYNC counter, complete, forces bit for bit, valid, reasons with the EMCY-masked
+  taxel), though the virtual bus stamps every frame with its replay time. The same
+  through the CLI: ``skin run --listen-only`` and ``skin replay`` on one channel.
+- Wireshark's tshark types every frame of the .pcap as we do (NMT, SYNC, PDO, heartbeat,
+  SDO, EMCY all present).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import can
+import can.interfaces.virtual
+import canopen
+import numpy as np
+import pytest
+
+from canbus import codes
+from canbus.dataplane import ForceFrame
+from canbus.host import HostManager
+from canbus.hostconfig import HostConfig, PatchConfig
+from canbus.patch_server import PatchServer
+from canbus.recorder import Recorder
+from canbus.replay import Recording, Replayer
+from canbus.services import Service, route
+from canbus.sniffer import Sniffer
+from canbus.source import ArraySource
+from decoder.reasons import Reason
+from skin.cli import main
+from skin.constants import DEFAULT_CONSTANTS
+from skin.tripod import resistance_from_force
+
+LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
+CYCLES = 12
+WIRESHARK_TYPES = {Service.NMT: "NMT:", Service.SYNC: "SYNC", Service.EMCY: "EMCY",
+                   Service.PDO: "PDO", Service.SDO: "Default-SDO",
+                   Service.HEARTBEAT: "NMT Error Control"}
+# The data plane's counters that a replay must reproduce (frames of its own channels).
+PDO_STATS = ("frames_in", "late_frames", "duplicate_frames", "malformed_frames",
+             "samples", "complete_samples", "incomplete_samples")
+
+
+def _samples() -> np.ndarray:
+    """(samples, 2 patches, 9, 3) quantised resistances: a press that grows and moves."""
+    count = CYCLES + 8
+    force = np.zeros((count, 2, 9, 3))
+    for k in range(count):
+        force[k, 0, k % 9] = (0.2, -0.1, 0.25 * (k % 5))
+        force[k, 1, (2 * k) % 9] = (-0.3, 0.2, 0.5 + 0.1 * k)
+    r = resistance_from_force(force, DEFAULT_CONSTANTS)
+    r = codes.resistance_to_code(r, LSB).astype(np.float64) * LSB
+    r[6, 0, 4, 1] = np.inf  # an open pillar for one sample: EMCY, then its reset
+    return r
+
+
+def _until(condition: Callable[[], bool], what: str, timeout: float = 15.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.005)
+
+
+@dataclass
+class HostRun:
+    folder: Path
+    frames: list[ForceFrame]
+    config: HostConfig
+    stats: dict[str, int]
+
+
+@pytest.fixture(scope="module")
+def host_run(tmp_path_factory: pytest.TempPathFactory) -> HostRun:
+    folder = tmp_path_factory.mktemp("host")
+    channel = "sniff-host"
+    # 40 ms SYNC, 32 ms window: a busy machine must stall a patch that long to make a
+    # frame late (a fast replay, compressing time, would accept it: see test below)
+    config = HostConfig(patches=(PatchConfig(1), PatchConfig(2)), sync_period_ms=40.0,
+                        heartbeat_ms=100, scan_ms=100)
+    listen = can.Bus(interface="virtual", channel=channel)
+    recorders = [Recorder(folder / "host.pcap"), Recorder(folder / "host.log")]
+    notifier = can.Notifier(listen, [*recorders], timeout=0.05)
+    device = canopen.Network()
+    device.NOTIFIER_CYCLE = 0.05
+    device.connect(interface="virtual", channel=channel)
+    bus = can.Bus(interface="virtual", channel=channel)
+    frames: list[ForceFrame] = []
+    try:
+        with PatchServer(device, ArraySource(_samples(), (1, 2))):
+            host = HostManager(bus, config)
+            host.on_forces(frames.append)
+            host.start()
+            try:
+                assert host.wait_operational(timeout=15.0), host.health()
+                _until(lambda: sum(f.patch == 1 for f in frames) >= CYCLES, "force frames")
+            finally:
+                host.stop()
+    finally:
+        device.disconnect()
+        notifier.stop(timeout=1.0)  # stops (and saves) both recorders
+        listen.shutdown()
+        bus.shutdown()
+    return HostRun(folder, frames, config, host.stats())
+
+
+def _seen(host: HostManager) -> int:
+    """Frames the host's data plane (the notifier's last listener) has taken."""
+    stats = host.dataplane.stats
+    return stats.frames_in + stats.unknown_frames
+
+
+def _key(frame: ForceFrame) -> tuple[int, int]:
+    return (frame.cycle, frame.patch)
+
+
+def _assert_same_forces(got: list[ForceFrame], want: list[ForceFrame]) -> None:
+    """The same (cycle, patch) frames with the same counter, completeness and taxels."""
+    assert sorted(map(_key, got)) == sorted(map(_key, want))
+    for a, b in zip(sorted(got, key=_key), sorted(want, key=_key), strict=True):
+        assert (a.patch, a.force_node, a.cycle, a.sync_counter, a.complete) == \
+            (b.patch, b.force_node, b.cycle, b.sync_counter, b.complete), _key(b)
+        np.testing.assert_array_equal(a.force_N, b.force_N, err_msg=str(_key(b)))
+        np.testing.assert_array_equal(a.valid, b.valid, err_msg=str(_key(b)))
+        np.testing.assert_array_equal(a.reason, b.reason, err_msg=str(_key(b)))
+
+
+def _recorded_seconds(path: Path) -> float:
+    with Recording(path) as recording:
+        stamps = [msg.timestamp for msg in recording]
+    return stamps[-1] - stamps[0]
+
+
+def test_the_live_run_has_what_the_replay_must_reproduce(host_run: HostRun) -> None:
+    live = host_run.frames
+    masked = [f for f in live if f.patch == 1 and f.reason[4] == Reason.FAULTY]
+    assert len(masked) == 1 and not masked[0].valid[4]  # the EMCY masked taxel 4 once
+    assert sum(f.complete for f in live) >= 2 * (CYCLES - 1)
+    # A frame the live host found late (its window expired before it came) would be on
+    # time in a replay as fast as possible: none here, or the machine stalled a patch.
+    assert host_run.stats["late_frames"] == 0, host_run.stats
+    assert all(f.published for f in live if f.complete)
+    assert _recorded_seconds(host_run.folder / "host.log") < 3.0  # original timing is quick
+
+
+@pytest.mark.parametrize("realtime", [False, True], ids=["fast", "original-timing"])
+def test_recording_replayed_into_a_listen_only_host_gives_the_live_forces(
+        host_run: HostRun, realtime: bool, request: pytest.FixtureRequest) -> None:
+    channel = f"replay-{request.node.callspec.id}"
+    replayed: list[ForceFrame] = []
+    with can.Bus(interface="virtual", channel=channel) as bus, \
+            can.Bus(interface="virtual", channel=channel) as player:
+        host = HostManager(bus, host_run.config, listen_only=True)
+        host.on_forces(replayed.append)
+        host.start()
+        try:
+            result = Replayer(player, host_run.folder / "host.log", realtime=realtime).run()
+            _until(lambda: _seen(host) == result.frames_sent, "the replayed frames")
+        finally:
+            host.stop()
+    _assert_same_forces(replayed, host_run.frames)
+    assert not any(f.published for f in replayed)
+    stats = host.stats()
+    assert {k: stats[k] for k in PDO_STATS} == {k: host_run.stats[k] for k in PDO_STATS}
+    assert (stats["frames_out"], stats["sync_cycles"]) == (0, host_run.stats["sync_cycles"])
+
+
+def test_skin_run_listen_only_decodes_what_skin_replay_sends(
+        host_run: HostRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = tmp_path / "host.toml"
+    config.write_text("[host]\nsync_period_ms = 40.0\n[[patches]]\nnode_id = 1\n"
+                      "[[patches]]\nnode_id = 2\n", encoding="utf-8")
+    out = tmp_path / "run.json"
+    bus = ["-i", "virtual", "-c", "cli-replay"]
+    code: list[int] = []
+    runner = threading.Thread(target=lambda: code.append(main(
+        ["run", str(config), "--listen-only", "--seconds", "1.0", "--json", str(out), *bus])))
+    runner.start()
+    try:  # once its bus is open, the run receives every frame sent (a virtual bus queues)
+        _until(lambda: "cli-replay" in can.interfaces.virtual.channels, "skin run's bus")
+        assert main(["replay", str(host_run.folder / "host.log"), "--fast", *bus]) == 0
+    finally:
+        runner.join(15.0)
+    assert not runner.is_alive() and code == [0]
+    lines = capsys.readouterr().out.splitlines()  # the two commands' lines, interleaved
+    assert any(line.startswith("host (listen-only): 2 patches on ") for line in lines)
+    with Recording(host_run.folder / "host.log") as recording:
+        recorded = sum(1 for _ in recording)
+    assert any(line.startswith(f"sent {recorded:,} frames in ") for line in lines)
+    assert "patch 1: operational" in lines and lines[-1].startswith("decoded ")
+    record = json.loads(out.read_text())
+    live = host_run.frames
+    assert record["listen_only"] is True
+    assert record["stats"]["complete_samples"] == sum(f.complete for f in live)
+    assert record["stats"]["sync_cycles"] == host_run.stats["sync_cycles"]
+    assert record["stats"]["frames_out"] == 0
+
+
+def test_pcap_and_log_hold_the_same_frames(host_run: HostRun) -> None:
+    with Recording(host_run.folder / "host.pcap") as pcap, \
+            Recording(host_run.folder / "host.log") as log:
+        a = [(m.arbitration_id, bytes(m.data), round(m.timestamp * 1e6)) for m in pcap]
+        b = [(m.arbitration_id, bytes(m.data), round(m.timestamp * 1e6)) for m in log]
+    assert a == b
+    sniffer = Sniffer()
+    with Recording(host_run.folder / "host.pcap") as recording:
+        for msg in recording:
+            sniffer.on_message_received(msg)
+    snap = sniffer.snapshot()
+    assert (snap.anomalies.unknown_frames, snap.anomalies.error_frames) == (0, 0)
+    assert {str(s) for s in snap.by_service} == {str(s) for s in WIRESHARK_TYPES}
+
+
+@pytest.mark.skipif(shutil.which("tshark") is None,
+                    reason="tshark is not on PATH (CI installs it with `apt-get install tshark`)")
+def test_wireshark_types_every_frame_of_the_host_run(host_run: HostRun) -> None:
+    path = host_run.folder / "host.pcap"
+    run = subprocess.run(
+        ["tshark", "-r", str(path), "-d", "can.subdissector,canopen", "-T", "fields",
+         "-e", "_ws.col.Protocol", "-e", "canopen.node_id", "-e", "_ws.col.Info"],
+        capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    rows = [line.split("\t") for line in run.stdout.splitlines()]
+    with Recording(path) as recording:
+        frames = list(recording)
+    assert len(rows) == len(frames)
+    seen = set()
+    for number, (msg, (protocol, node, info)) in enumerate(zip(frames, rows, strict=True), 1):
+        where = route(msg)
+        assert protocol == "CANopen", (number, info)
+        assert info.startswith(WIRESHARK_TYPES[where.service]), (number, where, info)
+        if where.node is not None:
+            assert int(node, 0) == where.node, (number, where, node)
+        seen.add(where.service)
+    assert seen == set(WIRESHARK_TYPES)
