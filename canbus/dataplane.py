@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 from canbus.codes import code_to_resistance
 from canbus.forcenode import ForceNode, batch_frames
 from canbus.pdo_codec import PdoCodec
+from canbus.txmessage import TxMessage
 from decoder.protocol import Decoder
 from decoder.reasons import Reason
 from skin.constants import TAXELS_PER_PATCH
@@ -341,7 +342,7 @@ class DataPlane(can.Listener):
     def _publish_now(self) -> None:
         if self._thread is None:
             self.publish_pending()
-        else:
+        elif self._queue:  # a wake-up with nothing to publish costs the next cycle a switch
             self._wake.set()
 
     def _run(self) -> None:
@@ -404,15 +405,26 @@ class DataPlane(can.Listener):
             pdos = len(first.channel.codec.layouts)
             payload = np.frombuffer(b"".join(jobs[i].payload for i in rows), dtype=np.uint8)
             values = first.channel.codec.unpack(payload.reshape(len(rows), pdos, 8))
-            ohm = code_to_resistance(values[:, first.columns], 1.0)  # open/saturated: +inf
+            channels = [jobs[i].slot.channel for i in rows]
+            lsb = {channel.lsb_ohm for channel in channels}
+            if len(lsb) == 1:  # open/saturated: +inf
+                raw = code_to_resistance(values[:, first.columns], lsb.pop())
+            else:
+                raw = code_to_resistance(values[:, first.columns], 1.0) * np.array(
+                    [channel.lsb_ohm for channel in channels])[:, None, None]
             for m, i in enumerate(rows):
-                channel = jobs[i].slot.channel
-                r = ohm[m] * channel.lsb_ohm
                 if jobs[i].complete:
-                    self._raw_samples[channel.node_id] = r
-                r = r * channel.scale
-                r[undecodable[i]] = np.nan
-                out[i, :, : channel.pillars] = r
+                    self._raw_samples[channels[m].node_id] = raw[m]
+            shape = raw.shape[1:]
+            if all(np.shape(channel.scale) == shape for channel in channels):
+                scale = np.array([channel.scale for channel in channels], dtype=np.float64)
+            else:
+                scale = np.empty_like(raw)
+                for m, channel in enumerate(channels):
+                    scale[m] = channel.scale  # broadcast to (9, P)
+            scaled = raw * scale
+            scaled[undecodable[rows]] = np.nan
+            out[rows, :, : first.channel.pillars] = scaled
         return out
 
     def _send(self, jobs: list[_Job], force: NDArray[np.float64], valid: NDArray[np.bool_],
@@ -422,14 +434,15 @@ class DataPlane(can.Listener):
         complete = [job.complete for job in jobs]
         nodes = [job.slot.channel.force_node for job in jobs]
         frames = batch_frames(nodes, force, valid, np.array(complete), reason)
+        # Every frame onto the bus first: the frames for the API come after.
+        published = [job.missing != job.slot.full and node.transmitting and self._transmit(f)
+                     for job, node, f in zip(jobs, nodes, frames, strict=True)]
         out = []
         for i, job in enumerate(jobs):
-            arrived = job.missing != job.slot.full
-            published = arrived and nodes[i].transmitting and self._transmit(frames[i])
-            channel = job.slot.channel
             cycle, counter, timestamp = job.cycle
-            out.append(ForceFrame(channel.node_id, nodes[i].node_id, cycle, counter, timestamp,
-                                  force[i], valid[i], reason[i], job.complete, published))
+            out.append(ForceFrame(job.slot.channel.node_id, nodes[i].node_id, cycle, counter,
+                                  timestamp, force[i], valid[i], reason[i], job.complete,
+                                  published[i]))
         stats = self.stats
         stats.samples += len(out)
         stats.batches += 1
@@ -443,16 +456,17 @@ class DataPlane(can.Listener):
                 logger.exception("data plane: subscriber %r failed", callback)
 
     def _transmit(self, frames: list[tuple[int, bytes]]) -> bool:
-        send = self.bus.send
+        send, sent = self.bus.send, 0
         try:
             for cob, payload in frames:
-                send(can.Message(arbitration_id=cob, data=payload, is_extended_id=False,
-                                 check=False))
-                self.stats.frames_out += 1
+                send(TxMessage(arbitration_id=cob, data=payload, is_extended_id=False))
+                sent += 1
         except can.CanError as err:
             self.stats.send_errors += 1
             logger.warning("data plane: force TPDO not sent: %s", err)
             return False
+        finally:
+            self.stats.frames_out += sent
         return True
 
 

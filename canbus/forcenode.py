@@ -86,20 +86,20 @@ def batch_frames(nodes: Sequence[ForceNode], force_N: NDArray[np.float64],
     error_register = np.zeros((n, 1), dtype=np.int64)
     table = np.concatenate([mN.reshape(n, 27), status, bits[:, None], error_register],
                            axis=1, dtype=np.int64)
+    flat_mN, bits_list = mN.reshape(n, 27), bits.tolist()
     groups: dict[_Layout, list[tuple[int, PdoCodec]]] = {}
     for i, node in enumerate(nodes):
-        codec = node._adopt(mN[i].reshape(27), status[i], int(bits[i]))
+        codec = node._adopt(flat_mN[i], status[i], bits_list[i])
         groups.setdefault(_layout(codec), []).append((i, codec))
     out: list[list[Frame]] = [[] for _ in range(n)]
     for key, members in groups.items():
-        rows = [i for i, _ in members]
-        payload = members[0][1].pack(table[rows][:, key.gather]).tobytes()
+        rows = table if len(members) == n else table[[i for i, _ in members]]
+        payload = members[0][1].pack(rows[:, key.gather]).tobytes()
         width = 8 * len(key.sizes)
         for m, (i, codec) in enumerate(members):
             at = m * width
-            out[i] = [(cob, payload[at + 8 * p:at + 8 * p + size])
-                      for p, (cob, size) in enumerate(zip(codec.cob_ids.tolist(), key.sizes,
-                                                          strict=True))]
+            out[i] = [(cob, payload[at + start:at + end])
+                      for cob, (start, end) in zip(codec.cob_ids.tolist(), key.spans, strict=True)]
     return out
 
 
@@ -109,6 +109,7 @@ class _Layout:
 
     sizes: tuple[int, ...]
     gather: NDArray[np.intp]  # row columns ``[forces (27), status (9), 0x2005, 0x1001]``
+    spans: tuple[tuple[int, int], ...]  # each PDO's bytes in its node's packed 8 * P bytes
 
 
 _LAYOUTS: weakref.WeakKeyDictionary[PdoCodec, _Layout] = weakref.WeakKeyDictionary()
@@ -128,8 +129,9 @@ def _layout(codec: PdoCodec) -> _Layout:
                 if obj not in _FIRST_COLUMN:  # TpdoTable admits only the EDS's mappable objects
                     raise ConfigError("pdo mapping", f"0x{obj:04X}:{sub:02X} is not published")
                 gather.append(_FIRST_COLUMN[obj] + max(sub - 1, 0))
-            layout = _Layout(tuple(int(size) for size in codec.sizes),
-                             np.array(gather, dtype=np.intp))
+            sizes = tuple(int(size) for size in codec.sizes)
+            layout = _Layout(sizes, np.array(gather, dtype=np.intp),
+                             tuple((8 * p, 8 * p + size) for p, size in enumerate(sizes)))
             _SHAPES[entries] = layout
         _LAYOUTS[codec] = layout
     return layout

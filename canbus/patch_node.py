@@ -11,6 +11,8 @@ drives many nodes from one source on one bus.
 from __future__ import annotations
 
 import threading
+import weakref
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import canopen
@@ -18,12 +20,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canbus import codes
-from canbus.emcy import FaultReporter
+from canbus.emcy import REGISTER_FAULT, FaultReporter
 from canbus.heartbeat import HeartbeatProducer
 from canbus.nmt_slave import OPERATIONAL, PRE_OPERATIONAL, RESET_COMMUNICATION, RESET_NODE, NmtSlave
 from canbus.object_store import ObjectStore
 from canbus.od import load_od
-from canbus.pdo_codec import TPDO_COMM, TPDO_MAP
+from canbus.pdo_codec import TPDO_COMM, TPDO_MAP, PdoCodec
 from canbus.tpdo import TpdoTable
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.errors import ConfigError
@@ -33,6 +35,8 @@ TPDO_COUNT = 7
 _CONSTANT_FIELDS = ("youngs_modulus_pa", "resistivity_ohm_m", "length_m", "area_m2",
                     "max_strain", "full_scale_force_N", "taxel_pitch_m")
 Frame = tuple[int, bytes]
+Due = Callable[["PatchNode", NDArray[np.uint8]], list[int]]
+_ERROR_REGISTER_COLUMN = 36  # of a node's row: codes 0x2000 (27), status 0x2004 (9), 0x1001
 
 
 def z_only_mapping() -> list[list[int]]:
@@ -86,11 +90,16 @@ class PatchNode:
 
     def update(self, resistance_ohm: ArrayLike) -> None:
         """Take the patch's resistances, shape ``(9, P)``: codes, taxel status, EMCY."""
-        r = np.asarray(resistance_ohm, dtype=np.float64).reshape(9, -1)
+        batch_update([self], np.asarray(resistance_ohm, dtype=np.float64).reshape(1, 9, -1))
+
+    def _adopt(self, new_codes: NDArray[np.uint16], status: NDArray[np.uint8],
+               changed: bool) -> None:
+        """Take one sample's codes ``(9, 3)`` and taxel status (``changed``: it differs
+        from the node's); EMCY for every taxel whose status changed."""
         with self.lock:
-            lsb = self.constants.resistance_lsb_ohm
-            self.codes[:, : r.shape[1]] = codes.resistance_to_code(r, lsb)
-            status = codes.taxel_status(self.codes, min(r.shape[1], self.pillars))
+            self.codes[...] = new_codes
+            if not changed:
+                return  # nothing to report, nothing to adopt
             emcy_live = self.nmt.state in (OPERATIONAL, PRE_OPERATIONAL)
             self.faults.update(status, self.network if emcy_live else None,
                                int(self.store.value(0x1014)))
@@ -104,22 +113,10 @@ class PatchNode:
         return np.asarray(out, dtype=np.float64)[None, :]
 
     def frames_on_sync(self, counter: int) -> list[Frame]:
-        with self.lock:
-            if self.nmt.state != OPERATIONAL:
-                return []
-            payloads = self.tpdo.codec.pack(self.values())[0]
-            return self._frames(self.tpdo.due_on_sync(counter, payloads), payloads)
+        return batch_frames_on_sync([self], counter)
 
     def frames_on_event(self, now: float) -> list[Frame]:
-        with self.lock:
-            if self.nmt.state != OPERATIONAL:
-                return []
-            payloads = self.tpdo.codec.pack(self.values())[0]
-            return self._frames(self.tpdo.due_on_event(now, payloads), payloads)
-
-    def _frames(self, due: list[int], payloads: NDArray[np.uint8]) -> list[Frame]:
-        codec = self.tpdo.codec
-        return [(int(codec.cob_ids[p]), payloads[p, : codec.sizes[p]].tobytes()) for p in due]
+        return batch_frames_on_event([self], now)
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         with self.lock:
@@ -166,3 +163,109 @@ class PatchNode:
                 self.store.store(TPDO_COMM + n, 1, cob | 0x8000_0000)
         self.tpdo.reset()
 
+
+
+def batch_update(nodes: Sequence[PatchNode], resistance_ohm: NDArray[np.float64]) -> None:
+    """:meth:`PatchNode.update` of ``n`` nodes at once: ``(n, 9, P)`` ohms.
+
+    One code conversion and one status computation per distinct (LSB, measured pillars);
+    the fault reporter of a node runs only when its status changed.
+    """
+    r = resistance_ohm
+    width = r.shape[2]
+    groups: dict[tuple[float, int], list[int]] = {}
+    for i, node in enumerate(nodes):
+        key = (node.constants.resistance_lsb_ohm, min(width, node.pillars))
+        groups.setdefault(key, []).append(i)
+    for (lsb, measured), rows in groups.items():
+        group = [nodes[i] for i in rows]
+        new = codes.resistance_to_code(r if len(rows) == len(nodes) else r[rows], lsb)
+        if width == 3:
+            full = new
+        else:  # the pillars not measured keep their codes
+            full = np.stack([node.codes for node in group])
+            full[:, :, :width] = new
+        status = codes.taxel_status(full, measured)
+        changed = (status != np.stack([node.faults.status for node in group])).any(axis=1)
+        for node, node_codes, node_status, node_changed in zip(group, full, status,
+                                                               changed.tolist(), strict=True):
+            node._adopt(node_codes, node_status, node_changed)
+
+
+def batch_frames_on_sync(nodes: Sequence[PatchNode], counter: int) -> list[Frame]:
+    """:meth:`PatchNode.frames_on_sync` of ``nodes``, in node order."""
+    return batch_frames(nodes, lambda node, payloads: node.tpdo.due_on_sync(counter, payloads))
+
+
+def batch_frames_on_event(nodes: Sequence[PatchNode], now: float) -> list[Frame]:
+    """:meth:`PatchNode.frames_on_event` of ``nodes``, in node order."""
+    return batch_frames(nodes, lambda node, payloads: node.tpdo.due_on_event(now, payloads))
+
+
+def batch_frames(nodes: Sequence[PatchNode], due: Due) -> list[Frame]:
+    """The TPDO frames that ``due(node, payloads)`` selects, of every OPERATIONAL node.
+
+    Nodes whose TPDOs are mapped alike are packed by one ``PdoCodec.pack`` call; every
+    node's lock is held throughout, so each sees one consistent sample and mapping.
+    """
+    held: list[threading.RLock] = []
+    try:
+        for node in nodes:
+            node.lock.acquire()
+            held.append(node.lock)
+        return _frames_locked([node for node in nodes if node.nmt.state == OPERATIONAL], due)
+    finally:
+        for lock in reversed(held):
+            lock.release()
+
+
+def _frames_locked(live: list[PatchNode], due: Due) -> list[Frame]:
+    if not live:
+        return []
+    n = len(live)
+    status = np.stack([node.faults.status for node in live])
+    error_register = np.where(status.any(axis=1), REGISTER_FAULT, 0)  # FaultReporter's 0x1001
+    rows = np.concatenate([np.stack([node.codes for node in live]).reshape(n, 27), status,
+                           error_register[:, None]], axis=1, dtype=np.int64)
+    groups: dict[_Layout, list[int]] = {}
+    for i, node in enumerate(live):
+        groups.setdefault(_layout(node.tpdo.codec), []).append(i)
+    out: list[list[Frame]] = [[] for _ in live]
+    for layout, members in groups.items():
+        chosen = rows if len(members) == n else rows[members]
+        payloads = live[members[0]].tpdo.codec.pack(chosen[:, layout.gather])
+        blob, stride, sizes = payloads.tobytes(), 8 * len(layout.sizes), layout.sizes
+        for m, i in enumerate(members):
+            cob_ids = live[i].tpdo.codec.cob_ids.tolist()
+            at = m * stride
+            out[i] = [(cob_ids[p], blob[at + 8 * p:at + 8 * p + sizes[p]])
+                      for p in due(live[i], payloads[m])]
+    return [frame for frames in out for frame in frames]
+
+
+class _Layout:
+    """A TPDO mapping shape: codecs mapped alike share one (by identity)."""
+
+    __slots__ = ("__weakref__", "gather", "sizes")
+
+    def __init__(self, codec: PdoCodec) -> None:
+        self.sizes = tuple(int(size) for size in codec.sizes)
+        columns = {RESISTANCES: 0, STATUS: 27}
+        self.gather = np.array([columns[i] + s - 1 if i in columns else _ERROR_REGISTER_COLUMN
+                                for i, s in codec.variables], dtype=np.intp)
+
+
+_LAYOUTS: weakref.WeakKeyDictionary[PdoCodec, _Layout] = weakref.WeakKeyDictionary()
+_SHAPES: dict[tuple[Any, ...], _Layout] = {}
+
+
+def _layout(codec: PdoCodec) -> _Layout:
+    """The codec's mapping shape, computed once per codec and shared by equal mappings."""
+    layout = _LAYOUTS.get(codec)
+    if layout is None:
+        key = tuple(lay.entries for lay in codec.layouts)
+        layout = _SHAPES.get(key)
+        if layout is None:
+            layout = _SHAPES[key] = _Layout(codec)
+        _LAYOUTS[codec] = layout
+    return layout

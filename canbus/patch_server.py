@@ -16,9 +16,16 @@ import time
 
 import can
 import canopen
+import numpy as np
 
-from canbus.patch_node import PatchNode
+from canbus.patch_node import (
+    PatchNode,
+    batch_frames_on_event,
+    batch_frames_on_sync,
+    batch_update,
+)
 from canbus.source import ResistanceSource
+from canbus.txmessage import TxMessage
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 
 logger = logging.getLogger(__name__)
@@ -76,13 +83,15 @@ class PatchServer:
             self.sync_count += 1
             if self._thread is None:
                 self._tick()
-            self._send([f for node in self.nodes for f in node.frames_on_sync(self.sync_count)])
+            self._send(batch_frames_on_sync(self.nodes, self.sync_count))
 
     def _tick(self) -> None:
-        sample = self.source.read()
+        sample = np.asarray(self.source.read(), dtype=np.float64)
+        if len(sample) != len(self.nodes):
+            raise ValueError(f"the source gave {len(sample)} patches, "
+                             f"the server has {len(self.nodes)}")
         self.samples += 1
-        for node, patch in zip(self.nodes, sample, strict=True):
-            node.update(patch)
+        batch_update(self.nodes, sample.reshape(len(self.nodes), 9, -1))
 
     def _event_loop(self) -> None:
         period = 1.0 / self._event_rate_hz
@@ -93,15 +102,14 @@ class PatchServer:
             now = time.monotonic()
             with self._lock:
                 self._tick()
-                self._send([f for node in self.nodes for f in node.frames_on_event(now)])
+                self._send(batch_frames_on_event(self.nodes, now))
 
     def _send(self, frames: list[tuple[int, bytes]]) -> None:
         bus = self.network.bus
         assert bus is not None, "the network is not connected"
         for cob_id, payload in frames:
             try:
-                bus.send(can.Message(arbitration_id=cob_id, data=payload,
-                                     is_extended_id=False))
+                bus.send(TxMessage(arbitration_id=cob_id, data=payload, is_extended_id=False))
             except can.CanError as err:
                 logger.warning("TPDO 0x%03X not sent: %s", cob_id, err)
         self.frames_sent += len(frames)

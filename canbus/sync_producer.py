@@ -20,6 +20,8 @@ from collections.abc import Callable
 
 import can
 
+from canbus.txmessage import TxMessage
+
 logger = logging.getLogger(__name__)
 
 SYNC_COB_ID = 0x080
@@ -65,8 +67,8 @@ class SyncProducer:
         """Open the next cycle and send its SYNC."""
         self.cycle += 1
         count = sync_counter(self.cycle) if self.counter else 0
-        msg = can.Message(arbitration_id=SYNC_COB_ID, is_extended_id=False,
-                          data=bytes([count]) if self.counter else b"")
+        msg = TxMessage(arbitration_id=SYNC_COB_ID, is_extended_id=False,
+                        data=bytes([count]) if self.counter else b"")
         self.on_sync(self.cycle, count, time.time())
         try:
             self.bus.send(msg)

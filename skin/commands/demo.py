@@ -276,9 +276,11 @@ def _demo(args: argparse.Namespace) -> int:
     # them stalled every thread for ~75 ms mid-run. Collect once now and freeze them.
     gc.collect()
     gc.freeze()
+    # Before the start: a sample published before the record saw it would still end on
+    # the bus clock, and every later sample would be matched to the SYNC before its own.
+    host.on_forces(live)
     try:
         with server, host:
-            host.on_forces(live)
             if not host.wait_operational(timeout=10.0):
                 states = {n: h.state for n, h in host.health().items()}
                 raise BusError(f"the patches did not all become operational: {states}")

@@ -157,3 +157,18 @@ def test_damaged_files(name: str, frame: int, message: str) -> None:
         got.extend(reader)
     assert str(info.value) == f"{FILES / name}: frame {frame}: {message}"
     assert len(got) == frame - 1
+
+
+def test_python_can_logger_and_reader_take_pcap_by_entry_point(tmp_path: Path) -> None:
+    """pyproject registers the codec in python-can's plug-in groups: its own Logger and
+    LogReader (and so can.logger / can.player) write and read .pcap."""
+    path = tmp_path / "plug-in.pcap"
+    sent = [can.Message(timestamp=1.5 + k, arbitration_id=0x181 + k, is_extended_id=False,
+                        data=bytes([k] * 8)) for k in range(3)]
+    with can.Logger(path) as logger:
+        assert isinstance(logger, PcapWriter)
+        for msg in sent:
+            logger.on_message_received(msg)
+    got = list(can.LogReader(path))
+    assert [(m.arbitration_id, bytes(m.data), m.timestamp) for m in got] == \
+        [(m.arbitration_id, bytes(m.data), m.timestamp) for m in sent]
