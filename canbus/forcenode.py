@@ -17,26 +17,21 @@ NMT like a patch node; it transmits only while OPERATIONAL (:attr:`transmitting`
 from __future__ import annotations
 
 import functools
-import threading
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import canopen
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from canbus.heartbeat import HeartbeatProducer
-from canbus.nmt_slave import OPERATIONAL, RESET_COMMUNICATION, RESET_NODE, START, NmtSlave
-from canbus.object_store import ObjectStore
+from canbus.device import TPDO_COUNT, LocalDevice
+from canbus.nmt_slave import OPERATIONAL, START
 from canbus.od import load_od
 from canbus.pdo_codec import MappedEntry, PdoCodec, read_defaults, read_layouts
-from canbus.tpdo import TpdoTable
 from skin.errors import BusError, ConfigError
 
 FORCES, SOURCE, STATUS, VALID = 0x2000, 0x2001, 0x2004, 0x2005
-TPDO_COUNT = 7
 NO_VALUE = -0x8000
 """INTEGER16 0x8000: the component has no value (invalid taxel or beyond +-32.767 N)."""
 COMPLETE = 1 << 15
@@ -150,7 +145,7 @@ def force_node_cob_ids(node_id: int) -> frozenset[int]:
     return frozenset(tpdos | {read(0x1014, 0) & 0x7FF, 0x700 + node_id, read(0x1200, 2) & 0x7FF})
 
 
-class ForceNode:
+class ForceNode(LocalDevice):
     """The force node of patch ``source_patch`` at node-ID ``node_id`` (1..127)."""
 
     def __init__(self, node_id: int, source_patch: int, *, heartbeat_ms: int = 1000) -> None:
@@ -158,21 +153,10 @@ class ForceNode:
             raise ConfigError("source_patch", f"must be a node-ID in 1..127, got {source_patch}")
         if not 0 <= heartbeat_ms <= 0xFFFF:
             raise ConfigError("heartbeat_ms", f"must be in 0..65535, got {heartbeat_ms}")
-        self.node_id = node_id
         self.source_patch = source_patch
         self.heartbeat_ms = heartbeat_ms
-        self.store = ObjectStore(node_id, load_od("skin-forces", node_id))
-        self.tpdo = TpdoTable(self.store, TPDO_COUNT)
-        self.heartbeat = HeartbeatProducer(node_id)
-        self.nmt = NmtSlave(node_id, on_reset=self._reset, on_state=self.heartbeat.set_state)
-        self.network: canopen.Network | None = None
-        self.lock = threading.RLock()
-        self._forces_mN = np.full(27, NO_VALUE, dtype=np.int16)
-        self._status = np.zeros(9, dtype=np.uint8)
-        self._valid = 0
-        self.store.add_read_callback(self._read_live)
-        self.store.add_write_callback(self._written)
-        self._apply_defaults()
+        self._clear_application()
+        super().__init__(node_id, "skin-forces")
 
     @property
     def codec(self) -> PdoCodec:
@@ -181,28 +165,9 @@ class ForceNode:
             return self.tpdo.codec
 
     @property
-    def state(self) -> int:
-        return self.nmt.state
-
-    @property
     def transmitting(self) -> bool:
         """OPERATIONAL: the node's PDOs may go onto the bus."""
         return self.nmt.state == OPERATIONAL
-
-    def attach(self, network: canopen.Network) -> None:
-        """Join ``network`` and boot: boot-up message, PRE-OPERATIONAL, heartbeat, SDO server."""
-        self.network = network
-        self.store.associate_network(network)
-        network.subscribe(0, self._on_nmt)
-        self.nmt.boot(network)
-        self.heartbeat.start(network, int(self.store.value(0x1017)), self.nmt.state)
-
-    def detach(self) -> None:
-        self.heartbeat.stop()
-        if self.network is not None:
-            self.network.unsubscribe(0, self._on_nmt)
-            self.store.remove_network()
-            self.network = None
 
     def start(self) -> None:
         """Enter OPERATIONAL, as an NMT start from a master would (the host's own nodes)."""
@@ -251,26 +216,11 @@ class ForceNode:
             return self._valid
         return None
 
-    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        with self.lock:
-            self.nmt.on_command(can_id, data, timestamp)
-            reset = len(data) == 2 and data[0] in (RESET_NODE, RESET_COMMUNICATION)
-            if reset and data[1] in (0, self.node_id) and self.network is not None:
-                self.heartbeat.start(self.network, int(self.store.value(0x1017)), self.nmt.state)
-
-    def _written(self, index: int, **_: Any) -> None:
-        if index == 0x1017:
-            self.heartbeat.set_period(int(self.store.value(0x1017)))
-
-    def _reset(self, application: bool) -> None:
-        with self.lock:
-            self.store.reset_area(0x1000, 0xFFFF if application else 0x1FFF)
-            if application:
-                self._forces_mN = np.full(27, NO_VALUE, dtype=np.int16)
-                self._status = np.zeros(9, dtype=np.uint8)
-                self._valid = 0
-            self._apply_defaults()
-            self.heartbeat.stop()
+    def _clear_application(self) -> None:
+        """No sample published yet: every force reads 0x8000, no taxel valid."""
+        self._forces_mN = np.full(27, NO_VALUE, dtype=np.int16)
+        self._status = np.zeros(9, dtype=np.uint8)
+        self._valid = 0
 
     def _apply_defaults(self) -> None:
         """Power-on values the EDS cannot know: serial, source patch, heartbeat period."""

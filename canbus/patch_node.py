@@ -15,23 +15,18 @@ import weakref
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import canopen
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canbus import codes
+from canbus.device import TPDO_COUNT, LocalDevice
 from canbus.emcy import REGISTER_FAULT, FaultReporter
-from canbus.heartbeat import HeartbeatProducer
-from canbus.nmt_slave import OPERATIONAL, PRE_OPERATIONAL, RESET_COMMUNICATION, RESET_NODE, NmtSlave
-from canbus.object_store import ObjectStore
-from canbus.od import load_od
+from canbus.nmt_slave import OPERATIONAL, PRE_OPERATIONAL
 from canbus.pdo_codec import TPDO_COMM, TPDO_MAP, PdoCodec
-from canbus.tpdo import TpdoTable
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.errors import ConfigError
 
 RESISTANCES, LSB, NOMINAL, CONSTANTS, STATUS = 0x2000, 0x2001, 0x2002, 0x2003, 0x2004
-TPDO_COUNT = 7
 _CONSTANT_FIELDS = ("youngs_modulus_pa", "resistivity_ohm_m", "length_m", "area_m2",
                     "max_strain", "full_scale_force_N", "taxel_pitch_m")
 Frame = tuple[int, bytes]
@@ -45,48 +40,20 @@ def z_only_mapping() -> list[list[int]]:
             for row in range(3)]
 
 
-class PatchNode:
+class PatchNode(LocalDevice):
     """A 3x3 patch (node-ID 1..127) in mode ``"xyz"`` (27 values) or ``"z"`` (9 values)."""
 
     def __init__(self, node_id: int, *, mode: str = "xyz",
                  constants: SensorConstants = DEFAULT_CONSTANTS, serial: int = 0) -> None:
         if mode not in ("z", "xyz"):
             raise ConfigError("mode", f"must be 'z' or 'xyz', got {mode!r}")
-        self.node_id = node_id
         self.mode = mode
         self.constants = constants
         self.serial = serial
         self.pillars = 1 if mode == "z" else 3
-        self.store = ObjectStore(node_id, load_od("skin-patch", node_id))
         self.codes = np.full((9, 3), codes.OPEN, dtype=np.uint16)
         self.faults = FaultReporter()
-        self.tpdo = TpdoTable(self.store, TPDO_COUNT)
-        self.heartbeat = HeartbeatProducer(node_id)
-        self.nmt = NmtSlave(node_id, on_reset=self._reset, on_state=self.heartbeat.set_state)
-        self.network: canopen.Network | None = None
-        self.lock = threading.RLock()
-        self.store.add_read_callback(self._read_live)
-        self.store.add_write_callback(self._written)
-        self._apply_defaults()
-
-    @property
-    def state(self) -> int:
-        return self.nmt.state
-
-    def attach(self, network: canopen.Network) -> None:
-        """Join ``network`` and boot: boot-up message, PRE-OPERATIONAL, heartbeat."""
-        self.network = network
-        self.store.associate_network(network)
-        network.subscribe(0, self._on_nmt)
-        self.nmt.boot(network)
-        self.heartbeat.start(network, int(self.store.value(0x1017)), self.nmt.state)
-
-    def detach(self) -> None:
-        self.heartbeat.stop()
-        if self.network is not None:
-            self.network.unsubscribe(0, self._on_nmt)
-            self.store.remove_network()
-            self.network = None
+        super().__init__(node_id, "skin-patch")
 
     def update(self, resistance_ohm: ArrayLike) -> None:
         """Take the patch's resistances, shape ``(9, P)``: codes, taxel status, EMCY."""
@@ -118,13 +85,6 @@ class PatchNode:
     def frames_on_event(self, now: float) -> list[Frame]:
         return batch_frames_on_event([self], now)
 
-    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        with self.lock:
-            self.nmt.on_command(can_id, data, timestamp)
-            reset = len(data) == 2 and data[0] in (RESET_NODE, RESET_COMMUNICATION)
-            if reset and data[1] in (0, self.node_id) and self.network is not None:
-                self.heartbeat.start(self.network, int(self.store.value(0x1017)), self.nmt.state)
-
     def _read_live(self, index: int, subindex: int, **_: Any) -> int | None:
         if index == RESISTANCES and subindex:
             return int(self.codes.reshape(-1)[subindex - 1])
@@ -133,16 +93,6 @@ class PatchNode:
         if index == 0x1001:
             return self.faults.error_register
         return None
-
-    def _written(self, index: int, **_: Any) -> None:
-        if index == 0x1017:
-            self.heartbeat.set_period(int(self.store.value(0x1017)))
-
-    def _reset(self, application: bool) -> None:
-        with self.lock:
-            self.store.reset_area(0x1000, 0xFFFF if application else 0x1FFF)
-            self._apply_defaults()
-            self.heartbeat.stop()
 
     def _apply_defaults(self) -> None:
         """Power-on values that the EDS cannot know: constants, serial, z-only mapping."""
