@@ -39,10 +39,8 @@ commands any master sends it, its boot-up, its heartbeats (lost and back as abov
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
-import queue
 import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor, wait
@@ -59,6 +57,7 @@ from numpy.typing import NDArray
 from canbus.baseline import Baseline, PatchLoadedError
 from canbus.dataplane import DataPlane, ForceFrame, PatchChannel
 from canbus.discovery import BootListener, Identity, UnknownNode, read_identity, scan, sdo_client
+from canbus.fanout import FrameCallback, FrameFanout
 from canbus.forcenode import ForceNode
 from canbus.hostconfig import (
     HostConfig,
@@ -91,7 +90,6 @@ STATES = ("absent", "configuring", "operational", "stopped", "lost", "failed")
 _NMT_COMMANDS = {NMT_START: "operational", 0x02: "stopped", NMT_PRE_OPERATIONAL: "configuring",
                  0x81: "configuring", 0x82: "configuring"}  # resets: a boot-up follows
 
-FrameCallback = Callable[[ForceFrame], None]
 
 
 @dataclass(frozen=True)
@@ -131,24 +129,6 @@ class _Patch:
     incomplete: int = 0
     last: ForceFrame | None = None
     sdo_lock: threading.Lock = field(default_factory=threading.Lock)
-
-
-class _FrameQueue:
-    """A bounded queue that drops its oldest frame rather than block the data plane."""
-
-    def __init__(self, maxsize: int) -> None:
-        self.queue: queue.Queue[ForceFrame | None] = queue.Queue(maxsize)
-        self.dropped = 0
-
-    def put(self, item: ForceFrame | None) -> None:
-        while True:
-            try:
-                self.queue.put_nowait(item)
-                return
-            except queue.Full:
-                with contextlib.suppress(queue.Empty):
-                    self.queue.get_nowait()
-                    self.dropped += 1
 
 
 class HostManager:
@@ -195,15 +175,12 @@ class HostManager:
         self._force_ids = {p.force_node: p.node_id for p in self.config.patches}
         self._decoders: dict[tuple[str, str, object], Decoder] = {}
         self._warm: set[tuple[str, str, object, int]] = set()
-        self._callbacks: list[FrameCallback] = []
-        self._queues: list[_FrameQueue] = []
+        self.fanout = FrameFanout()
         self._lock = threading.RLock()
         self._changed = threading.Condition(self._lock)  # notified on every state change
         self._executor: ThreadPoolExecutor | None = None
         self._running = False
         self._scanning = False  # boot-ups and returns are left to the scan meanwhile
-        self.callback_errors = 0
-        self.api_dropped = 0
 
     @classmethod
     def from_config(cls, path: str | os.PathLike[str], bus: can.BusABC, **kwargs: Any) -> Self:
@@ -308,10 +285,7 @@ class HostManager:
             self.network.notifier = None
         elif self._dataplane is not None:
             self._dataplane.stop()
-        with self._lock:
-            queues = list(self._queues)
-        for q in queues:
-            q.put(None)
+        self.fanout.close()
 
     def _discover(self) -> list[Future[None]]:
         """Scan, refuse collisions, set up the configured patches found, report the rest.
@@ -378,12 +352,20 @@ class HostManager:
         Keep it short: the next patch's frames wait for it. An exception is logged with
         its traceback and counted in :attr:`callback_errors`; the other callbacks run.
         """
-        with self._lock:
-            self._callbacks = [*self._callbacks, callback]
+        self.fanout.add_callback(callback)
 
     def remove_callback(self, callback: FrameCallback) -> None:
-        with self._lock:
-            self._callbacks = [c for c in self._callbacks if c is not callback]
+        self.fanout.remove_callback(callback)
+
+    @property
+    def callback_errors(self) -> int:
+        """Exceptions raised by force and ``on_unknown`` callbacks (logged)."""
+        return self.fanout.callback_errors
+
+    @property
+    def api_dropped(self) -> int:
+        """Frames the ``frames()`` iterators had no room for (oldest dropped)."""
+        return self.fanout.dropped
 
     def frames(self, timeout: float | None = 1.0, *,
                maxsize: int | None = None) -> Iterator[ForceFrame]:
@@ -394,24 +376,8 @@ class HostManager:
         ``host.queue_size``); when the consumer falls behind, the oldest are dropped
         and counted in :attr:`api_dropped`, never blocking the data plane.
         """
-        q = _FrameQueue(maxsize or self.config.queue_size)
-        with self._lock:
-            self._queues = [*self._queues, q]
-        return self._drain(q, timeout)
-
-    def _drain(self, q: _FrameQueue, timeout: float | None) -> Iterator[ForceFrame]:
-        try:
-            while self._running or not q.queue.empty():
-                try:
-                    item = q.queue.get(timeout=timeout)
-                except queue.Empty:
-                    return
-                if item is None:
-                    return
-                yield item
-        finally:
-            with self._lock:
-                self._queues = [x for x in self._queues if x is not q]
+        return self.fanout.iterate(maxsize or self.config.queue_size, timeout,
+                                   lambda: self._running)
 
     def health(self) -> dict[int, PatchHealth]:
         """Every configured patch's state, by node-ID."""
@@ -462,21 +428,11 @@ class HostManager:
     # -- data plane thread -------------------------------------------------------------
 
     def _on_frames(self, frames: list[ForceFrame]) -> None:
-        callbacks, queues = self._callbacks, self._queues  # replaced, never mutated: no lock
         for frame in frames:
             patch = self._patches.get(frame.patch)
             if patch is not None:
                 self._account(patch, frame)
-            for callback in callbacks:
-                try:
-                    callback(frame)
-                except Exception:
-                    self.callback_errors += 1
-                    logger.exception("force callback %r failed", callback)
-            for q in queues:
-                before = q.dropped
-                q.put(frame)
-                self.api_dropped += q.dropped - before
+            self.fanout.publish(frame)
 
     def _account(self, patch: _Patch, frame: ForceFrame) -> None:
         previous = patch.last
@@ -777,7 +733,7 @@ class HostManager:
             try:
                 self.on_unknown(unknown)
             except Exception:
-                self.callback_errors += 1
+                self.fanout.callback_errors += 1
                 logger.exception("on_unknown callback failed")
 
 
