@@ -33,7 +33,7 @@ from canbus.replay import Recording
 from canbus.services import Service, ServiceDecoder, route
 from canbus.sniffer import FrameFilter, Sniffer, frame_bits
 from skin.cli import main
-from skin.commands.sniff import ViewStats, render
+from skin.commands.sniff_view import ViewStats, render
 from skin.constants import DEFAULT_CONSTANTS
 
 SYNCS = 6
@@ -315,13 +315,13 @@ def test_bad_arguments_fail_before_the_bus_opens(tmp_path: Path,
 def test_line_printer_filters_batches_and_counts_drops(monkeypatch: pytest.MonkeyPatch) -> None:
     import io
 
-    from skin.commands import sniff
+    from skin.commands import sniff_view
 
     decoder = ServiceDecoder()
     out = io.StringIO()
     stats = ViewStats()
-    monkeypatch.setattr(sniff, "_LINE_QUEUE", 3)
-    printer = sniff.LinePrinter(decoder, FrameFilter(nodes=[1]), out, stats)  # not started
+    monkeypatch.setattr(sniff_view, "_LINE_QUEUE", 3)
+    printer = sniff_view.LinePrinter(decoder, FrameFilter(nodes=[1]), out, stats)  # not started
     frames = [_msg(1.5, 0x181, bytes.fromhex("204e7c6e7c6e204e")), _msg(1.6, 0x182, bytes(8)),
               _msg(1.7, 0x701, b"\x05"), _msg(1.8, 0x181, bytes.fromhex("ffff000000000000")),
               _msg(1.9, 0x601, bytes.fromhex("4018100200000000")), _msg(2.0, 0x181, bytes(8))]
