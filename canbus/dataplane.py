@@ -131,12 +131,24 @@ class _Slot:
             raise ConfigError("channel.codec", f"patch {channel.node_id}'s PDOs do not map "
                               f"every 0x2000 code of {p} pillar(s)") from err
         carried = np.zeros((pdos, TAXELS_PER_PATCH), dtype=bool)
+        at: dict[tuple[int, int], int] = {}  # variable -> its first byte in ``raw``
         for n, layout in enumerate(codec.layouts):
+            offset = 8 * n
             for entry in layout.entries:
+                at.setdefault((entry.index, entry.subindex), offset)
+                offset += entry.bits // 8
                 value = entry.subindex - 1
                 if entry.index == RESISTANCES and value % 3 < p:
                     carried[n, value // 3] = True
         self.carried = carried  # (PDOs, 9): the taxels each PDO carries
+        offsets = np.array([[at[(RESISTANCES, 3 * t + k + 1)] for k in range(p)]
+                            for t in range(TAXELS_PER_PATCH)], dtype=np.intp)
+        self.words: NDArray[np.intp] | None = None
+        """(9, P) each code's place in ``raw`` read as little-endian UNSIGNED16 words, or
+        None if a code starts at an odd byte (then ``codec.unpack`` reads them)."""
+        u16 = all(codec.dtypes[c] == np.dtype("<u2") for c in self.columns.ravel().tolist())
+        if u16 and not np.any(offsets % 2):
+            self.words = offsets // 2
 
     def taxels_of(self, pdo_bits: int) -> NDArray[np.bool_]:
         """(9,) the taxels carried by the PDOs whose bits are set."""
@@ -240,10 +252,14 @@ class DataPlane(can.Listener):
     # -- the hot path -----------------------------------------------------------------------
 
     def on_message_received(self, msg: can.Message) -> None:
+        self.take(msg)
+
+    def take(self, msg: can.Message) -> bool:
+        """Handle ``msg`` if it is a PDO of a channel; False (and counted unknown) if not."""
         entry = self._table.get(msg.arbitration_id)
         if entry is None or msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
             self.stats.unknown_frames += 1  # only the notifier thread writes this counter
-            return
+            return False
         with self._lock:
             self.stats.frames_in += 1
             if self._start <= msg.timestamp <= self._end:
@@ -252,6 +268,7 @@ class DataPlane(can.Listener):
                 self._held.append((entry, bytes(msg.data), msg.timestamp))
             else:
                 self.stats.late_frames += 1
+        return True
 
     def _accept(self, entry: _Entry, data: bytes | bytearray) -> None:
         """One in-window frame (lock held)."""
@@ -269,7 +286,8 @@ class DataPlane(can.Listener):
         if slot.seen == slot.full and not slot.bad and slot.active and self._cycle is not None:
             slot.done = True
             self._queue.append(_Job(slot, self._cycle, bytes(slot.raw), 0, True))
-            self._wake.set()
+            if not self._wake.is_set():  # the publisher has not yet taken the queue
+                self._wake.set()
 
     # -- cycles -----------------------------------------------------------------------------
 
@@ -402,15 +420,19 @@ class DataPlane(can.Listener):
             groups.setdefault(job.slot.key, []).append(i)
         for rows in groups.values():
             first = jobs[rows[0]].slot
-            pdos = len(first.channel.codec.layouts)
-            payload = np.frombuffer(b"".join(jobs[i].payload for i in rows), dtype=np.uint8)
-            values = first.channel.codec.unpack(payload.reshape(len(rows), pdos, 8))
+            blob = b"".join(jobs[i].payload for i in rows)
+            if first.words is not None:
+                codes = np.frombuffer(blob, dtype="<u2").reshape(len(rows), -1)[:, first.words]
+            else:
+                pdos = len(first.channel.codec.layouts)
+                payload = np.frombuffer(blob, dtype=np.uint8).reshape(len(rows), pdos, 8)
+                codes = first.channel.codec.unpack(payload)[:, first.columns]
             channels = [jobs[i].slot.channel for i in rows]
             lsb = {channel.lsb_ohm for channel in channels}
             if len(lsb) == 1:  # open/saturated: +inf
-                raw = code_to_resistance(values[:, first.columns], lsb.pop())
+                raw = code_to_resistance(codes, lsb.pop())
             else:
-                raw = code_to_resistance(values[:, first.columns], 1.0) * np.array(
+                raw = code_to_resistance(codes, 1.0) * np.array(
                     [channel.lsb_ohm for channel in channels])[:, None, None]
             for m, i in enumerate(rows):
                 if jobs[i].complete:
@@ -456,10 +478,10 @@ class DataPlane(can.Listener):
                 logger.exception("data plane: subscriber %r failed", callback)
 
     def _transmit(self, frames: list[tuple[int, bytes]]) -> bool:
-        send, sent = self.bus.send, 0
+        send, frame, sent = self.bus.send, TxMessage.data_frame, 0
         try:
             for cob, payload in frames:
-                send(TxMessage(arbitration_id=cob, data=payload, is_extended_id=False))
+                send(frame(cob, payload))
                 sent += 1
         except can.CanError as err:
             self.stats.send_errors += 1
@@ -468,6 +490,43 @@ class DataPlane(can.Listener):
         finally:
             self.stats.frames_out += sent
         return True
+
+
+class PdoRouter(can.Listener):
+    """A notifier's one listener: a PDO of a data plane channel goes to the data plane
+    alone, every other frame to ``others`` in order (canopen's listener, a SYNC follower).
+
+    canopen has no use for the patches' PDOs once the data plane owns them, and its
+    listener costs a microsecond a frame on the latency path.
+    """
+
+    def __init__(self, dataplane: DataPlane, others: Sequence[can.Listener]) -> None:
+        self.dataplane = dataplane
+        self.take = dataplane.take
+        self.others = tuple(others)
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if not self.take(msg):
+            for listener in self.others:
+                listener.on_message_received(msg)
+
+    def on_error(self, exc: Exception) -> None:
+        """As ``can.Notifier`` does: handled if any of ``others`` handles it."""
+        handled = False
+        for listener in self.others:
+            try:
+                listener.on_error(exc)
+            except NotImplementedError:
+                continue
+            handled = True
+        if not handled:
+            raise NotImplementedError
+
+    def stop(self) -> None:
+        """Stop every listener, the data plane last (it publishes what is queued)."""
+        for listener in self.others:
+            listener.stop()
+        self.dataplane.stop()
 
 
 def _by_decoder(jobs: Sequence[_Job]) -> list[tuple[list[int], Decoder]]:

@@ -55,7 +55,7 @@ from canopen.sdo.exceptions import SdoError
 from numpy.typing import NDArray
 
 from canbus.baseline import Baseline, PatchLoadedError
-from canbus.dataplane import DataPlane, ForceFrame, PatchChannel
+from canbus.dataplane import DataPlane, ForceFrame, PatchChannel, PdoRouter
 from canbus.discovery import BootListener, Identity, UnknownNode, read_identity, scan, sdo_client
 from canbus.fanout import FrameCallback, FrameFanout
 from canbus.forcenode import ForceNode
@@ -228,13 +228,13 @@ class HostManager:
                                 on_sync=dataplane.on_sync, counter=self.config.sync_counter)
         self._sync = sync
         # canopen's notifier, built here rather than by Network.connect() (which, on a bus
-        # it is given, builds just this) so that it starts with every listener: the SYNC
-        # follower before the data plane (each SYNC opens its cycle before its PDOs), and
-        # every frame that canopen's listener sees, the data plane sees, from the first.
-        listeners: list[can.Listener] = [*self.network.listeners]
+        # it is given, builds just this) so that it starts with every listener: the data
+        # plane takes its patches' PDOs, canopen's listener and the SYNC follower get
+        # every other frame, from the first.
+        others: list[can.Listener] = [*self.network.listeners]
         if isinstance(sync, SyncFollower):
-            listeners.append(sync)
-        listeners.append(dataplane)
+            others.append(sync)
+        listeners: list[can.Listener] = [PdoRouter(dataplane, others)]
         self._scanning = isinstance(sync, SyncProducer) and self.config.scan
         try:
             self.boots.start()

@@ -109,7 +109,7 @@ class PatchServer:
         assert bus is not None, "the network is not connected"
         for cob_id, payload in frames:
             try:
-                bus.send(TxMessage(arbitration_id=cob_id, data=payload, is_extended_id=False))
+                bus.send(TxMessage.data_frame(cob_id, payload))
             except can.CanError as err:
                 logger.warning("TPDO 0x%03X not sent: %s", cob_id, err)
         self.frames_sent += len(frames)

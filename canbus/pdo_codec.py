@@ -96,6 +96,7 @@ class PdoCodec:
             for entry in layout.entries:
                 variables.setdefault((entry.index, entry.subindex), _entry_dtype(entry, od))
         self.variables = tuple(variables)
+        self.dtypes = tuple(variables.values())  # of each variable, in ``variables`` order
         self.cob_ids = np.array([layout.cob_id for layout in self.layouts], dtype=np.uint32)
         self.sizes = np.array([layout.size for layout in self.layouts], dtype=np.intp)
         offsets, total = {}, 0

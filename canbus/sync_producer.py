@@ -4,8 +4,10 @@ Cycle ``k`` (1, 2, ...) carries the counter byte ``k % 240 + 1`` (CiA 301: 1..24
 no data. ``on_sync(cycle, counter, timestamp)`` runs just before the frame goes out,
 with the ``time.time()`` read right before sending: a patch answers a SYNC only after
 it was sent, so no PDO of cycle ``k`` can reach the data plane before it knows cycle
-``k`` began. Deadlines are absolute (no drift); a tick that is more than one period
-late is counted as an overrun and the schedule restarts from now (no burst of SYNCs).
+``k`` began. Deadlines are absolute (no drift). A SYNC sent so late that the next one
+would follow it within half a period is an overrun: the schedule restarts from it, so
+no cycle is ever shorter than half a period (a burst of SYNCs would give the patches
+no time to answer, and their answers would count for the wrong cycle).
 
 :class:`SyncFollower` is the listen-only counterpart: a ``can.Listener`` that opens a
 cycle for every SYNC another master sends, with the frame's timestamp and counter byte.
@@ -67,8 +69,7 @@ class SyncProducer:
         """Open the next cycle and send its SYNC."""
         self.cycle += 1
         count = sync_counter(self.cycle) if self.counter else 0
-        msg = TxMessage(arbitration_id=SYNC_COB_ID, is_extended_id=False,
-                        data=bytes([count]) if self.counter else b"")
+        msg = TxMessage.data_frame(SYNC_COB_ID, bytes([count]) if self.counter else b"")
         self.on_sync(self.cycle, count, time.time())
         try:
             self.bus.send(msg)
@@ -85,9 +86,9 @@ class SyncProducer:
                 logger.exception("SYNC cycle %d failed", self.cycle)
             deadline += self.period_s
             now = time.monotonic()
-            if now - deadline > self.period_s:
+            if deadline - now < 0.5 * self.period_s:  # late: no cycle shorter than half a period
                 self.overruns += 1
-                deadline = now
+                deadline = now + self.period_s
             if self._stop.wait(max(0.0, deadline - now)):
                 return
 

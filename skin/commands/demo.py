@@ -235,6 +235,16 @@ def _figure(value: float, digits: int = 3) -> float | None:
 
 
 def _demo(args: argparse.Namespace) -> int:
+    from skin.commands.cpu import pinned
+    from skin.errors import ConfigError
+
+    if not args.seconds > 0:
+        raise ConfigError("--seconds", f"must be > 0, got {args.seconds}")
+    with pinned(args.cpu) as cpus:  # before the first thread starts: threads inherit it
+        return _run_demo(args, cpus)
+
+
+def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     import can
     import canopen
     import numpy as np
@@ -244,10 +254,8 @@ def _demo(args: argparse.Namespace) -> int:
     from canbus.patch_server import PatchServer
     from sim import Simulator
     from skin.atomic import atomic_write
-    from skin.errors import BusError, ConfigError
+    from skin.errors import BusError
 
-    if not args.seconds > 0:
-        raise ConfigError("--seconds", f"must be > 0, got {args.seconds}")
     scene = _scene(args.scene, args.patches)
     rate_hz = scene.rate_hz
     steps = math.ceil(args.seconds * rate_hz) + int(rate_hz) + 2
@@ -284,9 +292,10 @@ def _demo(args: argparse.Namespace) -> int:
             if not host.wait_operational(timeout=10.0):
                 states = {n: h.state for n, h in host.health().items()}
                 raise BusError(f"the patches did not all become operational: {states}")
+            where = "any CPU" if cpus is None else f"CPU {','.join(map(str, sorted(cpus)))}"
             print(f"skin demo: {len(config.patches)} patches ({scene.name}, {scene.mode}, "
-                  f"{config.patches[0].decoder}) at {rate_hz:g} Hz on virtual:{channel}",
-                  flush=True)
+                  f"{config.patches[0].decoder}) at {rate_hz:g} Hz on virtual:{channel}, "
+                  f"{where}", flush=True)
             started = time.monotonic()
             _watch(host, live, args.seconds)
         seconds = time.monotonic() - started
@@ -312,6 +321,7 @@ def _demo(args: argparse.Namespace) -> int:
         "rmse_N": _figure(live.rmse_N(truth, known), 5),
         "decoder": config.patches[0].decoder,
         "sync_overruns": stats["sync_overruns"],
+        "cpus": None if cpus is None else sorted(cpus),
     }
     print(f"  samples   {record['samples']} ({record['complete_samples']} complete, "
           f"{record['incomplete_samples']} incomplete) in {seconds:.1f} s = "
@@ -325,6 +335,8 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def add_subparser(subparsers: Any) -> None:
+    from skin.commands.cpu import add_cpu_argument
+
     parser = subparsers.add_parser(
         "demo", help="simulated patches + the host on a virtual bus: live forces, a summary")
     parser.add_argument("--patches", type=int, default=DEFAULT_PATCHES, metavar="N",
@@ -335,4 +347,5 @@ def add_subparser(subparsers: Any) -> None:
                         help="a shipped scene or a .toml path; its loads press every patch "
                              "(default indenter)")
     parser.add_argument("--json", metavar="FILE", help="write the summary figures as JSON")
+    add_cpu_argument(parser, default="last")
     parser.set_defaults(func=_demo)

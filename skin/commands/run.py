@@ -7,7 +7,8 @@ every change of a patch's state and every unknown node is printed on a line; Ctr
 (or ``--seconds``) stops the host and prints a summary.
 
 ``--listen-only`` (or ``host.listen_only = true``): decode what another master runs, or a
-recording ``skin replay`` sends, and transmit nothing.
+recording ``skin replay`` sends, and transmit nothing. ``--cpu 3`` runs every thread of
+the host on CPU 3 (see ``skin.commands.cpu``).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ if TYPE_CHECKING:
 
     from canbus.discovery import UnknownNode
     from canbus.host import HostManager
+    from canbus.hostconfig import HostConfig
 
 POLL_S = 0.1
 
@@ -61,11 +63,18 @@ def _follow(host: HostManager, seconds: float | None) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from canbus.host import HostManager
     from canbus.hostconfig import load_host_config
-    from skin.atomic import atomic_write
+    from skin.commands.cpu import pinned
 
     config = load_host_config(args.config)
+    with pinned(args.cpu):  # before the bus and the host start their threads
+        return _run_host(args, config)
+
+
+def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
+    from canbus.host import HostManager
+    from skin.atomic import atomic_write
+
     bus = _open_bus(args)
     started = time.monotonic()
     try:
@@ -113,6 +122,8 @@ def _run(args: argparse.Namespace) -> int:
 def add_subparser(subparsers: Any) -> None:
     import can.cli
 
+    from skin.commands.cpu import add_cpu_argument
+
     parser = subparsers.add_parser("run", help="the host manager on a bus (CONFIG.toml)")
     parser.add_argument("config", metavar="CONFIG", help="host config (see examples/host.toml)")
     parser.add_argument("--seconds", type=float, default=None, metavar="S",
@@ -122,5 +133,6 @@ def add_subparser(subparsers: Any) -> None:
                              "transmit nothing: no scan, SDO, NMT, SYNC or force node "
                              "(default: host.listen_only of the config)")
     parser.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
+    add_cpu_argument(parser, default="all")
     can.cli.add_bus_arguments(parser)
     parser.set_defaults(func=_run)

@@ -20,6 +20,7 @@ from canbus.forcenode import COMPLETE, NO_VALUE, ForceNode
 from canbus.od import load_od
 from canbus.patch_node import PatchNode
 from canbus.patch_server import PatchServer
+from canbus.pdo_codec import TPDO_MAP
 from canbus.source import ArraySource
 from decoder.protocol import Decoded
 from decoder.reasons import Reason
@@ -343,6 +344,27 @@ def test_one_decode_call_per_decoder_object() -> None:
         assert [f.complete for f in host.out] == [True, True]
     finally:
         host.close()
+
+
+def test_codes_at_odd_bytes_decode_like_the_default_mapping(host: Host) -> None:
+    """Patch 2's TPDO 1 maps its status byte first, so its codes start at odd bytes
+    (code 4 moves to TPDO 7)."""
+    shifted = host.patches[1].node
+    for pdo, entries in ((0, [0x20040108, 0x20000110, 0x20000210, 0x20000310]),
+                         (6, [0x20001910, 0x20001A10, 0x20001B10, 0x20000410])):
+        shifted.store.store(TPDO_MAP + pdo, 0, len(entries))
+        for s, raw in enumerate(entries, start=1):
+            shifted.store.store(TPDO_MAP + pdo, s, raw)
+    shifted.tpdo.reset()
+    host.plane.add_channel(host.patches[1].channel(host.decoder))
+    host.sync(1)
+    host.feed(host.patches[0].frames(_load(), 1) + host.patches[1].frames(_load(), 1))
+    host.plane.publish_pending()
+    assert [f.complete for f in host.out] == [True, True]
+    for frame, patch in zip(host.out, host.patches, strict=True):
+        expected = patch.expected(host.decoder)
+        np.testing.assert_allclose(frame.force_N, expected.force_N[0], rtol=1e-12, atol=0)
+    np.testing.assert_array_equal(host.out[0].force_N, host.out[1].force_N)
 
 
 def test_z_only_patches() -> None:

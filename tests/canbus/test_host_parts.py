@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Iterator
 
 import can
@@ -197,6 +198,32 @@ def test_the_sync_thread_runs_and_stops(pair: tuple[can.BusABC, can.BusABC]) -> 
         counted += 1
     assert counted == cycles  # one frame per cycle, none after stop()
 
+
+def test_a_late_sync_restarts_the_schedule_instead_of_a_burst(
+        pair: tuple[can.BusABC, can.BusABC]) -> None:
+    """Cycle 3 ends 0.8 period late: the next SYNC comes a period after it, not at once."""
+    host, _ = pair
+    period = 0.02
+    sent: list[float] = []
+    done = threading.Semaphore(0)
+
+    def on_sync(cycle: int, counter: int, timestamp: float) -> None:
+        sent.append(time.monotonic())
+        if cycle == 3:
+            time.sleep(0.8 * period)
+        if cycle == 6:
+            done.release()
+
+    producer = SyncProducer(host, period, on_sync=on_sync)
+    producer.start()
+    try:
+        assert done.acquire(timeout=10.0)
+    finally:
+        producer.stop()
+    gaps = np.diff(sent[:6])
+    assert producer.overruns >= 1
+    assert gaps.min() >= 0.45 * period, gaps  # with a burst, SYNC 4 came 0.2 period after 3
+    assert gaps[2] >= 1.5 * period  # 0.8 period late plus a full period
 
 def test_a_follower_opens_a_cycle_for_every_sync_received(
         pair: tuple[can.BusABC, can.BusABC], caplog: pytest.LogCaptureFixture) -> None:

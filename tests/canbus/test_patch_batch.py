@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import copy
 import struct
 
-import can
 import numpy as np
 import pytest
 
@@ -18,7 +16,6 @@ from canbus.patch_node import (
     batch_update,
 )
 from canbus.pdo_codec import TPDO_MAP
-from canbus.txmessage import TxMessage
 
 LSB = 0.05
 _EMCY = struct.Struct("<HBBB3x")
@@ -124,30 +121,3 @@ def test_batch_frames_on_event_follow_each_node_schedule() -> None:
     assert first == [_reference_frames(node)[0] for node in nodes]
     assert batch_frames_on_event(nodes, 1.005) == []
     assert len(batch_frames_on_event(nodes, 1.010)) == len(nodes)
-
-
-def test_tx_message_deep_copy_is_an_equal_independent_message() -> None:
-    msg = TxMessage(timestamp=1.5, arbitration_id=0x1AB, is_extended_id=False,
-                    data=b"\x01\x02\x03", channel=[1, 2], is_rx=False)
-    clone = copy.deepcopy(msg)
-    assert type(clone) is can.Message
-    assert clone.equals(msg, timestamp_delta=0.0)
-    assert clone.channel == [1, 2] and clone.channel is not msg.channel
-    clone.data[0] = 0xFF
-    clone.channel.append(3)
-    assert msg.data == bytearray(b"\x01\x02\x03") and msg.channel == [1, 2]
-    for flags in ({"is_remote_frame": True, "dlc": 4}, {"is_error_frame": True},
-                  {"is_fd": True, "bitrate_switch": True, "error_state_indicator": True,
-                   "data": bytes(range(12))}):
-        original = TxMessage(arbitration_id=0x123, channel="can0", **flags)
-        assert copy.deepcopy(original).equals(original, timestamp_delta=0.0)
-
-
-def test_tx_message_crosses_a_virtual_bus_as_a_plain_message(
-        request: pytest.FixtureRequest) -> None:
-    with can.Bus(interface="virtual", channel=request.node.name) as tx, \
-            can.Bus(interface="virtual", channel=request.node.name) as rx:
-        tx.send(TxMessage(arbitration_id=0x181, is_extended_id=False, data=b"\x10\x20"))
-        got = rx.recv(1.0)
-    assert got is not None and type(got) is can.Message
-    assert (got.arbitration_id, bytes(got.data), got.is_extended_id) == (0x181, b"\x10\x20", False)

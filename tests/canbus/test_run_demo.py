@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -54,7 +55,7 @@ def test_skin_run_hosts_the_configured_patches_and_reports_the_rest(
     config.write_text("[host]\nscan_ms = 100\n[[patches]]\nnode_id = 1\n", encoding="utf-8")
     out = tmp_path / "run.json"
     argv = ["run", str(config), "-i", "virtual", "-c", patches, "--seconds", "0.5",
-            "--json", str(out)]
+            "--json", str(out), "--cpu", "last"]
     assert _in_thread(argv) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("host: 1 patch on ") and "1->65" in lines[0]
@@ -140,6 +141,15 @@ def test_skin_demo_reports_every_figure(tmp_path: Path,
     assert 0 < record["rmse_N"] < 0.2  # the indenter, 3-axis, exact inverse: crosstalk only
     text = capsys.readouterr().out
     assert "skin demo: 2 patches (indenter, xyz, analytic)" in text and "rmse" in text
+    if hasattr(os, "sched_getaffinity"):  # by default every thread on the last CPU
+        last = max(os.sched_getaffinity(0))
+        assert record["cpus"] == [last] and f", CPU {last}\n" in text
+
+
+def test_skin_demo_refuses_a_cpu_it_cannot_use(capsys: pytest.CaptureFixture[str]) -> None:
+    assert _in_thread(["demo", "--seconds", "0.5", "--cpu", "4096"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("skin: error: --cpu: ") and err.count("\n") == 1
 
 
 def test_skin_demo_defaults_end_by_themselves(capsys: pytest.CaptureFixture[str]) -> None:
