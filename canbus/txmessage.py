@@ -9,11 +9,11 @@ plain ``can.Message``, equal field for field, sharing nothing mutable with the
 original. Other interfaces do not copy and see an ordinary message.
 
 :meth:`TxMessage.data_frame` builds the frames sent most, standard-ID data frames of a
-checked COB-ID and at most 8 bytes, by setting ``can.Message``'s fields directly
-(0.2 µs against ``__init__``'s 0.5 µs), and the copy is built the same way. Both rely
-on the fields (``__slots__``) of the installed python-can being the ones listed in
-:data:`FIELDS`; if a python-can release changes them, both fall back to
-``can.Message.__init__``.
+checked COB-ID and at most 8 bytes, by setting ``can.Message``'s fields directly (0.26 µs
+against ``__init__``'s 0.51 µs), and the copy is built the same way (0.9 µs against
+``can.Message``'s own 4.3 µs). Both rely on the installed python-can's ``can.Message``
+having exactly the fields (``__slots__``) listed in :data:`FIELDS`; if a release
+changes them, both fall back to ``can.Message.__init__``.
 """
 
 from __future__ import annotations
