@@ -70,6 +70,7 @@ from canbus.liveness import HeartbeatMonitor
 from canbus.od import load_od
 from canbus.patch_setup import PatchInfo, PatchSetup, patch_info, plan_setup, setup_patch
 from canbus.sync_producer import SyncFollower, SyncProducer
+from canbus.txmessage import TxMessage
 from decoder.protocol import BaseDecoder, Decoder
 from decoder.reasons import Reason
 from decoder.registry import create_decoder, load_decoder
@@ -82,6 +83,10 @@ logger = logging.getLogger(__name__)
 
 NOTIFIER_CYCLE_S = 0.05  # canopen's notifier recv() timeout: stop() joins within one cycle
 NMT_COB_ID = 0x000
+EMCY_LOG_KEPT = 256
+"""EMCYs of a patch kept in canopen's ``EmcyConsumer.log`` (trimmed to this many once it
+holds twice as many): a long-running host with a flapping taxel must not grow without
+bound. ``emcy.active`` is canopen's own, cleared by each error reset."""
 NMT_START, NMT_PRE_OPERATIONAL = 0x01, 0x80
 OPERATIONAL_STATE, STOPPED_STATE = 0x05, 0x04
 DEVICE_HARDWARE, ERROR_RESET = 0x5000, 0x0000
@@ -659,13 +664,17 @@ class HostManager:
                                             np.zeros(TAXELS_PER_PATCH, bool), False,
                                             reason=reason):
             try:
-                self.bus.send(can.Message(arbitration_id=cob_id, data=payload,
-                                          is_extended_id=False))
+                self.bus.send(TxMessage.data_frame(cob_id, payload))
             except can.CanError as err:
                 logger.warning("force node %d: withdrawal not sent: %s", force.node_id, err)
 
     def _emcy_handler(self, patch: _Patch) -> Callable[[EmcyError], None]:
+        consumer = patch.node.emcy
+
         def on_emcy(entry: EmcyError) -> None:
+            with consumer.emcy_received:  # canopen logs every EMCY: keep the newest only
+                if len(consumer.log) > 2 * EMCY_LOG_KEPT:
+                    del consumer.log[:-EMCY_LOG_KEPT]
             taxel = entry.data[0] if entry.data else TAXELS_PER_PATCH
             if taxel >= TAXELS_PER_PATCH or entry.code not in (DEVICE_HARDWARE, ERROR_RESET):
                 return

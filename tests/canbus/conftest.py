@@ -9,7 +9,8 @@ from collections.abc import Iterator
 import can.interfaces.virtual
 import pytest
 
-_ports = itertools.count(43000 + (os.getpid() % 1000) * 16)
+_groups = itertools.count(43000 + (os.getpid() % 1000) * 16)
+_udp_ports = itertools.count(20000 + (os.getpid() % 750) * 16)  # below Linux's ephemeral ports
 
 
 @pytest.fixture(autouse=True)
@@ -22,5 +23,12 @@ def _no_open_virtual_channels() -> Iterator[None]:
 
 @pytest.fixture
 def udp_channel() -> str:
-    """A multicast group:port on loopback unique to this test."""
-    return f"239.74.{os.getpid() % 250}.{next(_ports) % 250 + 1}"
+    """A multicast group on loopback unique to this test."""
+    return f"239.74.{os.getpid() % 250}.{next(_groups) % 250 + 1}"
+
+
+@pytest.fixture
+def udp_port() -> int:
+    """A UDP port unique to this test: Linux hands a socket every group joined on its port,
+    so tests, and two suites running at once, keep apart by port as well as by group."""
+    return next(_udp_ports)

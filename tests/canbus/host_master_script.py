@@ -24,10 +24,10 @@ from canbus.pdo_codec import read_defaults, read_layouts
 TPDOS = 7
 
 
-def main(channel: str, force_nodes: list[int], cycles: int, out: str) -> None:
+def main(channel: str, port: int, force_nodes: list[int], cycles: int, out: str) -> None:
     net = canopen.Network()
     net.NOTIFIER_CYCLE = 0.05
-    net.connect(interface="udp_multicast", channel=channel)
+    net.connect(interface="udp_multicast", channel=channel, port=port)
     done = threading.Condition()
     counter = [-1]
     partial: dict[tuple[int, int], dict[int, list[int]]] = {}
@@ -83,4 +83,5 @@ def main(channel: str, force_nodes: list[int], cycles: int, out: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], [int(n) for n in sys.argv[2].split(",")], int(sys.argv[3]), sys.argv[4])
+    main(sys.argv[1], int(sys.argv[2]), [int(n) for n in sys.argv[3].split(",")],
+         int(sys.argv[4]), sys.argv[5])

@@ -20,10 +20,10 @@ from canbus.pdo_codec import read_defaults, read_layouts
 TPDOS = 7
 
 
-def main(channel: str, syncs: int) -> None:
+def main(channel: str, port: int, syncs: int) -> None:
     net = canopen.Network()
     net.NOTIFIER_CYCLE = 0.05  # disconnect() joins the notifier after at most one cycle
-    net.connect(interface="udp_multicast", channel=channel)
+    net.connect(interface="udp_multicast", channel=channel, port=port)
     try:
         od = load_od("skin-patch", 1)
         node = net.add_node(canopen.RemoteNode(1, od))
@@ -63,4 +63,4 @@ def main(channel: str, syncs: int) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], int(sys.argv[2]))
+    main(sys.argv[1], int(sys.argv[2]), int(sys.argv[3]))

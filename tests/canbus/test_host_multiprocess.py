@@ -39,11 +39,11 @@ def _on_the_bus(frame: ForceFrame) -> list[int]:
 
 
 def test_a_canopen_master_in_another_process_reads_what_the_api_gives(
-        udp_channel: str, tmp_path: Path) -> None:
+        udp_channel: str, udp_port: int, tmp_path: Path) -> None:
     patches = canopen.Network()
     patches.NOTIFIER_CYCLE = 0.05
-    patches.connect(interface="udp_multicast", channel=udp_channel)
-    bus = can.Bus(interface="udp_multicast", channel=udp_channel)
+    patches.connect(interface="udp_multicast", channel=udp_channel, port=udp_port)
+    bus = can.Bus(interface="udp_multicast", channel=udp_channel, port=udp_port)
     config = HostConfig(patches=(PatchConfig(1), PatchConfig(2, mode="z", force_node=90)),
                         sync_period_ms=50.0, scan_ms=300, sdo_timeout_ms=2000)
     frames: list[ForceFrame] = []
@@ -56,7 +56,7 @@ def test_a_canopen_master_in_another_process_reads_what_the_api_gives(
             assert host.wait_operational(timeout=10.0), host.health()
             run = subprocess.run(
                 [sys.executable, str(Path(__file__).with_name("host_master_script.py")),
-                 udp_channel, "65,90", str(CYCLES), str(out)],
+                 udp_channel, str(udp_port), "65,90", str(CYCLES), str(out)],
                 capture_output=True, text=True, timeout=60)
     finally:
         bus.shutdown()

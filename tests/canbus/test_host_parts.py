@@ -393,3 +393,19 @@ def test_a_listen_only_host_plans_the_setup_the_host_writes_and_reads(
     messages = [r.getMessage() for r in caplog.records]
     assert len(messages) == 2 and messages[0].startswith("patch 9 reports constants ")
     assert messages[1].startswith("patch 9 reports another R0 than the config's r0_ohm")
+
+
+def test_the_emcy_log_of_a_long_running_host_stays_bounded() -> None:
+    from canbus.host import EMCY_LOG_KEPT, HostManager
+    from canbus.hostconfig import HostConfig, PatchConfig
+
+    with can.Bus(interface="virtual", channel="emcy-log-bound") as bus:
+        host = HostManager(bus, HostConfig(patches=(PatchConfig(1),)).check())
+        consumer = host._patches[1].node.emcy  # the canopen EmcyConsumer of patch 1
+        for k in range(5 * EMCY_LOG_KEPT):  # taxel 4 flapping: fault, reset, fault, ...
+            code = 0x5000 if k % 2 == 0 else 0x0000
+            consumer.on_emcy(0x81, code.to_bytes(2, "little") + bytes([0x81 if code else 0,
+                                                                       4, 1, 0, 0, 0]), k)
+        assert len(consumer.log) <= 2 * EMCY_LOG_KEPT + 1
+        assert consumer.log[-1].timestamp == 5 * EMCY_LOG_KEPT - 1  # the newest are kept
+        assert host.health()[1].faulty_taxels == ()  # the last one was the reset

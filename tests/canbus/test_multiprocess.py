@@ -17,7 +17,8 @@ from skin.constants import DEFAULT_CONSTANTS
 SKIP, SYNCS = 4, 3  # steps 5..7 of the indenter scene press up to 2.5 N
 
 
-def test_canopen_master_decodes_the_simulator_resistances(udp_channel: str) -> None:
+def test_canopen_master_decodes_the_simulator_resistances(udp_channel: str,
+                                                          udp_port: int) -> None:
     scene = load_scene("indenter")  # mode xyz: the default 27-value mapping is the EDS's
     simulator = Simulator(scene)
     simulator.run(SKIP)
@@ -32,11 +33,12 @@ def test_canopen_master_decodes_the_simulator_resistances(udp_channel: str) -> N
 
     net = canopen.Network()
     net.NOTIFIER_CYCLE = 0.05
-    net.connect(interface="udp_multicast", channel=udp_channel)
+    net.connect(interface="udp_multicast", channel=udp_channel, port=udp_port)
     try:
         with PatchServer(net, SimulatorSource(simulator)) as server:
             run = subprocess.run([sys.executable, str(Path(__file__).with_name("master_script.py")),
-                                  udp_channel, str(SYNCS)], capture_output=True, text=True,
+                                  udp_channel, str(udp_port), str(SYNCS)],
+                                 capture_output=True, text=True,
                                  timeout=30)
     finally:
         net.disconnect()

@@ -123,10 +123,10 @@ def test_unknown_suffix_is_refused_before_any_file(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
-def test_receive_buffer(udp_channel: str) -> None:
+def test_receive_buffer(udp_channel: str, udp_port: int) -> None:
     with can.Bus(interface="virtual", channel="rcvbuf") as bus:
         assert enlarge_receive_buffer(bus, 1 << 20) is None  # not a socket
-    with can.Bus(interface="udp_multicast", channel=udp_channel) as bus:
+    with can.Bus(interface="udp_multicast", channel=udp_channel, port=udp_port) as bus:
         default = enlarge_receive_buffer(bus, 4096)
         granted = enlarge_receive_buffer(bus, 1 << 20)
         assert default is not None and granted is not None and granted > default

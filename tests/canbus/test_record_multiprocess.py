@@ -8,7 +8,6 @@ this test also takes a port of its own (``--bus-kwargs port=N``).
 from __future__ import annotations
 
 import json
-import os
 import queue
 import signal
 import subprocess
@@ -29,8 +28,8 @@ def _lines(stream: object, into: queue.Queue[str]) -> None:
         into.put(line)
 
 
-def test_sigint_keeps_every_frame(udp_channel: str, tmp_path: Path) -> None:
-    port = 20000 + os.getpid() % 20000
+def test_sigint_keeps_every_frame(udp_channel: str, udp_port: int, tmp_path: Path) -> None:
+    port = udp_port
     out = tmp_path / "udp.log"
     proc = subprocess.Popen(
         [sys.executable, "-m", "skin.cli", "sniff", "-i", "udp_multicast", "-c", udp_channel,
