@@ -16,7 +16,7 @@ from typing import Any
 import canopen
 
 from canbus.heartbeat import HeartbeatProducer
-from canbus.nmt_slave import RESET_COMMUNICATION, RESET_NODE, NmtSlave
+from canbus.nmt_slave import OPERATIONAL, RESET_COMMUNICATION, RESET_NODE, NmtSlave
 from canbus.object_store import ObjectStore
 from canbus.od import load_od
 from canbus.tpdo import TpdoTable
@@ -32,7 +32,7 @@ class LocalDevice:
         self.store = ObjectStore(node_id, load_od(eds, node_id))
         self.tpdo = TpdoTable(self.store, TPDO_COUNT)
         self.heartbeat = HeartbeatProducer(node_id)
-        self.nmt = NmtSlave(node_id, on_reset=self._reset, on_state=self.heartbeat.set_state)
+        self.nmt = NmtSlave(node_id, on_reset=self._reset, on_state=self._on_state)
         self.network: canopen.Network | None = None
         self.lock = threading.RLock()
         self.store.add_read_callback(self._read_live)
@@ -44,19 +44,25 @@ class LocalDevice:
         return self.nmt.state
 
     def attach(self, network: canopen.Network) -> None:
-        """Join ``network`` and boot: boot-up message, PRE-OPERATIONAL, heartbeat, SDO server."""
-        self.network = network
-        self.store.associate_network(network)
-        network.subscribe(0, self._on_nmt)
-        self.nmt.boot(network)
-        self.heartbeat.start(network, int(self.store.value(0x1017)), self.nmt.state)
+        """Join ``network`` and boot: boot-up message, PRE-OPERATIONAL, heartbeat, SDO server.
+
+        Under the device's lock: a master may answer the boot-up at once (an SDO write
+        of 0x1017 on the network's thread), and must find the heartbeat started.
+        """
+        with self.lock:
+            self.network = network
+            self.store.associate_network(network)
+            network.subscribe(0, self._on_nmt)
+            self.nmt.boot(network)
+            self.heartbeat.start(network, int(self.store.value(0x1017)), self.nmt.state)
 
     def detach(self) -> None:
-        self.heartbeat.stop()
-        if self.network is not None:
-            self.network.unsubscribe(0, self._on_nmt)
-            self.store.remove_network()
-            self.network = None
+        with self.lock:
+            self.heartbeat.stop()
+            if self.network is not None:
+                self.network.unsubscribe(0, self._on_nmt)
+                self.store.remove_network()
+                self.network = None
 
     def _read_live(self, index: int, subindex: int, **_: Any) -> int | None:
         return None
@@ -74,9 +80,15 @@ class LocalDevice:
             if reset and data[1] in (0, self.node_id) and self.network is not None:
                 self.heartbeat.start(self.network, int(self.store.value(0x1017)), self.nmt.state)
 
+    def _on_state(self, state: int) -> None:
+        self.heartbeat.set_state(state)
+        if state == OPERATIONAL:  # read the PDO mapping now, not in the first SYNC's answer
+            _ = self.tpdo.codec
+
     def _written(self, index: int, **_: Any) -> None:
         if index == 0x1017:
-            self.heartbeat.set_period(int(self.store.value(0x1017)))
+            with self.lock:  # after attach() started the heartbeat: never two tasks at once
+                self.heartbeat.set_period(int(self.store.value(0x1017)))
 
     def _reset(self, application: bool) -> None:
         with self.lock:

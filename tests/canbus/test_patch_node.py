@@ -240,3 +240,39 @@ def test_event_driven_without_timer_or_change_sends_once(events: Bench) -> None:
     _event_driven(events.node, 3, 254)
     events.node.nmt.send_command(0x01)
     assert len(_tpdo_times(events.collect(0.3), 0x381)) == 1
+
+
+def test_a_heartbeat_period_written_during_the_boot_leaves_one_heartbeat(
+        request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A master writes 0x1017 the moment it hears the boot-up, while the node is still
+    starting its heartbeat: one heartbeat task remains, at the written period."""
+    import threading
+
+    from canbus.patch_node import PatchNode
+
+    net = _network(request.node.name)
+    node = PatchNode(1)
+    tasks: list[canopen.network.PeriodicMessageTask] = []
+    send_periodic = net.send_periodic
+    booted = threading.Event()
+
+    def slow_send_periodic(*args: object, **kwargs: object) -> canopen.network.PeriodicMessageTask:
+        booted.set()  # the boot-up is out: the master's write comes now
+        time.sleep(0.05)
+        task = send_periodic(*args, **kwargs)  # type: ignore[arg-type]
+        tasks.append(task)
+        return task
+
+    monkeypatch.setattr(net, "send_periodic", slow_send_periodic)
+    writer = threading.Thread(target=lambda: booted.wait(5.0) and node.store.set_data(
+        0x1017, 0, (50).to_bytes(2, "little")))
+    writer.start()
+    try:
+        node.attach(net)
+        writer.join()
+        live = [task for task in tasks if not task._task.stopped]
+        assert len(tasks) == 2 and live == [node.heartbeat._task]
+        assert node.heartbeat.period_ms == 50
+    finally:
+        node.detach()
+        net.disconnect()
