@@ -8,17 +8,38 @@ queued; the publisher decodes what is queued in numpy batches (one ``PdoCodec.un
 per PDO layout, one ``decode`` per decoder object) and sends the force nodes' TPDOs
 with ``bus.send``.
 
-Cycle rules (CiA 301's synchronous window, object 0x1007): a frame belongs to cycle k
-only if its timestamp lies in [t_k, t_k + sync_window_s], t_k being the time the host
-sent SYNC k; ``sync_window_s == 0`` means no window (until the next SYNC). Frames
-stamped before t_k are ``late``; frames stamped after the window are held until the next
-SYNC, which accepts the ones inside its own window (a patch may answer SYNC k+1 before
-the host has called :meth:`DataPlane.on_sync`) and counts the rest ``late``. A second
-frame of one COB-ID in a cycle is a ``duplicate``, a frame shorter than its mapping is
-``malformed``: the PDO is not trusted. A patch whose PDOs all arrived is published at
-once; the others are published, incomplete, when the next SYNC (or :meth:`flush`)
-closes the cycle: taxels carried by a missing PDO are invalid with ``Reason.MISSING``,
-and the data of one cycle is never mixed with another's.
+Cycle rules. A patch answers SYNC k with one *answer*: its synchronous TPDOs, sent
+together in a fixed order (:attr:`PatchChannel.answer_order`; by default ascending COB-ID,
+the order in which one node's queued frames win arbitration on a CAN bus). A frame
+counts for cycle k only if its timestamp lies in [t_k, t_k + sync_window_s] (CiA 301's
+synchronous window, object 0x1007; t_k is the time the host sent SYNC k;
+``sync_window_s == 0`` means until the next SYNC) *and* it belongs to the answer that
+began in that window:
+
+- the answer begins with its first TPDO; a later TPDO seen before it is the tail of an
+  earlier answer and counts as ``late``, as does a frame stamped before t_k;
+- the answer's TPDOs must then come one after the other, in order; any other frame of
+  the patch ends the answer: a ``duplicate`` if its PDO was already seen (that PDO is
+  not trusted either), ``out_of_order`` if it is ahead of its place (the frame before it
+  was lost). Nothing after the end of an answer counts for the cycle, so the PDOs from
+  the break on are missing. One exception: the frame just taken, again with the same
+  bytes, is counted a ``duplicate`` and changes nothing (a CAN receiver gets a frame
+  twice when an error in its last bit makes the sender retransmit it);
+- a frame shorter than its mapping is ``malformed``: that PDO is not trusted.
+
+So a sample is complete only when every TPDO of one answer arrived once, in order, in
+the window; an incomplete sample carries an unbroken run of one answer from its first
+TPDO; and the data of two answers is never mixed, however late, duplicated or reordered
+the frames come, unless a whole answer's worth of consecutive frames was lost (what
+classic CAN cannot prove, and what a one-cycle-stale answer looks like, is in
+docs/host.md). Frames stamped after the window are held until the next SYNC, which
+takes the ones inside its own window (a patch may answer SYNC k+1 before the host has
+called :meth:`DataPlane.on_sync`) and counts the rest ``late``.
+
+A complete patch is published at once; every other patch is published when the next
+SYNC (or :meth:`flush`) closes the cycle, incomplete: taxels carried by a missing PDO
+are invalid with ``Reason.MISSING`` (every taxel, when nothing usable arrived). So each
+patch gets exactly one force sample per SYNC, and a consumer can count cycles.
 
 Publishing: by default a thread of the data plane decodes and publishes, so that
 patches completing while it works are batched into its next round (the notifier thread
@@ -65,7 +86,7 @@ class ForceFrame:
     force_N: NDArray[np.float64]  # (9, 3) Fx, Fy, Fz; 0 N where not valid
     valid: NDArray[np.bool_]  # (9,)
     reason: NDArray[np.uint8]  # (9,) decoder.reasons codes; MISSING, FAULTY from the data plane
-    complete: bool  # every PDO of the patch arrived exactly once within the cycle's window
+    complete: bool  # every TPDO of one answer of the patch arrived, in order, in the window
     published: bool  # the force TPDOs went onto the bus
 
 
@@ -84,6 +105,10 @@ class PatchChannel:
     masked: NDArray[np.bool_] = field(
         default_factory=lambda: np.zeros(TAXELS_PER_PATCH, dtype=bool))
     """(9,) taxels the host knows are faulty: invalid with ``Reason.FAULTY``."""
+    answer_order: str = "cob-id"
+    """The order in which the patch sends the TPDOs of one answer: ``"cob-id"`` (ascending
+    identifier, as a node's queued frames leave on a CAN bus) or ``"tpdo"`` (TPDO number
+    order, a device with a single FIFO transmit buffer)."""
 
 
 @dataclass
@@ -93,8 +118,11 @@ class DataPlaneStats:
     frames_in: int = 0  # PDO frames of known channels
     frames_out: int = 0  # force TPDOs sent
     unknown_frames: int = 0  # anything not a PDO of a channel (other services, lost patches)
-    duplicate_frames: int = 0
-    late_frames: int = 0
+    duplicate_frames: int = 0  # a PDO already seen in its cycle
+    late_frames: int = 0  # before the window, after it, or the tail of an earlier answer
+    out_of_order_frames: int = 0  # ahead of its place in the answer, or after the answer ended
+    second_answers: int = 0  # an answer began after a complete one in one window: the one
+    # published was then most likely the previous SYNC's, whole (docs/host.md)
     malformed_frames: int = 0  # shorter than the PDO's mapping
     samples: int = 0
     batches: int = 0  # publishing rounds: samples / batches is the mean decode batch
@@ -122,7 +150,20 @@ class _Slot:
         self.seen = 0  # PDO bits received this cycle
         self.bad = 0  # PDO bits not trusted this cycle (duplicate, malformed)
         self.done = False  # queued this cycle
+        self.next = 0  # the place in the answer the next frame must take (0: not begun)
+        self.ended = False  # the answer was broken: nothing more counts this cycle
         self.key = key  # channels with equal keys are unpacked together
+        cob_ids = codec.cob_ids.tolist()
+        if channel.answer_order == "cob-id":
+            order = sorted(range(pdos), key=cob_ids.__getitem__)
+        elif channel.answer_order == "tpdo":
+            order = list(range(pdos))
+        else:
+            raise ConfigError("channel.answer_order", "must be 'cob-id' or 'tpdo', got "
+                              f"{channel.answer_order!r}")
+        self.place = [0] * pdos  # PDO position in codec.layouts -> its place in the answer
+        for n, p in enumerate(order):
+            self.place[p] = n
         p = channel.pillars
         try:
             self.columns = np.array([[codec.column(RESISTANCES, 3 * t + k + 1) for k in range(p)]
@@ -157,8 +198,8 @@ class _Slot:
         return taxels
 
     def reset(self) -> None:
-        self.seen = self.bad = 0
-        self.done = False
+        self.seen = self.bad = self.next = 0
+        self.done = self.ended = False
         self.raw[:] = self.zeros
 
 
@@ -171,7 +212,7 @@ class _Job:
     complete: bool
 
 
-_Entry = tuple[_Slot, int, int, int]  # slot, PDO bit, byte offset, mapped size
+_Entry = tuple[_Slot, int, int, int, int]  # slot, PDO bit, byte offset, mapped size, place
 Subscriber = Callable[[list[ForceFrame]], None]
 
 
@@ -246,7 +287,7 @@ class DataPlane(can.Listener):
             codec = slot.channel.codec
             for p, (cob, size) in enumerate(zip(codec.cob_ids.tolist(), codec.sizes.tolist(),
                                                 strict=True)):
-                table[cob] = (slot, 1 << p, 8 * p, size)
+                table[cob] = (slot, 1 << p, 8 * p, size, slot.place[p])
         self._table = table
 
     # -- the hot path -----------------------------------------------------------------------
@@ -271,13 +312,13 @@ class DataPlane(can.Listener):
         return True
 
     def _accept(self, entry: _Entry, data: bytes | bytearray) -> None:
-        """One in-window frame (lock held)."""
-        slot, bit, offset, size = entry
-        if slot.seen & bit:
-            self.stats.duplicate_frames += 1
-            slot.bad |= bit
+        """One in-window frame: it extends the cycle's answer or is turned away (lock held)."""
+        slot, bit, offset, size, place = entry
+        if place != slot.next or slot.ended or slot.done:
+            self._turn_away(entry, data)
             return
         slot.seen |= bit
+        slot.next = place + 1
         if len(data) < size:
             self.stats.malformed_frames += 1
             slot.bad |= bit
@@ -288,6 +329,26 @@ class DataPlane(can.Listener):
             self._queue.append(_Job(slot, self._cycle, bytes(slot.raw), 0, True))
             if not self._wake.is_set():  # the publisher has not yet taken the queue
                 self._wake.set()
+
+    def _turn_away(self, entry: _Entry, data: bytes | bytearray) -> None:
+        """A frame that does not extend the cycle's answer (module docstring; lock held)."""
+        slot, bit, offset, size, place = entry
+        stats = self.stats
+        if not slot.next and not slot.ended:
+            stats.late_frames += 1  # the tail of an earlier answer
+        elif not slot.seen & bit:
+            stats.out_of_order_frames += 1
+            slot.ended = True
+        else:
+            stats.duplicate_frames += 1
+            if slot.done and not place:
+                stats.second_answers += 1
+            # The frame just taken, again with the same bytes: a CAN receiver can get a
+            # frame twice when its sender retransmits after an error in the last bit.
+            repeat = place == slot.next - 1 and slot.raw[offset:offset + size] == data[:size]
+            if not (repeat or slot.done or slot.ended):
+                slot.bad |= bit
+                slot.ended = True
 
     # -- cycles -----------------------------------------------------------------------------
 
@@ -457,8 +518,8 @@ class DataPlane(can.Listener):
         nodes = [job.slot.channel.force_node for job in jobs]
         frames = batch_frames(nodes, force, valid, np.array(complete), reason)
         # Every frame onto the bus first: the frames for the API come after.
-        published = [job.missing != job.slot.full and node.transmitting and self._transmit(f)
-                     for job, node, f in zip(jobs, nodes, frames, strict=True)]
+        published = [node.transmitting and self._transmit(f)
+                     for node, f in zip(nodes, frames, strict=True)]
         out = []
         for i, job in enumerate(jobs):
             cycle, counter, timestamp = job.cycle

@@ -538,7 +538,8 @@ class HostManager:
         channel = PatchChannel(
             node_id=patch.config.node_id, codec=setup.codec, pillars=p,
             lsb_ohm=setup.info.lsb_ohm, decoder=decoder, force_node=patch.force_node,
-            scale=np.ones((TAXELS_PER_PATCH, p)), masked=patch.masked)
+            scale=np.ones((TAXELS_PER_PATCH, p)), masked=patch.masked,
+            answer_order=patch.config.answer_order)
         patch.baseline = Baseline(
             r0_ref, setup.info.r0_ohm[:, :p], loaded_N=self.config.tare_threshold_N,
             time_constant_s=None if drift is None else drift.time_constant_s,

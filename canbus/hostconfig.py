@@ -28,6 +28,7 @@ from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
 from skin.errors import ConfigError, ModelFileError, NotFittedError
 
 MODES = ("z", "xyz")
+ANSWER_ORDERS = ("cob-id", "tpdo")
 TPDO_COUNT = 7
 FORCE_NODE_OFFSET = 64
 NMT, SYNC, TIME = 0x000, 0x080, 0x100
@@ -51,6 +52,7 @@ class PatchConfig:
     force_cob_ids: tuple[int, ...] | None = None  # the force node's 7 TPDO COB-IDs
     constants: SensorConstants | None = None  # what the patch reports (0x2001, 0x2003)
     r0_ohm: tuple[float, ...] | None = None  # its R0 (0x2002): 27 values, or 3 (z, x, y)
+    answer_order: str = "cob-id"  # how the patch orders the TPDOs of one answer ("tpdo")
 
     def __post_init__(self) -> None:
         if self.force_node == 0:
@@ -237,7 +239,7 @@ _HOST_FIELDS: dict[str, type] = {
     "listen_only": bool,
 }
 _PATCH_FIELDS = ("node_id", "decoder", "model", "mode", "force_node", "force_cob_ids",
-                 "constants", "r0_ohm")
+                 "constants", "r0_ohm", "answer_order")
 # What a patch reports about itself: 0x2001 (LSB) and 0x2003 (adc_bits is not reported).
 CONSTANT_KEYS = ("resistance_lsb_ohm", "youngs_modulus_pa", "resistivity_ohm_m", "length_m",
                  "area_m2", "max_strain", "full_scale_force_N", "taxel_pitch_m")
@@ -248,7 +250,7 @@ def _patch(table: dict[str, Any], where: str, base: Path) -> PatchConfig:
     if "node_id" not in table:
         raise ConfigError(f"{where}.node_id", "missing")
     kwargs: dict[str, Any] = {"node_id": _typed(table["node_id"], int, f"{where}.node_id")}
-    for key in ("decoder", "mode"):
+    for key in ("decoder", "mode", "answer_order"):
         if key in table:
             kwargs[key] = _typed(table[key], str, f"{where}.{key}")
     if "force_node" in table:
@@ -288,6 +290,9 @@ def _check_patch(patch: PatchConfig, where: str) -> PatchConfig:
     _node_id(patch.force_node, f"{where}.force_node")
     if patch.mode not in MODES:
         raise ConfigError(f"{where}.mode", f"must be one of {', '.join(MODES)}, got {patch.mode!r}")
+    if patch.answer_order not in ANSWER_ORDERS:
+        raise ConfigError(f"{where}.answer_order", f"must be one of {', '.join(ANSWER_ORDERS)}, "
+                          f"got {patch.answer_order!r}")
     if patch.force_cob_ids is not None:
         if len(patch.force_cob_ids) != TPDO_COUNT:
             raise ConfigError(f"{where}.force_cob_ids", f"must list {TPDO_COUNT} COB-IDs "

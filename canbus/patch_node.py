@@ -189,7 +189,7 @@ def _frames_locked(live: list[PatchNode], due: Due) -> list[Frame]:
             cob_ids = live[i].tpdo.codec.cob_ids.tolist()
             at = m * stride
             out[i] = [(cob_ids[p], blob[at + 8 * p:at + 8 * p + sizes[p]])
-                      for p in due(live[i], payloads[m])]
+                      for p in sorted(due(live[i], payloads[m]), key=cob_ids.__getitem__)]
     return [frame for frames in out for frame in frames]
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import re
 import socket
 import threading
 from collections import deque
@@ -28,15 +29,52 @@ from canbus.pcap import PcapWriter
 from skin.atomic import atomic_write
 from skin.errors import ConfigError
 
+DEFAULT_LOG_CHANNEL = "can0"
+_INTERFACE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,14}")  # a Linux interface name
+
+
+def log_channel_name(bus_channel: object) -> str:
+    """The interface name a .log recording of ``bus_channel`` gives every frame.
+
+    A .log line names its interface (``(t) can0 181#...``) and can-utils' log2asc takes
+    the names to convert on its command line, so the name must be one an interface can
+    have: the bus's own channel when it is one (``skin0``, ``vcan0``), else ``can0``
+    (udp_multicast's channel is a multicast group address).
+    """
+    if isinstance(bus_channel, str) and _INTERFACE_NAME.fullmatch(bus_channel):
+        return bus_channel
+    return DEFAULT_LOG_CHANNEL
+
+
+def check_channel_name(name: str, field: str = "--channel-name") -> str:
+    if not _INTERFACE_NAME.fullmatch(name):
+        raise ConfigError(field, f"{name!r} is not an interface name (a letter, then up to "
+                          "14 letters, digits, '_' or '-', e.g. can0)")
+    return name
+
 
 class CandumpLogWriter(can.CanutilsLogWriter):
-    """python-can's .log writer, keeping a remote frame's DLC as candump does (``123#R4``).
+    """python-can's .log writer that names every frame's interface ``channel`` and keeps
+    a remote frame's DLC as candump does (``123#R4``).
 
+    python-can writes a frame's own ``msg.channel`` when it has one (virtual: the channel
+    name; udp_multicast: none, so ``vcan0``), which log2asc cannot be told in advance.
     python-can 4.6 writes every remote frame as ``123#R``, which reads back with DLC 0;
     candump, log2asc and python-can's reader all take ``R`` followed by the DLC.
     """
 
+    def __init__(self, file: Any, channel: str = DEFAULT_LOG_CHANNEL, **kwargs: Any) -> None:
+        super().__init__(file, channel=check_channel_name(channel, "channel"), **kwargs)
+
     def on_message_received(self, msg: can.Message) -> None:
+        own = msg.channel
+        msg.channel = self.channel  # put back below: other listeners share the message
+        try:
+            self._write(msg)
+        finally:
+            msg.channel = own
+
+    def _write(self, msg: can.Message) -> None:
         if not msg.is_remote_frame or msg.is_fd or not 0 < msg.dlc <= 8:
             super().on_message_received(msg)
             return
@@ -64,6 +102,11 @@ def recording_format(path: str | os.PathLike[str], *, field: str = "--record") -
         raise ConfigError(field, f"unknown recording format {suffix or '(no suffix)'!r} "
                           f"of {os.fspath(path)!r}; use one of {known}")
     return suffix
+
+
+DEFAULT_RCVBUF = 4 * 1024 * 1024
+"""The socket receive buffer the commands ask for (``--rcvbuf``): about 200 ms of
+udp_multicast frames at 20,000 frames/s."""
 
 
 def enlarge_receive_buffer(bus: can.BusABC, size: int) -> int | None:
@@ -127,8 +170,9 @@ class _Borrowed(io.RawIOBase):
 class Recorder(can.Listener):
     """Queues every received frame and writes it to ``path`` in a thread of its own."""
 
-    def __init__(self, path: str | os.PathLike[str], *, channel: str | int | None = None
-                 ) -> None:
+    def __init__(self, path: str | os.PathLike[str], *, channel: str | None = None) -> None:
+        """``channel``: the interface name every frame of a .log gets (default ``can0``);
+        .asc numbers channels, .blf and .pcap name none."""
         suffix = recording_format(path)
         self.path = Path(path)
         self.received = 0
@@ -143,7 +187,7 @@ class Recorder(can.Listener):
         raw = _Borrowed(handle)
         file: IO[Any] = io.TextIOWrapper(cast(BinaryIO, raw), encoding="utf-8", newline="\n") \
             if suffix in _TEXT else cast(BinaryIO, raw)
-        kwargs = {} if channel is None else {"channel": channel}
+        kwargs = {} if channel is None or suffix != ".log" else {"channel": channel}
         self._writer = WRITERS[suffix](cast(TextIO, file), **kwargs)  # type: ignore[arg-type]
         self._thread = threading.Thread(target=self._drain, name="recorder", daemon=True)
         self._thread.start()

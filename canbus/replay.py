@@ -18,7 +18,9 @@ replayed:
 A .log cut exactly at the end of a line is indistinguishable from a shorter recording.
 
 :class:`Replayer` sends a recording with its original timing (python-can's ``MessageSync``)
-or as fast as the bus takes it, once, N times or until stopped. The bus stamps what it
+or fast: as fast as the bus takes it, or paced to at most ``rate_fps`` frames per second
+(a transport without flow control, such as udp_multicast, drops what its receivers
+cannot take in time); once, N times or until stopped. The bus stamps what it
 sends (a virtual bus with its send time unless built with ``preserve_timestamps``), so a
 receiver sees the replay's time, as it would see a live bus's. To decode a recording,
 replay it to a listen-only host (``skin run CONFIG --listen-only``): it follows the
@@ -233,10 +235,14 @@ class Replayer:
     """
 
     def __init__(self, bus: can.BusABC, path: str | os.PathLike[str], *, realtime: bool = True,
-                 passes: int = 1, skip_s: float = 60.0, error_frames: bool = False) -> None:
+                 passes: int = 1, skip_s: float = 60.0, error_frames: bool = False,
+                 rate_fps: float | None = None) -> None:
         recording_reader(path)
+        if rate_fps is not None and not (math.isfinite(rate_fps) and rate_fps > 0):
+            raise ConfigError("rate_fps", f"must be a positive number of frames/s, got {rate_fps}")
         self.bus, self.path = bus, path
         self.realtime, self.passes, self.skip_s = realtime, passes, skip_s
+        self.rate_fps = None if realtime else rate_fps
         self.error_frames = error_frames
         self.sent = self.skipped = self.done = 0
 
@@ -244,6 +250,7 @@ class Replayer:
             on_pass: Callable[[int, int], Any] | None = None) -> ReplayResult:
         """Replay until the passes are done or ``stop`` is set; ``on_pass(pass, frames)``."""
         started = time.monotonic()
+        pace = _Pace(self.rate_fps)
         while self.passes == 0 or self.done < self.passes:
             with Recording(self.path) as recording:
                 messages: Any = recording if not self.realtime else \
@@ -254,6 +261,7 @@ class Replayer:
                     if msg.is_error_frame and not self.error_frames:
                         self.skipped += 1
                         continue
+                    pace.wait(stop)
                     self.bus.send(_outgoing(msg))
                     self.sent += 1
             self.done += 1
@@ -265,4 +273,27 @@ class Replayer:
 
     def _result(self, started: float) -> ReplayResult:
         return ReplayResult(self.sent, self.skipped, self.done, time.monotonic() - started)
+
+
+class _Pace:
+    """At most ``rate_fps`` frames per second on an absolute schedule (no drift), sleeping
+    only when ahead by a millisecond or more: a sleep per frame would oversleep."""
+
+    AHEAD_S = 0.001
+
+    def __init__(self, rate_fps: float | None) -> None:
+        self.period = 0.0 if rate_fps is None else 1.0 / rate_fps
+        self.due = time.monotonic()
+
+    def wait(self, stop: threading.Event | None) -> None:
+        if not self.period:
+            return
+        now = time.monotonic()
+        self.due = max(self.due + self.period, now - self.AHEAD_S)  # no burst after a stall
+        ahead = self.due - now
+        if ahead >= self.AHEAD_S:
+            if stop is None:
+                time.sleep(ahead)
+            else:
+                stop.wait(ahead)
 

@@ -15,22 +15,23 @@ from typing import Any
 
 def _replay(args: argparse.Namespace) -> int:
     import can.cli
-    from can.interfaces.udp_multicast import UdpMulticastBus
 
     from canbus.replay import Recording, RecordingError, Replayer
     from skin.atomic import atomic_write
+    from skin.commands.busargs import default_channel
     from skin.errors import ConfigError
 
     if args.loop is not None and args.loop < 0:
         raise ConfigError("--loop", f"must be 0 (for ever) or a positive count, got {args.loop}")
     if not args.skip > 0:
         raise ConfigError("--skip", f"must be positive, got {args.skip}")
+    if args.rate is not None and not args.rate > 0:
+        raise ConfigError("--rate", f"must be a positive number of frames/s, got {args.rate}")
     with Recording(args.file):  # suffix and file header checked before the bus is opened
         pass
-    if not hasattr(args, "channel"):
-        args.channel = ("skin" if args.interface == "virtual"
-                        else UdpMulticastBus.DEFAULT_GROUP_IPv4)
+    default_channel(args)
     passes = 1 if args.loop is None else args.loop
+    rate = args.rate if args.rate is not None else DEFAULT_RATES.get(args.interface)
 
     def progress(done: int, frames: int) -> None:
         if passes != 1:
@@ -38,7 +39,8 @@ def _replay(args: argparse.Namespace) -> int:
 
     with can.cli.create_bus_from_namespace(args) as bus:
         replayer = Replayer(bus, args.file, realtime=not args.fast, passes=passes,
-                            skip_s=args.skip, error_frames=args.error_frames)
+                            skip_s=args.skip, error_frames=args.error_frames,
+                            rate_fps=rate if args.fast else None)
         try:
             result = replayer.run(on_pass=progress)
         except RecordingError:
@@ -47,20 +49,34 @@ def _replay(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:
             print(f"interrupted after {replayer.sent:,} frames", file=sys.stderr)
             return 130
-    rate = result.frames_sent / result.seconds if result.seconds > 0 else 0.0
-    print(f"sent {result.frames_sent:,} frames in {result.seconds:.2f} s ({rate:,.0f} frames/s, "
+    pacing = ", as fast as possible" if rate is None else f", paced to {rate:,.0f} frames/s"
+    achieved = result.frames_sent / result.seconds if result.seconds > 0 else 0.0
+    print(f"sent {result.frames_sent:,} frames in {result.seconds:.2f} s ({achieved:,.0f} "
+          "frames/s, "
           f"{result.passes} pass{'es' if result.passes != 1 else ''}"
-          f"{', original timing' if not args.fast else ', as fast as possible'})"
+          f"{', original timing' if not args.fast else pacing})"
           + (f"; skipped {result.error_frames_skipped:,} error frames"
              if result.error_frames_skipped else ""))
     if args.json:
         record = {"file": args.file, "frames_sent": result.frames_sent,
                   "error_frames_skipped": result.error_frames_skipped,
                   "passes": result.passes, "seconds": result.seconds,
-                  "timing": "fast" if args.fast else "original"}
+                  "timing": "fast" if args.fast else "original",
+                  "rate_fps": rate if args.fast else None}
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
     return 0
+
+
+DEFAULT_RATES = {"udp_multicast": 5_000.0}
+"""--fast's pace where nothing else holds a sender back. udp_multicast has no flow control:
+a listen-only host in another process loses frames beyond about 8,000 frames/s on a
+2-core machine (docs/sniffer.md); 5,000 is what a 1 Mbit/s CAN bus carries at about 60 %
+load."""
+
+
+def _defaults_text() -> str:
+    return ", ".join(f"{rate:,.0f} on {name}" for name, rate in DEFAULT_RATES.items())
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -75,7 +91,11 @@ def add_subparser(subparsers: Any) -> None:
                     "--listen-only` on the same bus decodes the forces.")
     parser.add_argument("file", metavar="FILE", help="the recording")
     parser.add_argument("--fast", action="store_true",
-                        help="as fast as the bus takes frames (default: original timing)")
+                        help="as fast as the bus takes frames, or --rate (default: original "
+                             "timing)")
+    parser.add_argument("--rate", type=float, default=None, metavar="FPS",
+                        help="with --fast: at most FPS frames/s (default: unpaced, except "
+                             f"{_defaults_text()})")
     parser.add_argument("--loop", type=int, nargs="?", const=0, default=None, metavar="N",
                         help="play N times in all; without N, until Ctrl-C")
     parser.add_argument("--skip", type=float, default=60.0, metavar="S",

@@ -73,9 +73,12 @@ def _run(args: argparse.Namespace) -> int:
 
 def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     from canbus.host import HostManager
+    from canbus.recorder import enlarge_receive_buffer
     from skin.atomic import atomic_write
 
     bus = _open_bus(args)
+    if args.rcvbuf:
+        enlarge_receive_buffer(bus, args.rcvbuf)
     started = time.monotonic()
     try:
         host = HostManager(bus, config, on_unknown=_report_unknown,
@@ -122,6 +125,7 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
 def add_subparser(subparsers: Any) -> None:
     import can.cli
 
+    from skin.commands.busargs import add_rcvbuf_argument
     from skin.commands.cpu import add_cpu_argument
 
     parser = subparsers.add_parser("run", help="the host manager on a bus (CONFIG.toml)")
@@ -134,5 +138,6 @@ def add_subparser(subparsers: Any) -> None:
                              "(default: host.listen_only of the config)")
     parser.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
     add_cpu_argument(parser, default="all")
+    add_rcvbuf_argument(parser)
     can.cli.add_bus_arguments(parser)
     parser.set_defaults(func=_run)

@@ -15,17 +15,15 @@ _NOTIFIER_CYCLE_S = 0.05
 def _run(args: argparse.Namespace) -> int:
     import can.cli
     import canopen
-    from can.interfaces.udp_multicast import UdpMulticastBus
 
     from canbus.patch_server import PatchServer
     from canbus.source import SimulatorSource
     from sim import Simulator, load_scene
     from skin.atomic import atomic_write
+    from skin.commands.busargs import default_channel
 
     scene = load_scene(args.scene)
-    if not hasattr(args, "channel"):
-        args.channel = ("skin" if args.interface == "virtual"
-                        else UdpMulticastBus.DEFAULT_GROUP_IPv4)
+    default_channel(args)
     network = canopen.Network(can.cli.create_bus_from_namespace(args))
     # canopen's notifier blocks in recv() for up to NOTIFIER_CYCLE (1 s by default) and
     # disconnect() joins it: a short cycle makes --seconds S end after ~S, not S + 1.

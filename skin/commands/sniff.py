@@ -28,7 +28,6 @@ if TYPE_CHECKING:
 from skin.commands.sniff_view import LinePrinter, ViewStats, render, summary_lines
 
 SERVICES = ("nmt", "sync", "emcy", "time", "pdo", "sdo", "heartbeat", "lss", "error", "unknown")
-_RCVBUF = 4 * 1024 * 1024
 _SWITCH_S = 0.0005  # the longest a busy thread keeps the GIL from the receive thread
 _DRAW_SHARE = 0.2  # the live view draws at most this share of the time
 _TICK_S = 0.05
@@ -49,13 +48,16 @@ def _sniff(args: argparse.Namespace) -> int:
     import can.cli
 
     from canbus.pdo_names import Dictionary, parse_assignment
-    from canbus.recorder import enlarge_receive_buffer, recording_format
+    from canbus.recorder import check_channel_name, enlarge_receive_buffer, recording_format
     from canbus.services import ServiceDecoder
     from canbus.sniffer import FrameFilter, Sniffer
+    from skin.commands.busargs import default_channel
     from skin.errors import BusError, ConfigError
 
     if args.record:
         recording_format(args.record)  # refused before the bus is opened
+    if args.channel_name is not None:
+        check_channel_name(args.channel_name)
     for name in ("seconds", "refresh"):
         value = getattr(args, name)
         if value is not None and not value > 0:
@@ -71,7 +73,7 @@ def _sniff(args: argparse.Namespace) -> int:
     sniffer = Sniffer(decoder, bitrate=getattr(args, "bitrate", None) or 1_000_000,
                       data_bitrate=getattr(args, "data_bitrate", None),
                       on_frame=printer.on_frame if printer is not None else None)
-    _default_channel(args)
+    default_channel(args)
     switch = sys.getswitchinterval()
     try:
         sys.setswitchinterval(min(switch, _SWITCH_S))
@@ -93,9 +95,10 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
     """Receive until the end; the recording is saved (Ctrl-C included) or discarded."""
     import can
 
-    from canbus.recorder import Recorder
+    from canbus.recorder import Recorder, log_channel_name
 
-    recorder = Recorder(args.record) if args.record else None
+    name = args.channel_name or log_channel_name(args.channel)
+    recorder = Recorder(args.record, channel=name) if args.record else None
     try:
         listeners: list[can.Listener] = [sniffer] if recorder is None else [recorder, sniffer]
         notifier = can.Notifier(bus, listeners, timeout=_TICK_S)
@@ -192,14 +195,6 @@ def _watch(notifier: can.Notifier, recorder: Recorder | None, printer: LinePrint
                            time.monotonic() - started, rows), refresh=True)
 
 
-def _default_channel(args: argparse.Namespace) -> None:
-    from can.interfaces.udp_multicast import UdpMulticastBus
-
-    if not hasattr(args, "channel"):
-        args.channel = ("skin" if args.interface == "virtual"
-                        else UdpMulticastBus.DEFAULT_GROUP_IPv4)
-
-
 def _node_id(text: str) -> int:
     value = int(text, 0)
     if not 1 <= value <= 127:
@@ -209,6 +204,8 @@ def _node_id(text: str) -> int:
 
 def add_subparser(subparsers: Any) -> None:
     import can.cli
+
+    from skin.commands.busargs import add_rcvbuf_argument
 
     parser = subparsers.add_parser(
         "sniff", help="live, EDS-aware bus view; --record to .log/.asc/.blf/.pcap",
@@ -223,6 +220,10 @@ def add_subparser(subparsers: Any) -> None:
                         help="show only this service (repeatable)")
     parser.add_argument("--record", metavar="FILE",
                         help="record every frame to FILE: .log (candump -L), .asc, .blf, .pcap")
+    parser.add_argument("--channel-name", default=None, metavar="NAME",
+                        help="the interface name a .log recording gives every frame, as "
+                             "log2asc and canplayer expect it (default: the bus's channel "
+                             "if it is an interface name, else can0)")
     parser.add_argument("--seconds", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: at Ctrl-C)")
     parser.add_argument("--view", choices=("live", "lines", "none"), default=None,
@@ -230,9 +231,7 @@ def add_subparser(subparsers: Any) -> None:
                              "(default: live on a terminal, else lines)")
     parser.add_argument("--refresh", type=float, default=4.0, metavar="HZ",
                         help="live view redraws per second at most (default 4)")
-    parser.add_argument("--rcvbuf", type=int, default=_RCVBUF, metavar="BYTES",
-                        help="socket receive buffer to ask for on socket buses (udp_multicast, "
-                             f"socketcan); 0 keeps the system's (default {_RCVBUF >> 20} MiB)")
+    add_rcvbuf_argument(parser)
     parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
     can.cli.add_bus_arguments(parser, filter_arg=True)
     parser.set_defaults(func=_sniff, interface="virtual")

@@ -9,6 +9,8 @@ from collections.abc import Iterator
 import can.interfaces.virtual
 import pytest
 
+from tests.canbus.dataplane_rig import Host
+
 _groups = itertools.count(43000 + (os.getpid() % 1000) * 16)
 _udp_ports = itertools.count(20000 + (os.getpid() % 750) * 16)  # below Linux's ephemeral ports
 
@@ -32,3 +34,11 @@ def udp_port() -> int:
     """A UDP port unique to this test: Linux hands a socket every group joined on its port,
     so tests, and two suites running at once, keep apart by port as well as by group."""
     return next(_udp_ports)
+
+
+@pytest.fixture
+def host() -> Iterator[Host]:
+    """A data plane publishing to a sink bus, with patches 1 and 2 (tests.canbus.dataplane_rig)."""
+    h = Host()
+    yield h
+    h.close()

@@ -4,8 +4,6 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections.abc import Iterator
-from typing import Any
 
 import can
 import canopen
@@ -15,10 +13,8 @@ from numpy.typing import ArrayLike
 
 from canbus.codes import code_to_resistance, resistance_to_code
 from canbus.dataplane import DataPlane, ForceFrame, PatchChannel
-from canbus.dataplane_bench import SinkBus
 from canbus.forcenode import COMPLETE, NO_VALUE, ForceNode
 from canbus.od import load_od
-from canbus.patch_node import PatchNode
 from canbus.patch_server import PatchServer
 from canbus.pdo_codec import TPDO_MAP
 from canbus.source import ArraySource
@@ -28,176 +24,94 @@ from decoder.registry import create_decoder
 from skin.constants import DEFAULT_CONSTANTS
 from skin.errors import ConfigError
 from skin.tripod import resistance_from_force
-
-LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
-WINDOW_S = 0.005
-T0 = 1000.0  # SYNC k is sent at T0 + k / 100 on the test's clock
-
-
-def _load(scale: float = 1.0) -> np.ndarray:
-    force = np.zeros((9, 3))
-    force[:, 2] = np.linspace(0.5, 4.0, 9) * scale
-    force[:, 0], force[:, 1] = 0.2 * scale, -0.15 * scale
-    return force
-
-
-def _sync_time(cycle: int) -> float:
-    return T0 + cycle / 100
-
-
-class Patch:
-    """A patch node that encodes chosen forces, and its force node."""
-
-    def __init__(self, node_id: int, mode: str = "xyz") -> None:
-        self.node = PatchNode(node_id, mode=mode)
-        self.force_node = ForceNode(node_id + 64, node_id, heartbeat_ms=0)
-
-    @property
-    def codec(self) -> Any:
-        return self.node.tpdo.codec
-
-    def channel(self, decoder: Any) -> PatchChannel:
-        return PatchChannel(self.node.node_id, self.codec, self.node.pillars, LSB, decoder,
-                            self.force_node)
-
-    def frames(self, force_N: ArrayLike, cycle: int, **faults: float) -> list[can.Message]:
-        """The TPDOs answering SYNC ``cycle``; ``faults``: {"t<k>": ohm} on pillar z."""
-        r = resistance_from_force(np.asarray(force_N), DEFAULT_CONSTANTS)[:, : self.node.pillars]
-        for name, ohm in faults.items():
-            r[int(name[1:]), 0] = ohm
-        self.node.update(r)
-        payloads = self.codec.pack(self.node.values())[0]
-        t = _sync_time(cycle)
-        return [can.Message(timestamp=t + 1e-4 * (p + 1), arbitration_id=int(cob),
-                            data=payloads[p, :size].tobytes(), is_extended_id=False)
-                for p, (cob, size) in enumerate(zip(self.codec.cob_ids, self.codec.sizes,
-                                                    strict=True))]
-
-    def expected(self, decoder: Any) -> Decoded:
-        """What the decoder makes of the codes the node sent last."""
-        r = code_to_resistance(self.node.codes[:, : self.node.pillars], LSB)
-        decoded: Decoded = decoder.decode(r[None])
-        return decoded
-
-    def carried(self, pdo: int) -> list[int]:
-        """The taxels PDO ``pdo`` (0-based) carries values of."""
-        return sorted({(e.subindex - 1) // 3 for e in self.codec.layouts[pdo].entries})
-
-
-class Host:
-    """A data plane publishing to a sink, two patches, and what it published."""
-
-    def __init__(self, decoder: Any = None, *, mode: str = "xyz") -> None:
-        self.decoder = decoder or create_decoder("analytic")
-        self.sink = SinkBus()
-        self.network = canopen.Network(self.sink)
-        self.plane = DataPlane(self.sink, sync_window_s=WINDOW_S, background=False)
-        self.patches = [Patch(1, mode), Patch(2, mode)]
-        for patch in self.patches:
-            patch.force_node.attach(self.network)
-            patch.force_node.start()
-            self.plane.add_channel(patch.channel(self.decoder))
-        self.sink.sent.clear()
-        self.out: list[ForceFrame] = []
-        self.plane.subscribe(self.out.extend)
-
-    def feed(self, frames: list[can.Message]) -> None:
-        for msg in frames:
-            self.plane.on_message_received(msg)
-
-    def sync(self, cycle: int) -> None:
-        self.plane.on_sync(cycle, cycle % 240 + 1, _sync_time(cycle))
-
-    def published(self, force_node: int) -> dict[int, bytes]:
-        cobs = self.patches[force_node - 65].force_node.cob_ids()
-        return {cob: data for cob, data in self.sink.sent if cob in cobs and cob < 0x580}
-
-    def close(self) -> None:
-        self.plane.stop()
-        for patch in self.patches:
-            patch.force_node.detach()
-        self.sink.shutdown()
-
-
-@pytest.fixture
-def host() -> Iterator[Host]:
-    h = Host()
-    yield h
-    h.close()
-
-
-def _consume(frames: dict[int, bytes], node_id: int = 65) -> tuple[list[int], int]:
-    """A canopen master decoding a force node's TPDOs with eds/skin-forces.eds."""
-    node = canopen.Network().add_node(canopen.RemoteNode(node_id, load_od("skin-forces", node_id)))
-    node.tpdo.read(from_od=True)
-    values: dict[tuple[int, int], int] = {}
-    for pdo in node.tpdo.values():
-        pdo.on_message(pdo.cob_id, bytearray(frames[pdo.cob_id]), 0.0)
-        values.update({(v.index, v.subindex): v.raw for v in pdo})
-    return [values[(0x2000, k)] for k in range(1, 28)], values[(0x2005, 0)]
-
-
-def _mN(force_N: np.ndarray) -> list[int]:
-    return [int(v) for v in np.rint(force_N * 1000).reshape(27)]
+from tests.canbus.dataplane_rig import LSB, WINDOW_S, Host, Patch, consume, load, mN, sync_time
 
 
 def test_complete_samples_decode_exactly_and_go_out_as_force_tpdos(host: Host) -> None:
     host.sync(1)
     a, b = host.patches
-    host.feed(a.frames(_load(), 1) + b.frames(_load(0.5), 1))
+    host.feed(a.frames(load(), 1) + b.frames(load(0.5), 1))
     host.plane.publish_pending()  # the publishing thread's work, here in the test's thread
     assert [(f.patch, f.force_node, f.cycle, f.sync_counter, f.complete, f.published)
             for f in host.out] == [(1, 65, 1, 2, True, True), (2, 66, 1, 2, True, True)]
     for frame, patch in zip(host.out, host.patches, strict=True):
         expected = patch.expected(host.decoder)
         np.testing.assert_allclose(frame.force_N, expected.force_N[0], rtol=1e-12, atol=0)
-        assert frame.valid.all() and not frame.reason.any() and frame.timestamp == _sync_time(1)
-    np.testing.assert_allclose(host.out[0].force_N, _load(), atol=2e-3)  # the forces applied
-    forces, bits = _consume(host.published(65))
-    assert forces == _mN(host.out[0].force_N) and bits == COMPLETE | 0x1FF
+        assert frame.valid.all() and not frame.reason.any() and frame.timestamp == sync_time(1)
+    np.testing.assert_allclose(host.out[0].force_N, load(), atol=2e-3)  # the forces applied
+    forces, bits = consume(host.published(65))
+    assert forces == mN(host.out[0].force_N) and bits == COMPLETE | 0x1FF
     assert host.plane.stats.snapshot()["frames_out"] == 14
 
 
 def test_lost_frame_makes_the_sample_incomplete_with_missing_taxels(host: Host) -> None:
     host.sync(1)
     a, b = host.patches
-    frames = a.frames(_load(), 1)
-    host.feed(frames[:1] + frames[2:] + b.frames(_load(), 1))  # a's TPDO 2 is lost
+    frames = a.frames(load(), 1)
+    assert frames[6].arbitration_id == 0x481  # the last of the answer: TPDO 4
+    host.feed(frames[:6] + b.frames(load(), 1))  # a's TPDO 4 is lost
     host.plane.publish_pending()
     assert [f.patch for f in host.out] == [2]  # b is complete: published without waiting
     host.sync(2)  # closes cycle 1
     late = host.out[1]
     assert (late.patch, late.cycle, late.complete, late.published) == (1, 1, False, True)
-    lost = a.carried(1)
-    assert lost == [1, 2]
+    lost = a.carried(6)
+    assert lost == [4, 5]
     assert (late.reason[lost] == Reason.MISSING).all() and not late.valid[lost].any()
     kept = [t for t in range(9) if t not in lost]
     np.testing.assert_allclose(late.force_N[kept], a.expected(host.decoder).force_N[0][kept],
                                rtol=1e-12)
-    forces, bits = _consume(host.published(65))
-    assert forces[3:9] == [NO_VALUE] * 6 and forces[:3] == _mN(late.force_N)[:3]
+    forces, bits = consume(host.published(65))
+    assert forces[12:18] == [NO_VALUE] * 6 and forces[:12] == mN(late.force_N)[:12]
     assert bits == sum(1 << t for t in kept)  # bit 15 clear: incomplete
     assert host.plane.stats.incomplete_samples == 1
 
 
-def test_duplicate_frame_is_not_trusted(host: Host) -> None:
+def test_a_frame_lost_inside_the_answer_ends_it(host: Host) -> None:
+    """After a gap nothing proves the next frame is of the same answer: it is not taken."""
     host.sync(1)
     a = host.patches[0]
-    frames = a.frames(_load(), 1)
-    impostor = a.frames(_load(0.3), 1)[3]
-    host.feed([*frames[:4], impostor, *frames[4:]])  # TPDO 4 twice, different data
+    frames = a.frames(load(), 1)
+    host.feed(frames[:2] + frames[3:])  # the third frame is lost
+    host.sync(2)
+    sample = host.out[0]
+    lost = sorted({t for place in range(2, 7) for t in a.carried(place)})
+    assert not sample.complete and list(np.flatnonzero(~sample.valid)) == lost
+    assert host.plane.stats.out_of_order_frames == 4
+
+
+def test_duplicate_frame_is_not_trusted_and_ends_the_answer(host: Host) -> None:
+    host.sync(1)
+    a = host.patches[0]
+    frames = a.frames(load(), 1)
+    impostor = a.frames(load(0.3), 1)[3]
+    host.feed([*frames[:4], impostor, *frames[4:]])  # the 4th frame twice, different data
     host.sync(2)
     sample = next(f for f in host.out if f.patch == 1)
-    assert not sample.complete and host.plane.stats.duplicate_frames == 1
-    assert (sample.reason[a.carried(3)] == Reason.MISSING).all()
-    assert sample.valid.sum() == 9 - len(a.carried(3))
+    stats = host.plane.stats
+    assert not sample.complete and stats.duplicate_frames == 1
+    assert stats.out_of_order_frames == 3  # what followed the break is not taken
+    lost = sorted({t for place in range(3, 7) for t in a.carried(place)})
+    assert (sample.reason[lost] == Reason.MISSING).all()
+    assert sample.valid.sum() == 9 - len(lost)
+
+
+def test_the_same_frame_again_at_once_is_a_harmless_repeat(host: Host) -> None:
+    """A CAN receiver gets a frame twice when its sender retransmits it."""
+    host.sync(1)
+    a = host.patches[0]
+    frames = a.frames(load(), 1)
+    host.feed([*frames[:4], frames[3], *frames[4:]])
+    host.plane.publish_pending()
+    assert host.out[0].complete and host.out[0].valid.all()
+    assert host.plane.stats.duplicate_frames == 1
 
 
 def test_late_frame_beyond_the_window_is_dropped(host: Host) -> None:
     host.sync(1)
     a = host.patches[0]
-    frames = a.frames(_load(), 1)
-    frames[6].timestamp = _sync_time(1) + WINDOW_S + 1e-3
+    frames = a.frames(load(), 1)
+    frames[6].timestamp = sync_time(1) + WINDOW_S + 1e-3
     host.feed(frames)
     host.plane.publish_pending()
     assert not any(f.patch == 1 for f in host.out)
@@ -209,7 +123,7 @@ def test_late_frame_beyond_the_window_is_dropped(host: Host) -> None:
 
 def test_cycles_are_never_mixed(host: Host) -> None:
     a = host.patches[0]
-    old, new = a.frames(_load(), 1), a.frames(_load(0.5), 2)
+    old, new = a.frames(load(), 1), a.frames(load(0.5), 2)
     expected_new = a.expected(host.decoder).force_N[0]
     host.sync(1)
     host.feed(old[:5])
@@ -228,8 +142,8 @@ def test_cycles_are_never_mixed(host: Host) -> None:
 def test_frames_of_the_next_sync_before_on_sync_are_kept_for_it(host: Host) -> None:
     a = host.patches[0]
     host.sync(1)
-    host.feed(a.frames(_load(), 1))
-    host.feed(a.frames(_load(0.5), 2))  # the patch answered SYNC 2 before on_sync(2) ran
+    host.feed(a.frames(load(), 1))
+    host.feed(a.frames(load(0.5), 2))  # the patch answered SYNC 2 before on_sync(2) ran
     host.sync(2)
     host.plane.publish_pending()
     assert [(f.cycle, f.complete) for f in host.out if f.patch == 1] == [(1, True), (2, True)]
@@ -240,7 +154,7 @@ def test_faulty_taxels_are_masked_and_neighbours_decode(host: Host) -> None:
     a = host.patches[0]
     host.plane.channel(1).masked[4] = True  # the host learnt taxel 4 is faulty (EMCY)
     host.sync(1)
-    host.feed(a.frames(_load(), 1, t7=np.inf))  # and taxel 7's pillar z is open
+    host.feed(a.frames(load(), 1, t7=np.inf))  # and taxel 7's pillar z is open
     host.plane.publish_pending()
     sample = host.out[0]
     assert sample.reason[4] == Reason.FAULTY and sample.reason[7] == Reason.OPEN
@@ -248,15 +162,15 @@ def test_faulty_taxels_are_masked_and_neighbours_decode(host: Host) -> None:
     good = [0, 1, 2, 3, 5, 6, 8]
     assert sample.valid[good].all() and not sample.valid[[4, 7]].any()
     assert not sample.force_N[[4, 7]].any()
-    np.testing.assert_allclose(sample.force_N[good], _load()[good], atol=2e-3)
-    forces, bits = _consume(host.published(65))
+    np.testing.assert_allclose(sample.force_N[good], load()[good], atol=2e-3)
+    forces, bits = consume(host.published(65))
     assert forces[12:15] == [NO_VALUE] * 3 and forces[21:24] == [NO_VALUE] * 3
     assert bits == COMPLETE | 0x1FF & ~(1 << 4 | 1 << 7)
 
 
 def test_unknown_frames_are_counted_and_ignored(host: Host) -> None:
     host.sync(1)
-    frames = host.patches[0].frames(_load(), 1)
+    frames = host.patches[0].frames(load(), 1)
     strangers = [can.Message(arbitration_id=0x123, data=bytes(8), is_extended_id=False),
                  can.Message(arbitration_id=0x181, data=bytes(8), is_extended_id=True),
                  can.Message(arbitration_id=0x181, is_remote_frame=True, is_extended_id=False)]
@@ -271,7 +185,7 @@ def test_short_frame_is_malformed() -> None:
     host = Host()
     try:
         host.sync(1)
-        frames = host.patches[0].frames(_load(), 1)
+        frames = host.patches[0].frames(load(), 1)
         frames[2].data = frames[2].data[:6]
         frames[2].dlc = 6
         host.feed(frames)
@@ -283,13 +197,15 @@ def test_short_frame_is_malformed() -> None:
 
 def test_silent_and_removed_patches(host: Host) -> None:
     host.sync(1)
-    host.feed(host.patches[0].frames(_load(), 1))
-    host.sync(2)  # patch 2 sent nothing in cycle 1
+    host.feed(host.patches[0].frames(load(), 1))
+    host.sync(2)  # patch 2 sent nothing in cycle 1: one all-invalid sample all the same
     silent = next(f for f in host.out if f.patch == 2)
-    assert not silent.complete and not silent.published
-    assert (silent.reason == Reason.MISSING).all() and not host.published(66)
+    assert not silent.complete and silent.published
+    assert (silent.reason == Reason.MISSING).all()
+    forces, bits = consume(host.published(66), 66)
+    assert forces == [NO_VALUE] * 27 and bits == 0
     host.plane.remove_channel(2)
-    host.feed(host.patches[1].frames(_load(), 2))
+    host.feed(host.patches[1].frames(load(), 2))
     assert host.plane.stats.unknown_frames == 7
     with pytest.raises(ConfigError, match="no channel for patch 2"):
         host.plane.channel(2)
@@ -299,7 +215,7 @@ def test_raw_sample_and_scale(host: Host) -> None:
     a = host.patches[0]
     assert host.plane.raw_sample(1) is None
     host.sync(1)
-    host.feed(a.frames(_load(), 1))
+    host.feed(a.frames(load(), 1))
     host.plane.publish_pending()
     raw = host.plane.raw_sample(1)
     assert raw is not None
@@ -307,14 +223,11 @@ def test_raw_sample_and_scale(host: Host) -> None:
     # A drift of +1 % on every pillar, tared away by scale = r0_ref / baseline.
     host.plane.channel(1).scale = np.full((9, 3), 1 / 1.01)
     host.sync(2)
-    r = resistance_from_force(_load(), DEFAULT_CONSTANTS) * 1.01
+    r = resistance_from_force(load(), DEFAULT_CONSTANTS) * 1.01
     a.node.update(r)
-    payloads = a.codec.pack(a.node.values())[0]
-    host.feed([can.Message(timestamp=_sync_time(2) + 1e-4, arbitration_id=int(cob),
-                           data=payloads[p].tobytes(), is_extended_id=False)
-               for p, cob in enumerate(a.codec.cob_ids)])
+    host.feed(a.answer(a.codec.pack(a.node.values())[0], 2))
     host.plane.publish_pending()
-    np.testing.assert_allclose(host.out[-1].force_N, _load(), atol=3e-3)
+    np.testing.assert_allclose(host.out[-1].force_N, load(), atol=3e-3)
 
 
 class CountingDecoder:
@@ -338,7 +251,7 @@ def test_one_decode_call_per_decoder_object() -> None:
     host = Host(counting)
     try:
         host.sync(1)
-        host.feed(host.patches[0].frames(_load(), 1) + host.patches[1].frames(_load(), 1))
+        host.feed(host.patches[0].frames(load(), 1) + host.patches[1].frames(load(), 1))
         host.plane.publish_pending()
         assert counting.calls == [(2, 9, 3)]
         assert [f.complete for f in host.out] == [True, True]
@@ -358,7 +271,7 @@ def test_codes_at_odd_bytes_decode_like_the_default_mapping(host: Host) -> None:
     shifted.tpdo.reset()
     host.plane.add_channel(host.patches[1].channel(host.decoder))
     host.sync(1)
-    host.feed(host.patches[0].frames(_load(), 1) + host.patches[1].frames(_load(), 1))
+    host.feed(host.patches[0].frames(load(), 1) + host.patches[1].frames(load(), 1))
     host.plane.publish_pending()
     assert [f.complete for f in host.out] == [True, True]
     for frame, patch in zip(host.out, host.patches, strict=True):
@@ -407,7 +320,7 @@ def _network(channel: str) -> canopen.Network:
 
 def test_end_to_end_published_before_the_window_closes(request: pytest.FixtureRequest) -> None:
     channel = request.node.name
-    force = np.stack([_load(s) for s in (0.2, 1.0, 0.6)])  # samples 0, 1, 2
+    force = np.stack([load(s) for s in (0.2, 1.0, 0.6)])  # samples 0, 1, 2
     samples = np.stack([force, force[:, ::-1]], axis=1)  # patch 2 sees the mirrored loads
     resistance = resistance_from_force(samples, DEFAULT_CONSTANTS)
     device, host_net, consumer = _network(channel), _network(channel), _network(channel)
@@ -454,8 +367,8 @@ def test_end_to_end_published_before_the_window_closes(request: pytest.FixtureRe
             expected = decoder.decode(code_to_resistance(codes, LSB)[None]).force_N[0]
             np.testing.assert_allclose(by_patch[p].force_N, expected, rtol=1e-12)
         assert received.wait(2.0)
-        mN = [v.raw for n in range(1, 8) for v in remote.tpdo[n]][:27]
-        assert mN == _mN(by_patch[1].force_N)
+        sent = [v.raw for n in range(1, 8) for v in remote.tpdo[n]][:27]
+        assert sent == mN(by_patch[1].force_N)
         assert remote.tpdo[7]["Valid taxels"].raw == COMPLETE | 0x1FF
 
         remote.nmt.send_command(0x02)  # another master stops force node 65

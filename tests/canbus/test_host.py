@@ -309,8 +309,8 @@ class ScriptedPatch:
             frames.reverse()
         elif action == "drop":
             del frames[1]
-        elif action == "duplicate":
-            frames.insert(1, frames[0])
+        elif action == "duplicate":  # TPDO 1 again after TPDO 2: it ends the answer
+            frames.insert(2, frames[0])
         elif action == "late":
             timer = threading.Timer(self.late_s, self.send, [frames[2:]])
             self.timers.append(timer)
@@ -341,14 +341,17 @@ def test_lost_duplicated_reordered_and_late_frames_end_to_end(rig: Rig) -> None:
         patch.close()
         net.disconnect()
     force, _ = expected(resistance)
-    rows = {"drop": [3, 4, 5], "duplicate": [0, 1, 2], "late": [6, 7, 8]}
+    # An answer is a unit sent in order: reversed, its first two frames are the tail of
+    # an earlier answer and only the first TPDO counts; a lost or repeated PDO ends it.
+    rows = {"reverse": [3, 4, 5, 6, 7, 8], "drop": [3, 4, 5, 6, 7, 8],
+            "duplicate": [0, 1, 2, 6, 7, 8], "late": [6, 7, 8]}
     frames = [f for f in rig.frames if f.cycle >= 1]
     checked = set()
     for frame in frames:
         action = script.get(frame.cycle % 10, "normal")
         missing = np.zeros(9, bool)
         missing[rows.get(action, [])] = True
-        assert frame.complete == (action in ("normal", "reverse")), (frame.cycle, action)
+        assert frame.complete == (action == "normal"), (frame.cycle, action)
         assert (frame.reason[missing] == Reason.MISSING).all(), (frame.cycle, action)
         assert frame.valid[~missing].all()
         np.testing.assert_allclose(frame.force_N[~missing], force[~missing], atol=1e-12)

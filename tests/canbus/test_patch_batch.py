@@ -92,11 +92,12 @@ def test_batch_update_equals_each_node_updated_alone(width: int) -> None:
 
 
 def _reference_frames(node: PatchNode) -> list[tuple[int, bytes]]:
-    """Every valid TPDO of the node packed from ``values()``, one PDO at a time."""
+    """Every valid TPDO of the node packed from ``values()``, one PDO at a time, in the
+    order a node's queued frames leave on a CAN bus: ascending COB-ID."""
     codec = node.tpdo.codec
     payloads = codec.pack(node.values())[0]
-    return [(int(cob), payloads[p, :size].tobytes())
-            for p, (cob, size) in enumerate(zip(codec.cob_ids, codec.sizes, strict=True))]
+    return sorted((int(cob), payloads[p, :size].tobytes())
+                  for p, (cob, size) in enumerate(zip(codec.cob_ids, codec.sizes, strict=True)))
 
 
 def test_batch_frames_equal_each_node_packed_alone() -> None:

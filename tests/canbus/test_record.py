@@ -9,7 +9,13 @@ from pathlib import Path
 import can
 import pytest
 
-from canbus.recorder import CandumpLogWriter, Recorder, enlarge_receive_buffer, recording_format
+from canbus.recorder import (
+    CandumpLogWriter,
+    Recorder,
+    enlarge_receive_buffer,
+    log_channel_name,
+    recording_format,
+)
 from canbus.replay import Recording
 from skin.errors import ConfigError
 
@@ -80,6 +86,49 @@ def test_can_utils_log2asc_reads_our_log(tmp_path: Path) -> None:
     assert [_key(m) for m in got] == [_key(m) for m in sent]
     assert _relative(got) == pytest.approx(_relative(sent), abs=1.5e-6)
     assert [m.is_rx for m in got] == [m.is_rx for m in sent]
+
+
+def _interfaces(path: Path) -> set[str]:
+    return {line.split()[1] for line in path.read_text().splitlines()}
+
+
+def test_a_log_names_every_frame_with_one_interface_name(tmp_path: Path) -> None:
+    """udp_multicast frames carry no channel (python-can writes "vcan0"), virtual ones their
+    channel's name: a .log gets one interface name, ``can0`` unless told otherwise."""
+    frames = _frames()
+    frames[0].channel, frames[1].channel = None, "skin"
+    for name, expected in ((None, "can0"), ("vcan1", "vcan1")):
+        path = tmp_path / f"{name}.log"
+        recorder = Recorder(path, channel=name)
+        for msg in frames:
+            recorder.on_message_received(msg)
+        recorder.stop()
+        assert _interfaces(path) == {expected}
+    assert frames[1].channel == "skin"  # the listeners' shared message is left as it was
+    with pytest.raises(ConfigError, match="not an interface name"):
+        Recorder(tmp_path / "bad.log", channel="239.0.0.1")
+
+
+def test_log_channel_name_is_the_bus_channel_when_it_can_name_an_interface() -> None:
+    assert log_channel_name("skin0") == "skin0"
+    assert log_channel_name("239.74.163.2") == "can0"  # udp_multicast's group
+    assert log_channel_name(None) == "can0"
+
+
+@pytest.mark.skipif(shutil.which("log2asc") is None,
+                    reason="can-utils' log2asc is not installed (apt install can-utils)")
+def test_the_readmes_log2asc_line_reads_a_udp_multicast_recording(tmp_path: Path) -> None:
+    sent = _frames()
+    for msg in sent:
+        msg.channel = None  # as udp_multicast delivers them
+    recorder = Recorder(tmp_path / "run.log", channel=log_channel_name("239.74.163.2"))
+    for msg in sent:
+        recorder.on_message_received(msg)
+    recorder.stop()
+    run = subprocess.run(["log2asc", "-I", "run.log", "can0"], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=30)
+    assert run.returncode == 0, run.stderr
+    assert sum(" Rx " in line or " Tx " in line for line in run.stdout.splitlines()) == len(sent)
 
 
 def test_file_appears_only_when_complete(tmp_path: Path) -> None:

@@ -135,3 +135,18 @@ def test_cli_replays_and_reports(tmp_path: Path, capsys: pytest.CaptureFixture[s
         assert "sent 5 frames before the damaged one" in err
         assert "truncated.log: frame 6: line 6: cut short" in err
         assert len(_drain(rx)) == 5
+
+
+def test_fast_replay_paced_to_a_rate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """udp_multicast has no flow control: `--rate` (by default there) caps frames/s."""
+    with can.Bus(interface="virtual", channel="paced") as rx:
+        started = time.monotonic()
+        code = main(["replay", str(FILES / "good.log"), "-c", "paced", "--fast", "--loop", "10",
+                     "--rate", "400", "--json", str(tmp_path / "r.json")])
+        took = time.monotonic() - started
+        assert code == 0 and len(_drain(rx)) == 80
+    assert took >= 79 / 400 - 0.002  # a slow machine only takes longer
+    assert "paced to 400 frames/s" in capsys.readouterr().out
+    assert json.loads((tmp_path / "r.json").read_text())["rate_fps"] == 400
+    assert main(["replay", str(FILES / "good.log"), "--fast", "--rate", "0"]) == 1
+    assert "--rate: must be a positive number of frames/s" in capsys.readouterr().err
