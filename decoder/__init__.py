@@ -1,4 +1,4 @@
-"""Decoders: resistances -> forces, with a per-taxel valid mask and reason (DESIGN.md section 4)."""
+"""Decoders: resistances -> forces, with a per-taxel valid mask and reason (docs/decoders.md)."""
 
 from decoder.protocol import Decoded, Decoder
 from decoder.reasons import Reason, reason_name

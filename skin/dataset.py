@@ -1,4 +1,4 @@
-"""The dataset file: one .npz of resistances, true forces and JSON meta (DESIGN.md section 3).
+"""The dataset file: one .npz of resistances, true forces and JSON meta (format: docs/sim.md).
 
 Written by hand with zipfile so identical content gives identical bytes (fixed
 timestamps, fixed member order), atomically, and never with pickle.

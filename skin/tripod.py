@@ -1,6 +1,6 @@
 """The exact tripod model of one taxel, both directions, vectorised.
 
-Geometry (DESIGN.md section 2): the lower electrodes are fixed, the upper layer
+Geometry (README, "The sensor model"): the lower electrodes are fixed, the upper layer
 moves rigidly by u = (ux, uy, uz). Pillar vectors, lower end to upper end:
 
     z: (ux,      uy,      L + uz)      rest length L

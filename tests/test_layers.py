@@ -1,4 +1,4 @@
-"""Imports flow one way: skin core <- sim, decoder <- canbus <- skin/cli.py (DESIGN.md §1)."""
+"""Imports flow one way: skin core <- sim, decoder <- canbus <- skin/cli.py (README, "What is here")."""
 
 from __future__ import annotations
 
@@ -48,3 +48,45 @@ def test_imports_flow_one_way(path: Path) -> None:
         return
     wrong = _imports(tree) & FORBIDDEN[package]
     assert not wrong, f"{path} imports {sorted(wrong)}, against the layering"
+
+
+# Inside canbus: the wire-level modules beside the subpackages use none of them; the device
+# side uses only those; the master side also the device side (its force nodes are local
+# devices); the bus tools and the timed bus only the wire-level modules.
+CANBUS_SIDES = ("device", "master", "tools", "timed")
+CANBUS_ALLOWED = {
+    "": set(),
+    "device": {"device"},
+    "master": {"device", "master"},
+    "tools": {"tools"},
+    "timed": {"timed"},
+}
+
+
+def _canbus_side(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 2 and parts[1] in CANBUS_SIDES else ""
+
+
+def _canbus_imports(tree: ast.AST) -> set[str]:
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module)
+        elif isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+    return {name for name in found if name.startswith("canbus.")}
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "canbus").rglob("*.py")),
+                         ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_canbus_sides_import_one_way(path: Path) -> None:
+    rel = path.relative_to(ROOT).with_suffix("")
+    side = _canbus_side(".".join(rel.parts))
+    if rel.parts[-1] == "__init__" and len(rel.parts) == 2:
+        return  # canbus/__init__.py names the public API of every side, lazily
+    if rel.parts[-1] == "_moved":
+        return  # the old module paths, lazily
+    used = {_canbus_side(name) for name in _canbus_imports(ast.parse(path.read_text()))}
+    wrong = used - {""} - CANBUS_ALLOWED[side]
+    assert not wrong, f"{path} ({side or 'wire level'}) imports canbus.{sorted(wrong)}"

@@ -195,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
             _write_json(args.json, dict(figures))
         return 0
     if args.target == "dataplane":
-        from canbus.dataplane_bench import run_dataplane_benchmark
+        from canbus.master.dataplane_bench import run_dataplane_benchmark
 
         cycles, repeats = (100, 2) if args.quick else (300, 5)
         figures = run_dataplane_benchmark(cycles=cycles, repeats=repeats)

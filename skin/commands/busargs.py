@@ -16,7 +16,7 @@ def default_channel(args: argparse.Namespace) -> None:
 
 
 def add_rcvbuf_argument(parser: argparse.ArgumentParser) -> None:
-    from canbus.recorder import DEFAULT_RCVBUF
+    from canbus.tools.recorder import DEFAULT_RCVBUF
 
     parser.add_argument("--rcvbuf", type=int, default=DEFAULT_RCVBUF, metavar="BYTES",
                         help="socket receive buffer to ask for on socket buses (udp_multicast, "

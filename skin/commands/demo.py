@@ -27,8 +27,8 @@ if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
 
-    from canbus.dataplane import ForceFrame
-    from canbus.host import HostManager
+    from canbus.master.dataplane import ForceFrame
+    from canbus.master.host import HostManager
     from sim import Scene
 
 DEFAULT_PATCHES = 4
@@ -249,9 +249,9 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     import canopen
     import numpy as np
 
-    from canbus.host import HostManager
-    from canbus.hostconfig import HostConfig, PatchConfig, predefined_tpdo_cob_ids
-    from canbus.patch_server import PatchServer
+    from canbus.device.patch_server import PatchServer
+    from canbus.master.host import HostManager
+    from canbus.master.hostconfig import HostConfig, PatchConfig, predefined_tpdo_cob_ids
     from sim import Simulator
     from skin.atomic import atomic_write
     from skin.errors import BusError

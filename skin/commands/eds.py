@@ -8,8 +8,8 @@ from typing import Any
 
 
 def _check(args: argparse.Namespace) -> int:
-    from canbus.edscheck import check
     from canbus.od import eds_file
+    from canbus.tools.edscheck import check
 
     failed = 0
     for name in args.files:

@@ -16,7 +16,7 @@ from typing import Any
 def _replay(args: argparse.Namespace) -> int:
     import can.cli
 
-    from canbus.replay import Recording, RecordingError, Replayer
+    from canbus.tools.replay import Recording, RecordingError, Replayer
     from skin.atomic import atomic_write
     from skin.commands.busargs import default_channel
     from skin.errors import ConfigError

@@ -24,9 +24,9 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     import can
 
-    from canbus.discovery import UnknownNode
-    from canbus.host import HostManager
-    from canbus.hostconfig import HostConfig
+    from canbus.master.discovery import UnknownNode
+    from canbus.master.host import HostManager
+    from canbus.master.hostconfig import HostConfig
 
 POLL_S = 0.1
 
@@ -63,7 +63,7 @@ def _follow(host: HostManager, seconds: float | None) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from canbus.hostconfig import load_host_config
+    from canbus.master.hostconfig import load_host_config
     from skin.commands.cpu import pinned
 
     config = load_host_config(args.config)
@@ -72,8 +72,8 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
-    from canbus.host import HostManager
-    from canbus.recorder import enlarge_receive_buffer
+    from canbus.master.host import HostManager
+    from canbus.tools.recorder import enlarge_receive_buffer
     from skin.atomic import atomic_write
 
     bus = _open_bus(args)

@@ -16,8 +16,8 @@ def _run(args: argparse.Namespace) -> int:
     import can.cli
     import canopen
 
-    from canbus.patch_server import PatchServer
-    from canbus.source import SimulatorSource
+    from canbus.device.patch_server import PatchServer
+    from canbus.device.source import SimulatorSource
     from sim import Simulator, load_scene
     from skin.atomic import atomic_write
     from skin.commands.busargs import default_channel

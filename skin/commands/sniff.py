@@ -22,8 +22,8 @@ if TYPE_CHECKING:
 
     import can
 
-    from canbus.recorder import Recorder
-    from canbus.sniffer import FrameFilter, Snapshot, Sniffer
+    from canbus.tools.recorder import Recorder
+    from canbus.tools.sniffer import FrameFilter, Snapshot, Sniffer
 
 from skin.commands.sniff_view import LinePrinter, ViewStats, render, summary_lines
 
@@ -47,10 +47,10 @@ class Capture:
 def _sniff(args: argparse.Namespace) -> int:
     import can.cli
 
-    from canbus.pdo_names import Dictionary, parse_assignment
-    from canbus.recorder import check_channel_name, enlarge_receive_buffer, recording_format
-    from canbus.services import ServiceDecoder
-    from canbus.sniffer import FrameFilter, Sniffer
+    from canbus.tools.pdo_names import Dictionary, parse_assignment
+    from canbus.tools.recorder import check_channel_name, enlarge_receive_buffer, recording_format
+    from canbus.tools.services import ServiceDecoder
+    from canbus.tools.sniffer import FrameFilter, Sniffer
     from skin.commands.busargs import default_channel
     from skin.errors import BusError, ConfigError
 
@@ -95,7 +95,7 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
     """Receive until the end; the recording is saved (Ctrl-C included) or discarded."""
     import can
 
-    from canbus.recorder import Recorder, log_channel_name
+    from canbus.tools.recorder import Recorder, log_channel_name
 
     name = args.channel_name or log_channel_name(args.channel)
     recorder = Recorder(args.record, channel=name) if args.record else None

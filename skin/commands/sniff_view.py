@@ -17,8 +17,8 @@ if TYPE_CHECKING:
     import can
     from rich.console import RenderableType
 
-    from canbus.services import Decoded, Route, ServiceDecoder
-    from canbus.sniffer import FrameFilter, Snapshot
+    from canbus.tools.services import Decoded, Route, ServiceDecoder
+    from canbus.tools.sniffer import FrameFilter, Snapshot
 
 _LINE_QUEUE = 100_000
 _LINES_POLL_S = 0.02
@@ -79,7 +79,7 @@ class LinePrinter:
             os.close(devnull)
 
     def format(self, batch: list[tuple[can.Message, Route, Decoded | None]]) -> list[str]:
-        from canbus.services import Service
+        from canbus.tools.services import Service
 
         texts = [d.text if d is not None else None for _, _, d in batch]
         labels = [d.label if d is not None else w.label for _, w, d in batch]

@@ -22,10 +22,10 @@ import canopen
 import numpy as np
 
 from canbus.codes import code_to_resistance
-from canbus.forcenode import forces_to_mN
-from canbus.hostconfig import FORCE_NODE_OFFSET, predefined_tpdo_cob_ids
+from canbus.master.forcenode import forces_to_mN
+from canbus.master.hostconfig import FORCE_NODE_OFFSET, predefined_tpdo_cob_ids
 from canbus.od import load_od
-from canbus.replay import Recording
+from canbus.tools.replay import Recording
 from decoder.registry import create_decoder
 from skin.constants import DEFAULT_CONSTANTS
 

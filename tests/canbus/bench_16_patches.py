@@ -19,8 +19,8 @@ import can
 import canopen
 import numpy as np
 
-from canbus.patch_server import PatchServer
-from canbus.source import ArraySource
+from canbus.device.patch_server import PatchServer
+from canbus.device.source import ArraySource
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 

@@ -3,7 +3,7 @@
 Run: /work/venv/bin/pytest tests/canbus/bench_dataplane.py --benchmark-enable
 Each benchmark round is the whole stream: 16 patches (xyz), CYCLES SYNC cycles of 7 TPDOs
 in and 7 force TPDOs out per patch; frames/s = 16 * 7 * CYCLES / round time. The stream
-and both paths are canbus.dataplane_bench's (what `skin bench dataplane` prints).
+and both paths are canbus.master.dataplane_bench's (what `skin bench dataplane` prints).
 """
 
 from __future__ import annotations
@@ -13,7 +13,13 @@ from typing import Any
 
 import pytest
 
-from canbus.dataplane_bench import CanopenRig, DataPlaneRig, QueuedFrames, Stream, build_stream
+from canbus.master.dataplane_bench import (
+    CanopenRig,
+    DataPlaneRig,
+    QueuedFrames,
+    Stream,
+    build_stream,
+)
 from decoder.protocol import Decoder
 from decoder.registry import create_decoder
 

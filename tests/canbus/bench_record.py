@@ -71,7 +71,7 @@ def check(path: Path, sent: list[can.Message]) -> tuple[int, int]:
     On Linux a socket bound to udp_multicast's port receives every group joined on that
     port by any process, so other tests' traffic can show up: it is counted, not ours.
     """
-    from canbus.replay import Recording
+    from canbus.tools.replay import Recording
 
     index = {(m.arbitration_id, bytes(m.data)): k for k, m in enumerate(sent)
              if m.arbitration_id != 0x080}  # TPDO payloads are numbered; SYNCs repeat
@@ -128,8 +128,8 @@ def bench_udp(args: argparse.Namespace, folder: Path) -> dict[str, object]:
 
 
 def bench_virtual(args: argparse.Namespace, folder: Path) -> dict[str, object]:
-    from canbus.recorder import Recorder
-    from canbus.sniffer import Sniffer
+    from canbus.tools.recorder import Recorder
+    from canbus.tools.sniffer import Sniffer
 
     out = folder / f"bench.{args.format}"
     messages = frames(int(args.rate * args.seconds))

@@ -12,11 +12,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from canbus.codes import code_to_resistance
-from canbus.dataplane import DataPlane, ForceFrame, PatchChannel
-from canbus.dataplane_bench import SinkBus
-from canbus.forcenode import ForceNode
+from canbus.device.patch_node import PatchNode
+from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
+from canbus.master.dataplane_bench import SinkBus
+from canbus.master.forcenode import ForceNode
 from canbus.od import load_od
-from canbus.patch_node import PatchNode
 from decoder.protocol import Decoded
 from decoder.registry import create_decoder
 from skin.constants import DEFAULT_CONSTANTS

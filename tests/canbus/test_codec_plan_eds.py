@@ -13,9 +13,9 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from canbus import busload, codes
-from canbus.edscheck import check
 from canbus.od import SHIPPED, eds_file, load_od
 from canbus.pdo_codec import PdoCodec, read_defaults, read_layouts
+from canbus.tools.edscheck import check
 from skin.errors import ConfigError
 
 FILES = Path(__file__).parents[1] / "files"

@@ -12,12 +12,12 @@ import pytest
 from numpy.typing import ArrayLike
 
 from canbus.codes import code_to_resistance, resistance_to_code
-from canbus.dataplane import DataPlane, ForceFrame, PatchChannel
-from canbus.forcenode import COMPLETE, NO_VALUE, ForceNode
+from canbus.device.patch_server import PatchServer
+from canbus.device.source import ArraySource
+from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
+from canbus.master.forcenode import COMPLETE, NO_VALUE, ForceNode
 from canbus.od import load_od
-from canbus.patch_server import PatchServer
 from canbus.pdo_codec import TPDO_MAP
-from canbus.source import ArraySource
 from decoder.protocol import Decoded
 from decoder.reasons import Reason
 from decoder.registry import create_decoder

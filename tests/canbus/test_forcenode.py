@@ -14,14 +14,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from canbus.forcenode import (
+from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL, STOPPED
+from canbus.master.forcenode import (
     COMPLETE,
     NO_VALUE,
     ForceNode,
     force_node_cob_ids,
     forces_to_mN,
 )
-from canbus.nmt_slave import OPERATIONAL, PRE_OPERATIONAL, STOPPED
 from canbus.od import load_od
 from skin.errors import BusError, ConfigError
 

@@ -14,15 +14,15 @@ import numpy as np
 import pytest
 
 from canbus import codes
-from canbus.baseline import PatchLoadedError
-from canbus.dataplane import ForceFrame
-from canbus.discovery import UnknownNode
-from canbus.host import HostManager
-from canbus.hostconfig import DriftConfig, HostConfig, PatchConfig, predefined_tpdo_cob_ids
-from canbus.nmt_slave import PRE_OPERATIONAL
-from canbus.patch_node import PatchNode
-from canbus.patch_server import PatchServer
-from canbus.source import ArraySource
+from canbus.device.nmt_slave import PRE_OPERATIONAL
+from canbus.device.patch_node import PatchNode
+from canbus.device.patch_server import PatchServer
+from canbus.device.source import ArraySource
+from canbus.master.baseline import PatchLoadedError
+from canbus.master.dataplane import ForceFrame
+from canbus.master.discovery import UnknownNode
+from canbus.master.host import HostManager
+from canbus.master.hostconfig import DriftConfig, HostConfig, PatchConfig, predefined_tpdo_cob_ids
 from decoder.analytic import AnalyticDecoder
 from decoder.reasons import Reason
 from decoder.registry import create_decoder

@@ -4,8 +4,8 @@ from pathlib import Path
 
 import pytest
 
-from canbus.forcenode import force_node_cob_ids
-from canbus.hostconfig import (
+from canbus.master.forcenode import force_node_cob_ids
+from canbus.master.hostconfig import (
     HostConfig,
     PatchConfig,
     load_host_config,

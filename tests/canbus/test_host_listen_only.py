@@ -28,12 +28,12 @@ import numpy as np
 import pytest
 
 from canbus import codes
-from canbus.dataplane import ForceFrame
-from canbus.discovery import UnknownNode
-from canbus.host import HostManager
-from canbus.hostconfig import HostConfig, PatchConfig
-from canbus.patch_server import PatchServer
-from canbus.source import ArraySource
+from canbus.device.patch_server import PatchServer
+from canbus.device.source import ArraySource
+from canbus.master.dataplane import ForceFrame
+from canbus.master.discovery import UnknownNode
+from canbus.master.host import HostManager
+from canbus.master.hostconfig import HostConfig, PatchConfig
 from decoder.analytic import AnalyticDecoder
 from decoder.reasons import Reason
 from skin.constants import DEFAULT_CONSTANTS

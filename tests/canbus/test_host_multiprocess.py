@@ -11,11 +11,11 @@ import can
 import canopen
 import numpy as np
 
-from canbus.dataplane import ForceFrame
-from canbus.host import HostManager
-from canbus.hostconfig import HostConfig, PatchConfig
-from canbus.patch_server import PatchServer
-from canbus.source import ArraySource, SimulatorSource
+from canbus.device.patch_server import PatchServer
+from canbus.device.source import ArraySource, SimulatorSource
+from canbus.master.dataplane import ForceFrame
+from canbus.master.host import HostManager
+from canbus.master.hostconfig import HostConfig, PatchConfig
 from sim import Simulator, load_scene
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force

@@ -13,14 +13,13 @@ import canopen
 import numpy as np
 import pytest
 
-from canbus.baseline import Baseline, PatchLoadedError
-from canbus.host import _warn_if_unlike_config, configured_info
-from canbus.hostconfig import PatchConfig
-from canbus.liveness import HeartbeatMonitor
-from canbus.nmt_slave import PRE_OPERATIONAL
-from canbus.od import load_od
-from canbus.patch_node import PatchNode, z_only_mapping
-from canbus.patch_setup import (
+from canbus.device.nmt_slave import PRE_OPERATIONAL
+from canbus.device.patch_node import PatchNode, z_only_mapping
+from canbus.master.baseline import Baseline, PatchLoadedError
+from canbus.master.host import _warn_if_unlike_config, configured_info
+from canbus.master.hostconfig import PatchConfig
+from canbus.master.liveness import HeartbeatMonitor
+from canbus.master.patch_setup import (
     PatchInfo,
     patch_info,
     plan_setup,
@@ -28,7 +27,8 @@ from canbus.patch_setup import (
     setup_patch,
     tpdo_layouts,
 )
-from canbus.sync_producer import SyncFollower, SyncProducer, sync_counter
+from canbus.master.sync_producer import SyncFollower, SyncProducer, sync_counter
+from canbus.od import load_od
 from decoder.analytic import AnalyticDecoder
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.tripod import resistance_from_force
@@ -385,7 +385,7 @@ def test_a_listen_only_host_plans_the_setup_the_host_writes_and_reads(
         assert np.array_equal(planned.codec.cob_ids, written.codec.cob_ids)
         assert (planned.mode, planned.pillars) == (written.mode, written.pillars)
     # a normal host warns when the patch disagrees with constants given for listen-only
-    with caplog.at_level(logging.WARNING, logger="canbus.host"):
+    with caplog.at_level(logging.WARNING, logger="canbus.master.host"):
         _warn_if_unlike_config(PatchConfig(9, constants=node.constants), read)
         assert not caplog.records
         _warn_if_unlike_config(PatchConfig(9, constants=DEFAULT_CONSTANTS,
@@ -396,8 +396,8 @@ def test_a_listen_only_host_plans_the_setup_the_host_writes_and_reads(
 
 
 def test_the_emcy_log_of_a_long_running_host_stays_bounded() -> None:
-    from canbus.host import EMCY_LOG_KEPT, HostManager
-    from canbus.hostconfig import HostConfig, PatchConfig
+    from canbus.master.host import EMCY_LOG_KEPT, HostManager
+    from canbus.master.hostconfig import HostConfig, PatchConfig
 
     with can.Bus(interface="virtual", channel="emcy-log-bound") as bus:
         host = HostManager(bus, HostConfig(patches=(PatchConfig(1),)).check())

@@ -9,8 +9,8 @@ import canopen
 import numpy as np
 
 from canbus import codes
-from canbus.patch_server import PatchServer
-from canbus.source import SimulatorSource
+from canbus.device.patch_server import PatchServer
+from canbus.device.source import SimulatorSource
 from sim import Simulator, load_scene
 from skin.constants import DEFAULT_CONSTANTS
 

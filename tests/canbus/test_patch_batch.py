@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from canbus import codes
-from canbus.nmt_slave import OPERATIONAL, PRE_OPERATIONAL
-from canbus.patch_node import (
+from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL
+from canbus.device.patch_node import (
     PatchNode,
     batch_frames_on_event,
     batch_frames_on_sync,

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from canopen.sdo.exceptions import SdoAbortedError
 
-from canbus.nmt_slave import OPERATIONAL, PRE_OPERATIONAL, STOPPED
-from canbus.patch_server import PatchServer
-from canbus.source import ArraySource
+from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL, STOPPED
+from canbus.device.patch_server import PatchServer
+from canbus.device.source import ArraySource
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 
@@ -248,7 +248,7 @@ def test_a_heartbeat_period_written_during_the_boot_leaves_one_heartbeat(
     starting its heartbeat: one heartbeat task remains, at the written period."""
     import threading
 
-    from canbus.patch_node import PatchNode
+    from canbus.device.patch_node import PatchNode
 
     net = _network(request.node.name)
     node = PatchNode(1)

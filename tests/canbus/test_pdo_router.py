@@ -5,10 +5,10 @@ from __future__ import annotations
 import can
 import pytest
 
-from canbus.dataplane import DataPlane, PatchChannel, PdoRouter
-from canbus.dataplane_bench import SinkBus
-from canbus.forcenode import ForceNode
-from canbus.patch_node import PatchNode
+from canbus.device.patch_node import PatchNode
+from canbus.master.dataplane import DataPlane, PatchChannel, PdoRouter
+from canbus.master.dataplane_bench import SinkBus
+from canbus.master.forcenode import ForceNode
 from decoder.registry import create_decoder
 
 

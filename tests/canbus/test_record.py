@@ -9,14 +9,14 @@ from pathlib import Path
 import can
 import pytest
 
-from canbus.recorder import (
+from canbus.tools.recorder import (
     CandumpLogWriter,
     Recorder,
     enlarge_receive_buffer,
     log_channel_name,
     recording_format,
 )
-from canbus.replay import Recording
+from canbus.tools.replay import Recording
 from skin.errors import ConfigError
 
 T0 = 1_700_000_000.0

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import can
 
-from canbus.replay import Recording
+from canbus.tools.replay import Recording
 
 FRAMES = 300
 

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from canbus.pcap import (
+from canbus.tools.pcap import (
     FD_LENGTHS,
     PcapReader,
     PcapWriter,

@@ -11,8 +11,8 @@ import can
 import can.cli
 import pytest
 
-from canbus.recorder import Recorder
-from canbus.replay import Recording, RecordingError, Replayer
+from canbus.tools.recorder import Recorder
+from canbus.tools.replay import Recording, RecordingError, Replayer
 from skin.cli import main
 from skin.errors import ConfigError
 

@@ -12,8 +12,8 @@ import canopen
 import numpy as np
 import pytest
 
-from canbus.patch_server import PatchServer
-from canbus.source import ArraySource
+from canbus.device.patch_server import PatchServer
+from canbus.device.source import ArraySource
 from skin.cli import main
 from skin.commands.demo import _scene
 from skin.constants import DEFAULT_CONSTANTS

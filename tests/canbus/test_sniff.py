@@ -27,11 +27,11 @@ import pytest
 from rich.console import Console
 
 from canbus.busload import classic_frame_bits
+from canbus.device.patch_server import PatchServer
 from canbus.od import load_od
-from canbus.patch_server import PatchServer
-from canbus.replay import Recording
-from canbus.services import Service, ServiceDecoder, route
-from canbus.sniffer import FrameFilter, Sniffer, frame_bits
+from canbus.tools.replay import Recording
+from canbus.tools.services import Service, ServiceDecoder, route
+from canbus.tools.sniffer import FrameFilter, Sniffer, frame_bits
 from skin.cli import main
 from skin.commands.sniff_view import ViewStats, render
 from skin.constants import DEFAULT_CONSTANTS
@@ -129,7 +129,7 @@ def _network(channel: str) -> canopen.Network:
 
 
 def _traffic(channel: str, seen: list[can.Message], failures: list[BaseException]) -> None:
-    from canbus.source import ArraySource
+    from canbus.device.source import ArraySource
 
     try:
         deadline = time.monotonic() + 20

@@ -5,9 +5,9 @@ from __future__ import annotations
 import can
 import pytest
 
-from canbus.pdo_names import Dictionary, parse_assignment, shipped_default
-from canbus.services import Service, ServiceDecoder, route
-from canbus.sniffer import FrameFilter
+from canbus.tools.pdo_names import Dictionary, parse_assignment, shipped_default
+from canbus.tools.services import Service, ServiceDecoder, route
+from canbus.tools.sniffer import FrameFilter
 from skin.errors import ConfigError
 
 

@@ -6,7 +6,7 @@ pillar x of patch 1's taxel 4 open for one sample, so EMCY and its reset go out)
 ``HostManager`` (SDO scan and set-up, NMT, SYNC with counter, analytic decoding, force
 nodes 65 and 66 publishing), while a listener records the bus to .pcap and .log.
 
-- The .log replayed by ``canbus.replay.Replayer`` (what ``skin replay`` runs) onto a
+- The .log replayed by ``canbus.tools.replay.Replayer`` (what ``skin replay`` runs) onto a
   fresh virtual bus, as fast as possible and with its original timing, into a
   ``HostManager(listen_only=True)`` with the same config: that host follows the recorded
   SYNCs, NMT commands, heartbeats and EMCYs and gives every force frame of the live run
@@ -35,15 +35,15 @@ import numpy as np
 import pytest
 
 from canbus import codes
-from canbus.dataplane import ForceFrame
-from canbus.host import HostManager
-from canbus.hostconfig import HostConfig, PatchConfig
-from canbus.patch_server import PatchServer
-from canbus.recorder import Recorder
-from canbus.replay import Recording, Replayer
-from canbus.services import Service, route
-from canbus.sniffer import Sniffer
-from canbus.source import ArraySource
+from canbus.device.patch_server import PatchServer
+from canbus.device.source import ArraySource
+from canbus.master.dataplane import ForceFrame
+from canbus.master.host import HostManager
+from canbus.master.hostconfig import HostConfig, PatchConfig
+from canbus.tools.recorder import Recorder
+from canbus.tools.replay import Recording, Replayer
+from canbus.tools.services import Service, route
+from canbus.tools.sniffer import Sniffer
 from decoder.reasons import Reason
 from skin.cli import main
 from skin.constants import DEFAULT_CONSTANTS

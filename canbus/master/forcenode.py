@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from canbus.device import TPDO_COUNT, LocalDevice
-from canbus.nmt_slave import OPERATIONAL, START
+from canbus.device.local_device import TPDO_COUNT, LocalDevice
+from canbus.device.nmt_slave import OPERATIONAL, START
 from canbus.od import load_od
 from canbus.pdo_codec import MappedEntry, PdoCodec, read_defaults, read_layouts
 from skin.errors import BusError, ConfigError

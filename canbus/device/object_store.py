@@ -25,7 +25,7 @@ from canopen import LocalNode
 from canopen.objectdictionary import NUMBER_TYPES, ODArray, ODVariable
 from canopen.sdo.exceptions import SdoAbortedError
 
-from canbus.sdo_server import StrictSdoServer
+from canbus.device.sdo_server import StrictSdoServer
 
 logger = logging.getLogger(__name__)
 

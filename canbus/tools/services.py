@@ -6,7 +6,7 @@ SDO 0x580/0x600 + node, NMT error control 0x700 + node, LSS 0x7E4/0x7E5); a tabl
 lookup, cheap enough for every received frame. :class:`ServiceDecoder` turns a frame
 into one line of text: NMT commands and states, the SYNC counter, EMCY codes (canopen's
 descriptions), SDO transfers by object name (it follows each node's transfer so a
-segment knows its object) and PDOs as named values in units (``canbus.pdo_names``).
+segment knows its object) and PDOs as named values in units (``canbus.tools.pdo_names``).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import can
 from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoAbortedError
 
-from canbus.pdo_names import PATCH_PRODUCT, Dictionary, NodeView, describe_taxel_fault
+from canbus.tools.pdo_names import PATCH_PRODUCT, Dictionary, NodeView, describe_taxel_fault
 
 
 class Service(StrEnum):

@@ -25,7 +25,7 @@ from typing import IO, Any, BinaryIO, TextIO, cast
 import can
 from can.io.generic import MessageWriter
 
-from canbus.pcap import PcapWriter
+from canbus.tools.pcap import PcapWriter
 from skin.atomic import atomic_write
 from skin.errors import ConfigError
 

@@ -7,10 +7,10 @@ from simulator resistances encoded by the patches' own ``PdoCodec``, in CAN arbi
 order, stamped inside each SYNC cycle's window), decode them with one shared ``analytic``
 decoder and send the same force TPDOs to a sink bus, one after the other in one thread:
 
-* data plane: :class:`canbus.dataplane.DataPlane` (``background=False``), frames given
+* data plane: :class:`canbus.master.dataplane.DataPlane` (``background=False``), frames given
   to ``on_message_received``, then ``publish_pending()`` once per cycle (every patch
   completed in the cycle decoded in one batch, as the publishing thread batches them
-  when the bus is busy); force nodes are :class:`canbus.forcenode.ForceNode`.
+  when the bus is busy); force nodes are :class:`canbus.master.forcenode.ForceNode`.
 * canopen: a ``RemoteNode`` per patch whose TPDO maps hold the patch's mapping; frames
   go through canopen's own ``MessageListener`` (``network.notify`` -> ``PdoMap.on_message``
   -> one callback per map reading ``var.raw``); per cycle the codes are turned into
@@ -36,10 +36,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canbus import codes
-from canbus.dataplane import DataPlane, PatchChannel
-from canbus.forcenode import VALID, ForceNode, forces_to_mN, valid_bits
+from canbus.device.patch_node import PatchNode
+from canbus.master.dataplane import DataPlane, PatchChannel
+from canbus.master.forcenode import VALID, ForceNode, forces_to_mN, valid_bits
 from canbus.od import load_od
-from canbus.patch_node import PatchNode
 from decoder.protocol import Decoder
 from decoder.registry import create_decoder
 from skin.errors import BusError, ConfigError

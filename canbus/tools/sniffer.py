@@ -1,7 +1,7 @@
 """Bus statistics for the sniffer: per COB-ID counts, rate and Δt, bus load, anomalies.
 
 :class:`Sniffer` is a ``can.Listener``. Its receive path does little per frame: a table
-lookup for the service (``canbus.services.route``), a few counters under a short lock,
+lookup for the service (``canbus.tools.services.route``), a few counters under a short lock,
 and the word decoding only for the rare management frames (NMT, EMCY, SDO, TIME, LSS,
 heartbeat state changes), which become events. PDO values are decoded only when a view
 asks for them, from the last frame of each COB-ID. A view reads :meth:`Sniffer.snapshot`
@@ -36,7 +36,7 @@ from typing import Any
 import can
 
 from canbus.busload import classic_frame_bits, fd_frame_time_s, fd_length
-from canbus.services import Decoded, Route, Service, ServiceDecoder, route
+from canbus.tools.services import Decoded, Route, Service, ServiceDecoder, route
 
 _MANAGEMENT = frozenset((Service.NMT, Service.EMCY, Service.SDO, Service.TIME, Service.LSS))
 _WINDOW = 8

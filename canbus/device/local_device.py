@@ -15,11 +15,11 @@ from typing import Any
 
 import canopen
 
-from canbus.heartbeat import HeartbeatProducer
-from canbus.nmt_slave import OPERATIONAL, RESET_COMMUNICATION, RESET_NODE, NmtSlave
-from canbus.object_store import ObjectStore
+from canbus.device.heartbeat import HeartbeatProducer
+from canbus.device.nmt_slave import OPERATIONAL, RESET_COMMUNICATION, RESET_NODE, NmtSlave
+from canbus.device.object_store import ObjectStore
+from canbus.device.tpdo import TpdoTable
 from canbus.od import load_od
-from canbus.tpdo import TpdoTable
 
 TPDO_COUNT = 7
 

@@ -61,7 +61,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canbus.codes import code_to_resistance
-from canbus.forcenode import ForceNode, batch_frames
+from canbus.master.forcenode import ForceNode, batch_frames
 from canbus.pdo_codec import PdoCodec
 from canbus.txmessage import TxMessage
 from decoder.protocol import Decoder

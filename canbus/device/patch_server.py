@@ -18,13 +18,13 @@ import can
 import canopen
 import numpy as np
 
-from canbus.patch_node import (
+from canbus.device.patch_node import (
     PatchNode,
     batch_frames_on_event,
     batch_frames_on_sync,
     batch_update,
 )
-from canbus.source import ResistanceSource
+from canbus.device.source import ResistanceSource
 from canbus.txmessage import TxMessage
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 

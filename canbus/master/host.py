@@ -13,26 +13,26 @@ Two planes on one bus and one notifier thread. The management plane is canopen: 
 ``Network`` on the caller's bus, one ``RemoteNode`` per configured patch (SDO, NMT,
 EMCY), boot-up and heartbeat consumers, a worker pool that configures patches (SDO
 waits for responses that arrive on the notifier thread, so it never runs there). The
-data plane is :class:`~canbus.dataplane.DataPlane`, a second listener on canopen's
+data plane is :class:`~canbus.master.dataplane.DataPlane`, a second listener on canopen's
 notifier: it assembles each patch's PDOs per SYNC cycle, decodes and publishes them
-through the patch's :class:`~canbus.forcenode.ForceNode`, and hands the frames here.
+through the patch's :class:`~canbus.master.forcenode.ForceNode`, and hands the frames here.
 
 Start-up: heartbeat and boot-up consumers; canopen's SDO scan (``host.scan``); every
 configured patch that answers is identified (0x1018 product code 1), configured
-(:mod:`canbus.patch_setup`) and started by NMT; a node at a force node's ID, or an
+(:mod:`canbus.master.patch_setup`) and started by NMT; a node at a force node's ID, or an
 unknown node whose predefined COB-IDs overlap the force nodes', refuses the start;
 other unknown nodes are reported and left alone. Then the force nodes boot and go
 OPERATIONAL, and SYNC starts. A configured patch that is absent at start, or boots
 later, is configured when its boot-up (or first heartbeat) arrives; one whose heartbeat
-stops is marked lost (:mod:`canbus.liveness`), its channel leaves the data plane and
+stops is marked lost (:mod:`canbus.master.liveness`), its channel leaves the data plane and
 its force node publishes one all-invalid sample, so no consumer keeps stale forces.
 
 Listen-only (``listen_only=True`` or ``host.listen_only``): another master runs the
 patches, or a recording is replayed onto the bus, and the host only decodes. It
 transmits nothing (no scan, SDO, NMT, SYNC, force node or force PDO). Each patch's
-channel is built from the config (:func:`~canbus.patch_setup.plan_setup`: the mapping
+channel is built from the config (:func:`~canbus.master.patch_setup.plan_setup`: the mapping
 the host would write for its mode; constants and R0 as a patch holding the configured
-ones reports them); every SYNC received opens a cycle (:class:`~canbus.sync_producer.
+ones reports them); every SYNC received opens a cycle (:class:`~canbus.master.sync_producer.
 SyncFollower`). A patch is decoded while it is OPERATIONAL as the bus shows it: the NMT
 commands any master sends it, its boot-up, its heartbeats (lost and back as above).
 """
@@ -54,22 +54,29 @@ from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoError
 from numpy.typing import NDArray
 
-from canbus.baseline import Baseline, PatchLoadedError
-from canbus.dataplane import DataPlane, ForceFrame, PatchChannel, PdoRouter
-from canbus.discovery import BootListener, Identity, UnknownNode, read_identity, scan, sdo_client
-from canbus.fanout import FrameCallback, FrameFanout
-from canbus.forcenode import ForceNode
-from canbus.hostconfig import (
+from canbus.master.baseline import Baseline, PatchLoadedError
+from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel, PdoRouter
+from canbus.master.discovery import (
+    BootListener,
+    Identity,
+    UnknownNode,
+    read_identity,
+    scan,
+    sdo_client,
+)
+from canbus.master.fanout import FrameCallback, FrameFanout
+from canbus.master.forcenode import ForceNode
+from canbus.master.hostconfig import (
     HostConfig,
     PatchConfig,
     force_cob_ids,
     load_host_config,
     node_cob_ids,
 )
-from canbus.liveness import HeartbeatMonitor
+from canbus.master.liveness import HeartbeatMonitor
+from canbus.master.patch_setup import PatchInfo, PatchSetup, patch_info, plan_setup, setup_patch
+from canbus.master.sync_producer import SyncFollower, SyncProducer
 from canbus.od import load_od
-from canbus.patch_setup import PatchInfo, PatchSetup, patch_info, plan_setup, setup_patch
-from canbus.sync_producer import SyncFollower, SyncProducer
 from canbus.txmessage import TxMessage
 from decoder.protocol import BaseDecoder, Decoder
 from decoder.reasons import Reason
@@ -140,7 +147,7 @@ class HostManager:
     """Discovers, configures, starts and watches the patches of ``config`` on ``bus``.
 
     The caller owns ``bus`` (it is not shut down on stop). ``on_unknown`` is called
-    with an :class:`~canbus.discovery.UnknownNode` for every node the host does not
+    with an :class:`~canbus.master.discovery.UnknownNode` for every node the host does not
     manage (found by the scan or by its boot-up); the host never writes to such a node.
     ``listen_only`` (default: ``config.listen_only``): decode what another master runs
     and send nothing (module docstring).
@@ -400,7 +407,7 @@ class HostManager:
     def tare(self, node_id: int) -> None:
         """Re-zero patch ``node_id`` at its last complete sample.
 
-        Raises :class:`~canbus.baseline.PatchLoadedError` while any taxel of the patch
+        Raises :class:`~canbus.master.baseline.PatchLoadedError` while any taxel of the patch
         reads more than ``host.tare_threshold_N`` (or before its first sample), and
         :class:`~skin.errors.BusError` if the patch is not operational.
         """

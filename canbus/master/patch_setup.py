@@ -23,7 +23,7 @@ import numpy as np
 from canopen.sdo.client import SdoClient
 from numpy.typing import ArrayLike, NDArray
 
-from canbus.hostconfig import TPDO_COUNT, predefined_tpdo_cob_ids
+from canbus.master.hostconfig import TPDO_COUNT, predefined_tpdo_cob_ids
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM, TPDO_MAP, MappedEntry, PdoCodec, TpdoLayout
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
 

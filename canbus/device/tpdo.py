@@ -20,7 +20,7 @@ from canopen.objectdictionary import ODVariable
 from canopen.sdo.exceptions import SdoAbortedError
 from numpy.typing import NDArray
 
-from canbus.object_store import ObjectStore
+from canbus.device.object_store import ObjectStore
 from canbus.pdo_codec import (
     COB_ID_INVALID,
     TPDO_COMM,

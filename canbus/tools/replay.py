@@ -1,7 +1,7 @@
 """Read recordings back, checked frame by frame, and replay them onto a bus.
 
 Readers are python-can's (``CanutilsLogReader``, ``ASCReader``, ``BLFReader``) and our
-``canbus.pcap.PcapReader``. python-can's readers skip what they do not understand and
+``canbus.tools.pcap.PcapReader``. python-can's readers skip what they do not understand and
 stop quietly at a cut, so each is wrapped with the checks that make a damaged file an
 error, :class:`~skin.errors.RecordingError`, naming the first bad frame (1-based) and,
 for text files, its line. Nothing from that frame on is yielded, so nothing past it is
@@ -13,7 +13,7 @@ replayed:
   every .log line is a ``candump -L`` frame; every .asc frame line yields a frame; an
   .asc ends with ``End TriggerBlock``;
 - .blf: the file is as long as its header says; parse and zlib errors;
-- .pcap: see ``canbus.pcap``.
+- .pcap: see ``canbus.tools.pcap``.
 
 A .log cut exactly at the end of a line is indistinguishable from a shorter recording.
 
@@ -45,7 +45,7 @@ from typing import Any, BinaryIO, TextIO, cast
 import can
 from can.io.blf import BLFParseError
 
-from canbus.pcap import FD_LENGTHS, PcapReader
+from canbus.tools.pcap import FD_LENGTHS, PcapReader
 from skin.errors import ConfigError, RecordingError
 
 __all__ = ["READERS", "Recording", "RecordingError", "ReplayResult", "Replayer",

@@ -4,7 +4,7 @@
 
 The node does not own a clock or a signal source: :meth:`PatchNode.update` gives it
 the patch's latest resistances, and :meth:`PatchNode.frames_on_sync` /
-:meth:`PatchNode.frames_on_event` return the TPDO frames to send. ``canbus.patch_server``
+:meth:`PatchNode.frames_on_event` return the TPDO frames to send. ``canbus.device.patch_server``
 drives many nodes from one source on one bus.
 """
 
@@ -19,9 +19,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canbus import codes
-from canbus.device import TPDO_COUNT, LocalDevice
-from canbus.emcy import REGISTER_FAULT, FaultReporter
-from canbus.nmt_slave import OPERATIONAL, PRE_OPERATIONAL
+from canbus.device.emcy import REGISTER_FAULT, FaultReporter
+from canbus.device.local_device import TPDO_COUNT, LocalDevice
+from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL
 from canbus.pdo_codec import TPDO_COMM, TPDO_MAP, PdoCodec
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.errors import ConfigError

@@ -8,7 +8,7 @@ import queue
 import threading
 from collections.abc import Callable, Iterator
 
-from canbus.dataplane import ForceFrame
+from canbus.master.dataplane import ForceFrame
 
 logger = logging.getLogger(__name__)
 
