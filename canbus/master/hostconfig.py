@@ -53,6 +53,7 @@ class PatchConfig:
     constants: SensorConstants | None = None  # what the patch reports (0x2001, 0x2003)
     r0_ohm: tuple[float, ...] | None = None  # its R0 (0x2002): 27 values, or 3 (z, x, y)
     answer_order: str = "cob-id"  # how the patch orders the TPDOs of one answer ("tpdo")
+    position_m: tuple[float, float] | None = None  # where the patch sits on the skin (views)
 
     def __post_init__(self) -> None:
         if self.force_node == 0:
@@ -239,7 +240,7 @@ _HOST_FIELDS: dict[str, type] = {
     "listen_only": bool,
 }
 _PATCH_FIELDS = ("node_id", "decoder", "model", "mode", "force_node", "force_cob_ids",
-                 "constants", "r0_ohm", "answer_order")
+                 "constants", "r0_ohm", "answer_order", "position_m")
 # What a patch reports about itself: 0x2001 (LSB) and 0x2003 (adc_bits is not reported).
 CONSTANT_KEYS = ("resistance_lsb_ohm", "youngs_modulus_pa", "resistivity_ohm_m", "length_m",
                  "area_m2", "max_strain", "full_scale_force_N", "taxel_pitch_m")
@@ -263,6 +264,12 @@ def _patch(table: dict[str, Any], where: str, base: Path) -> PatchConfig:
         kwargs["model"] = model if model.is_absolute() else base / model
     if "constants" in table:
         kwargs["constants"] = _constants(table["constants"], f"{where}.constants")
+    if "position_m" in table:
+        values = table["position_m"]
+        if not isinstance(values, list) or len(values) != 2:
+            raise ConfigError(f"{where}.position_m", f"must be [x, y] in metres, got {values!r}")
+        kwargs["position_m"] = tuple(_typed(v, float, f"{where}.position_m[{k}]")
+                                     for k, v in enumerate(values))
     if "r0_ohm" in table:
         values = table["r0_ohm"]
         if not isinstance(values, list):
