@@ -38,7 +38,11 @@ _PUBLIC = {
     "Recorder": "canbus.tools.recorder", "Recording": "canbus.tools.replay",
     "Replayer": "canbus.tools.replay", "Sniffer": "canbus.tools.sniffer",
 }
-__all__ = sorted(_PUBLIC)
+__all__ = [
+    "DataPlane", "ForceFrame", "ForceNode", "HostConfig", "HostManager", "PatchChannel",
+    "PatchConfig", "PatchHealth", "PatchNode", "PatchServer", "Recorder", "Recording",
+    "Replayer", "Sniffer", "load_host_config", "plan",
+]
 
 
 def __getattr__(name: str) -> Any:

@@ -3,7 +3,9 @@
 The mapping is read through a ``read(index, subindex) -> int`` function, so the same
 code serves a device (its current object values), a master (values read by SDO) and an
 EDS (its default values, :func:`read_defaults`). ``pack`` turns ``(n, V)`` values into
-``(n, P, 8)`` payload bytes in one gather; ``unpack`` is the inverse scatter.
+``(n, P, W)`` payload bytes in one gather; ``unpack`` is the inverse scatter. ``W``, the
+codec's :attr:`~PdoCodec.width`, is 8 for classic PDOs and the longest PDO's length when
+one is longer (a CAN FD PDO of up to 64 bytes, CiA 1301); shorter PDOs are zero-padded.
 """
 
 from __future__ import annotations
@@ -99,6 +101,8 @@ class PdoCodec:
         self.dtypes = tuple(variables.values())  # of each variable, in ``variables`` order
         self.cob_ids = np.array([layout.cob_id for layout in self.layouts], dtype=np.uint32)
         self.sizes = np.array([layout.size for layout in self.layouts], dtype=np.intp)
+        self.width = max([8, *self.sizes.tolist()])
+        """Bytes per PDO in :meth:`pack`'s and :meth:`unpack`'s arrays."""
         offsets, total = {}, 0
         self._groups: list[tuple[np.dtype[np.generic], NDArray[np.intp], NDArray[np.intp]]] = []
         by_dtype: dict[np.dtype[np.generic], list[int]] = {}
@@ -112,7 +116,7 @@ class PdoCodec:
             self._groups.append((dtype, np.array(columns, dtype=np.intp),
                                  np.arange(start, total, dtype=np.intp)))
         self._row_bytes = total
-        gather = np.full((len(self.layouts), 8), total, dtype=np.intp)  # `total` = zero pad
+        gather = np.full((len(self.layouts), self.width), total, dtype=np.intp)  # total: zero
         for p, layout in enumerate(self.layouts):
             at = 0
             for entry in layout.entries:
@@ -127,7 +131,7 @@ class PdoCodec:
         return self.variables.index((index, subindex))
 
     def pack(self, values: ArrayLike) -> NDArray[np.uint8]:
-        """``(n, V)`` values (already in the objects' units) -> ``(n, P, 8)`` payloads."""
+        """``(n, V)`` values (already in the objects' units) -> ``(n, P, W)`` payloads."""
         array = np.asarray(values)
         if array.ndim != 2 or array.shape[1] != len(self.variables):
             raise ValueError(f"expected (n, {len(self.variables)}) values, got {array.shape}")
@@ -138,10 +142,11 @@ class PdoCodec:
         return row[:, self._gather]
 
     def unpack(self, payloads: ArrayLike) -> NDArray[np.float64]:
-        """``(n, P, 8)`` payload bytes -> ``(n, V)`` values as float64."""
+        """``(n, P, W)`` payload bytes -> ``(n, V)`` values as float64."""
         data = np.asarray(payloads, dtype=np.uint8)
         if data.ndim != 3 or data.shape[1:] != self._gather.shape:
-            raise ValueError(f"expected (n, {len(self.layouts)}, 8) payloads, got {data.shape}")
+            raise ValueError(f"expected (n, {len(self.layouts)}, {self.width}) payloads, got "
+                             f"{data.shape}")
         row = np.zeros((data.shape[0], self._row_bytes + 1), dtype=np.uint8)
         row[:, self._gather] = data
         out = np.empty((data.shape[0], len(self.variables)), dtype=np.float64)

@@ -23,6 +23,8 @@ from typing import Any
 
 import can
 
+from canbus.busload import fd_length
+
 FIELDS = frozenset({"timestamp", "arbitration_id", "is_extended_id", "is_remote_frame",
                     "is_error_frame", "channel", "dlc", "data", "is_fd", "is_rx",
                     "bitrate_switch", "error_state_indicator"})
@@ -37,6 +39,13 @@ DIRECT = _message_fields() == FIELDS
 """True when this python-can's ``can.Message`` has exactly :data:`FIELDS`."""
 
 _new = object.__new__
+
+
+def fd_capable(bus: can.BusABC | None) -> bool:
+    """Whether ``bus`` carries CAN FD frames (python-can's ``protocol``; udp_multicast is
+    FD by default, virtual only when built with ``protocol=can.CanProtocol.CAN_FD``)."""
+    protocol = getattr(bus, "protocol", None)
+    return protocol in (can.CanProtocol.CAN_FD, can.CanProtocol.CAN_FD_NON_ISO)
 
 
 class TxMessage(can.Message):
@@ -66,6 +75,23 @@ class TxMessage(can.Message):
         msg.bitrate_switch = False
         msg.error_state_indicator = False
         return msg
+
+    @classmethod
+    def fd_frame(cls, arbitration_id: int, data: bytes | bytearray) -> TxMessage:
+        """A standard-ID CAN FD data frame with bit-rate switch; ``data`` (at most 64
+        bytes) is padded with zeros to the next CAN FD length, as CiA 1301 pads a PDO."""
+        padded = bytes(data).ljust(fd_length(len(data)), b"\x00")
+        msg = cls.data_frame(arbitration_id, padded)
+        msg.is_fd = True
+        msg.bitrate_switch = True
+        return msg
+
+    @classmethod
+    def frame(cls, arbitration_id: int, data: bytes | bytearray) -> TxMessage:
+        """A classic frame for up to 8 bytes, a CAN FD frame for more."""
+        if len(data) <= 8:
+            return cls.data_frame(arbitration_id, data)
+        return cls.fd_frame(arbitration_id, data)
 
     def __deepcopy__(self, memo: dict[int, Any] | None) -> can.Message:
         channel = self.channel

@@ -1,4 +1,4 @@
-"""Imports flow one way: skin core <- sim, decoder <- canbus <- skin/cli.py (README, "What is here")."""
+"""Imports flow one way: skin core <- sim, decoder <- canbus <- skin/cli.py (README)."""
 
 from __future__ import annotations
 
@@ -90,3 +90,11 @@ def test_canbus_sides_import_one_way(path: Path) -> None:
     used = {_canbus_side(name) for name in _canbus_imports(ast.parse(path.read_text()))}
     wrong = used - {""} - CANBUS_ALLOWED[side]
     assert not wrong, f"{path} ({side or 'wire level'}) imports canbus.{sorted(wrong)}"
+
+
+def test_canbus_exports_what_it_names() -> None:
+    import canbus
+
+    assert sorted(canbus.__all__) == sorted(canbus._PUBLIC)
+    for name in canbus.__all__:
+        assert getattr(canbus, name).__name__ == name

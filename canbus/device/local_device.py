@@ -20,6 +20,7 @@ from canbus.device.nmt_slave import OPERATIONAL, RESET_COMMUNICATION, RESET_NODE
 from canbus.device.object_store import ObjectStore
 from canbus.device.tpdo import TpdoTable
 from canbus.od import load_od
+from canbus.txmessage import fd_capable
 
 TPDO_COUNT = 7
 
@@ -51,6 +52,7 @@ class LocalDevice:
         """
         with self.lock:
             self.network = network
+            self.tpdo.max_bytes = 64 if fd_capable(network.bus) else 8
             self.store.associate_network(network)
             network.subscribe(0, self._on_nmt)
             self.nmt.boot(network)

@@ -27,11 +27,15 @@ from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.errors import ConfigError
 
 RESISTANCES, LSB, NOMINAL, CONSTANTS, STATUS = 0x2000, 0x2001, 0x2002, 0x2003, 0x2004
+ANSWERED = 0x2006
+"""The counter byte of the SYNC the TPDOs answer (0: none): mapped into a CAN FD answer, it
+tells the master which cycle the answer belongs to."""
 _CONSTANT_FIELDS = ("youngs_modulus_pa", "resistivity_ohm_m", "length_m", "area_m2",
                     "max_strain", "full_scale_force_N", "taxel_pitch_m")
 Frame = tuple[int, bytes]
 Due = Callable[["PatchNode", NDArray[np.uint8]], list[int]]
-_ERROR_REGISTER_COLUMN = 36  # of a node's row: codes 0x2000 (27), status 0x2004 (9), 0x1001
+# A node's row: codes 0x2000 (27), status 0x2004 (9), 0x1001, 0x2006.
+_ERROR_REGISTER_COLUMN, _ANSWERED_COLUMN = 36, 37
 
 
 def z_only_mapping() -> list[list[int]]:
@@ -53,6 +57,7 @@ class PatchNode(LocalDevice):
         self.pillars = 1 if mode == "z" else 3
         self.codes = np.full((9, 3), codes.OPEN, dtype=np.uint16)
         self.faults = FaultReporter()
+        self.answered = 0  # 0x2006
         super().__init__(node_id, "skin-patch")
 
     def update(self, resistance_ohm: ArrayLike) -> None:
@@ -75,12 +80,12 @@ class PatchNode(LocalDevice):
         """The current values of the variables the TPDOs map, in codec column order."""
         flat: dict[int, NDArray[np.generic]] = {RESISTANCES: self.codes.reshape(-1),
                                                STATUS: self.faults.status}
-        out = [flat[i][s - 1] if i in flat else self.faults.error_register
-               for i, s in self.tpdo.codec.variables]
+        other = {0x1001: self.faults.error_register, ANSWERED: self.answered}
+        out = [flat[i][s - 1] if i in flat else other[i] for i, s in self.tpdo.codec.variables]
         return np.asarray(out, dtype=np.float64)[None, :]
 
-    def frames_on_sync(self, counter: int) -> list[Frame]:
-        return batch_frames_on_sync([self], counter)
+    def frames_on_sync(self, counter: int, sync_byte: int = 0) -> list[Frame]:
+        return batch_frames_on_sync([self], counter, sync_byte)
 
     def frames_on_event(self, now: float) -> list[Frame]:
         return batch_frames_on_event([self], now)
@@ -92,6 +97,8 @@ class PatchNode(LocalDevice):
             return int(self.faults.status[subindex - 1])
         if index == 0x1001:
             return self.faults.error_register
+        if index == ANSWERED:
+            return self.answered
         return None
 
     def _apply_defaults(self) -> None:
@@ -142,9 +149,13 @@ def batch_update(nodes: Sequence[PatchNode], resistance_ohm: NDArray[np.float64]
             node._adopt(node_codes, node_status, node_changed)
 
 
-def batch_frames_on_sync(nodes: Sequence[PatchNode], counter: int) -> list[Frame]:
-    """:meth:`PatchNode.frames_on_sync` of ``nodes``, in node order."""
-    return batch_frames(nodes, lambda node, payloads: node.tpdo.due_on_sync(counter, payloads))
+def batch_frames_on_sync(nodes: Sequence[PatchNode], counter: int,
+                         sync_byte: int = 0) -> list[Frame]:
+    """:meth:`PatchNode.frames_on_sync` of ``nodes``, in node order: ``counter`` counts the
+    SYNCs the nodes have seen (for transmission types 1..240), ``sync_byte`` is the SYNC's
+    own counter byte (0 without one), the answer's 0x2006."""
+    return batch_frames(nodes, lambda node, payloads: node.tpdo.due_on_sync(counter, payloads),
+                        sync_byte)
 
 
 def batch_frames_on_event(nodes: Sequence[PatchNode], now: float) -> list[Frame]:
@@ -152,7 +163,7 @@ def batch_frames_on_event(nodes: Sequence[PatchNode], now: float) -> list[Frame]
     return batch_frames(nodes, lambda node, payloads: node.tpdo.due_on_event(now, payloads))
 
 
-def batch_frames(nodes: Sequence[PatchNode], due: Due) -> list[Frame]:
+def batch_frames(nodes: Sequence[PatchNode], due: Due, sync_byte: int = 0) -> list[Frame]:
     """The TPDO frames that ``due(node, payloads)`` selects, of every OPERATIONAL node.
 
     Nodes whose TPDOs are mapped alike are packed by one ``PdoCodec.pack`` call; every
@@ -163,20 +174,24 @@ def batch_frames(nodes: Sequence[PatchNode], due: Due) -> list[Frame]:
         for node in nodes:
             node.lock.acquire()
             held.append(node.lock)
-        return _frames_locked([node for node in nodes if node.nmt.state == OPERATIONAL], due)
+        for node in nodes:
+            node.answered = sync_byte
+        return _frames_locked([node for node in nodes if node.nmt.state == OPERATIONAL], due,
+                              sync_byte)
     finally:
         for lock in reversed(held):
             lock.release()
 
 
-def _frames_locked(live: list[PatchNode], due: Due) -> list[Frame]:
+def _frames_locked(live: list[PatchNode], due: Due, sync_byte: int) -> list[Frame]:
     if not live:
         return []
     n = len(live)
     status = np.stack([node.faults.status for node in live])
     error_register = np.where(status.any(axis=1), REGISTER_FAULT, 0)  # FaultReporter's 0x1001
     rows = np.concatenate([np.stack([node.codes for node in live]).reshape(n, 27), status,
-                           error_register[:, None]], axis=1, dtype=np.int64)
+                           error_register[:, None], np.full((n, 1), sync_byte)], axis=1,
+                          dtype=np.int64)
     groups: dict[_Layout, list[int]] = {}
     for i, node in enumerate(live):
         groups.setdefault(_layout(node.tpdo.codec), []).append(i)
@@ -184,11 +199,12 @@ def _frames_locked(live: list[PatchNode], due: Due) -> list[Frame]:
     for layout, members in groups.items():
         chosen = rows if len(members) == n else rows[members]
         payloads = live[members[0]].tpdo.codec.pack(chosen[:, layout.gather])
-        blob, stride, sizes = payloads.tobytes(), 8 * len(layout.sizes), layout.sizes
+        width = payloads.shape[2]
+        blob, stride, sizes = payloads.tobytes(), width * len(layout.sizes), layout.sizes
         for m, i in enumerate(members):
             cob_ids = live[i].tpdo.codec.cob_ids.tolist()
             at = m * stride
-            out[i] = [(cob_ids[p], blob[at + 8 * p:at + 8 * p + sizes[p]])
+            out[i] = [(cob_ids[p], blob[at + width * p:at + width * p + sizes[p]])
                       for p in sorted(due(live[i], payloads[m]), key=cob_ids.__getitem__)]
     return [frame for frames in out for frame in frames]
 
@@ -201,7 +217,8 @@ class _Layout:
     def __init__(self, codec: PdoCodec) -> None:
         self.sizes = tuple(int(size) for size in codec.sizes)
         columns = {RESISTANCES: 0, STATUS: 27}
-        self.gather = np.array([columns[i] + s - 1 if i in columns else _ERROR_REGISTER_COLUMN
+        single = {0x1001: _ERROR_REGISTER_COLUMN, ANSWERED: _ANSWERED_COLUMN}
+        self.gather = np.array([columns[i] + s - 1 if i in columns else single[i]
                                 for i, s in codec.variables], dtype=np.intp)
 
 

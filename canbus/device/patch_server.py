@@ -83,7 +83,7 @@ class PatchServer:
             self.sync_count += 1
             if self._thread is None:
                 self._tick()
-            self._send(batch_frames_on_sync(self.nodes, self.sync_count))
+            self._send(batch_frames_on_sync(self.nodes, self.sync_count, data[0] if data else 0))
 
     def _tick(self) -> None:
         sample = np.asarray(self.source.read(), dtype=np.float64)
@@ -109,7 +109,7 @@ class PatchServer:
         assert bus is not None, "the network is not connected"
         for cob_id, payload in frames:
             try:
-                bus.send(TxMessage.data_frame(cob_id, payload))
+                bus.send(TxMessage.frame(cob_id, payload))
             except can.CanError as err:
                 logger.warning("TPDO 0x%03X not sent: %s", cob_id, err)
         self.frames_sent += len(frames)

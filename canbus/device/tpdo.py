@@ -44,6 +44,9 @@ class TpdoTable:
     def __init__(self, store: ObjectStore, count: int) -> None:
         self.store = store
         self.count = count
+        self.max_bytes = 8
+        """The longest PDO the node sends: 8 on a classic bus, 64 on a CAN FD bus (CiA 1301:
+        up to 64 mapped bytes, in one CAN FD frame)."""
         self._codec: PdoCodec | None = None
         self._params: list[tuple[int, int, int]] = []
         self._last_sent: dict[int, float] = {}
@@ -136,7 +139,7 @@ class TpdoTable:
                        for s in range(1, value + 1)]
             for entry in entries:
                 self._check_entry(entry)
-            if sum(e.bits for e in entries) > 64:
+            if sum(e.bits for e in entries) > 8 * self.max_bytes:
                 raise SdoAbortedError(EXCEEDS_PDO)
         elif int(self.store.value(TPDO_MAP + n, 0)) != 0:
             raise SdoAbortedError(UNSUPPORTED_ACCESS)

@@ -61,6 +61,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canbus.codes import code_to_resistance
+from canbus.master.baseline import Baseline
 from canbus.master.forcenode import ForceNode, batch_frames
 from canbus.pdo_codec import PdoCodec
 from canbus.txmessage import TxMessage
@@ -71,7 +72,7 @@ from skin.errors import ConfigError
 
 logger = logging.getLogger(__name__)
 
-RESISTANCES = 0x2000
+RESISTANCES, ANSWERED = 0x2000, 0x2006
 
 
 @dataclass(frozen=True)
@@ -101,10 +102,14 @@ class PatchChannel:
     decoder: Decoder  # any registered decoder; r0 baked in by the host
     force_node: ForceNode
     scale: NDArray[np.float64] = field(default_factory=lambda: np.ones((TAXELS_PER_PATCH, 1)))
-    """(9, P), or anything that broadcasts to it: multiplied onto resistances before decode."""
+    """(9, P), or anything that broadcasts to it: multiplied onto resistances before decode
+    (with a ``baseline``, its scale is used instead)."""
     masked: NDArray[np.bool_] = field(
         default_factory=lambda: np.zeros(TAXELS_PER_PATCH, dtype=bool))
     """(9,) taxels the host knows are faulty: invalid with ``Reason.FAULTY``."""
+    baseline: Baseline | None = None
+    """Tare and drift tracking: the data plane decodes with its scale, tracks drift on every
+    complete sample and tares it (:meth:`DataPlane.tare`)."""
     answer_order: str = "cob-id"
     """The order in which the patch sends the TPDOs of one answer: ``"cob-id"`` (ascending
     identifier, as a node's queued frames leave on a CAN bus) or ``"tpdo"`` (TPDO number
@@ -123,6 +128,7 @@ class DataPlaneStats:
     out_of_order_frames: int = 0  # ahead of its place in the answer, or after the answer ended
     second_answers: int = 0  # an answer began after a complete one in one window: the one
     # published was then most likely the previous SYNC's, whole (docs/host.md)
+    stale_answers: int = 0  # an answer that names (0x2006) an earlier SYNC than its cycle's
     malformed_frames: int = 0  # shorter than the PDO's mapping
     samples: int = 0
     batches: int = 0  # publishing rounds: samples / batches is the mean decode batch
@@ -144,8 +150,9 @@ class _Slot:
         pdos = len(codec.layouts)
         self.channel = channel
         self.active = True
-        self.raw = bytearray(8 * pdos)
-        self.zeros = bytes(8 * pdos)
+        self.stride = codec.width + codec.width % 2  # bytes per PDO in ``raw``: even, so
+        self.raw = bytearray(self.stride * pdos)  # that codes read as UNSIGNED16 words
+        self.zeros = bytes(self.stride * pdos)
         self.full = (1 << pdos) - 1
         self.seen = 0  # PDO bits received this cycle
         self.bad = 0  # PDO bits not trusted this cycle (duplicate, malformed)
@@ -174,7 +181,7 @@ class _Slot:
         carried = np.zeros((pdos, TAXELS_PER_PATCH), dtype=bool)
         at: dict[tuple[int, int], int] = {}  # variable -> its first byte in ``raw``
         for n, layout in enumerate(codec.layouts):
-            offset = 8 * n
+            offset = self.stride * n
             for entry in layout.entries:
                 at.setdefault((entry.index, entry.subindex), offset)
                 offset += entry.bits // 8
@@ -190,6 +197,11 @@ class _Slot:
         u16 = all(codec.dtypes[c] == np.dtype("<u2") for c in self.columns.ravel().tolist())
         if u16 and not np.any(offsets % 2):
             self.words = offsets // 2
+        self.answered_bit = 0  # the PDO that carries 0x2006, the SYNC counter answered
+        self.answered_at = 0  # its byte in that PDO
+        if (ANSWERED, 0) in at:
+            pdo, self.answered_at = divmod(at[(ANSWERED, 0)], self.stride)
+            self.answered_bit = 1 << pdo
 
     def taxels_of(self, pdo_bits: int) -> NDArray[np.bool_]:
         """(9,) the taxels carried by the PDOs whose bits are set."""
@@ -237,6 +249,7 @@ class DataPlane(can.Listener):
         self._queue: list[_Job] = []
         self._subscribers: tuple[Subscriber, ...] = ()
         self._raw_samples: dict[int, NDArray[np.float64]] = {}
+        self._last_complete: dict[int, ForceFrame] = {}
         self._wake = threading.Event()
         self._stopping = False
         self._thread: threading.Thread | None = None
@@ -287,7 +300,7 @@ class DataPlane(can.Listener):
             codec = slot.channel.codec
             for p, (cob, size) in enumerate(zip(codec.cob_ids.tolist(), codec.sizes.tolist(),
                                                 strict=True)):
-                table[cob] = (slot, 1 << p, 8 * p, size, slot.place[p])
+                table[cob] = (slot, 1 << p, slot.stride * p, size, slot.place[p])
         self._table = table
 
     # -- the hot path -----------------------------------------------------------------------
@@ -314,6 +327,8 @@ class DataPlane(can.Listener):
     def _accept(self, entry: _Entry, data: bytes | bytearray) -> None:
         """One in-window frame: it extends the cycle's answer or is turned away (lock held)."""
         slot, bit, offset, size, place = entry
+        if bit == slot.answered_bit and self._stale(slot, data):
+            return
         if place != slot.next or slot.ended or slot.done:
             self._turn_away(entry, data)
             return
@@ -329,6 +344,16 @@ class DataPlane(can.Listener):
             self._queue.append(_Job(slot, self._cycle, bytes(slot.raw), 0, True))
             if not self._wake.is_set():  # the publisher has not yet taken the queue
                 self._wake.set()
+
+    def _stale(self, slot: _Slot, data: bytes | bytearray) -> bool:
+        """The PDO names the SYNC it answers (0x2006), and it is not this cycle's: an answer
+        to an earlier SYNC, counted ``stale_answers`` and ``late_frames`` (lock held)."""
+        counter = self._cycle[1] if self._cycle is not None else 0
+        if not counter or len(data) <= slot.answered_at or data[slot.answered_at] == counter:
+            return False
+        self.stats.stale_answers += 1
+        self.stats.late_frames += 1
+        return True
 
     def _turn_away(self, entry: _Entry, data: bytes | bytearray) -> None:
         """A frame that does not extend the cycle's answer (module docstring; lock held)."""
@@ -395,6 +420,19 @@ class DataPlane(can.Listener):
     def unsubscribe(self, callback: Subscriber) -> None:
         with self._lock:
             self._subscribers = tuple(c for c in self._subscribers if c != callback)
+
+    def tare(self, node_id: int) -> None:
+        """Re-zero patch ``node_id``'s baseline at its last complete sample.
+
+        Raises :class:`~canbus.master.baseline.PatchLoadedError` while it is loaded (or
+        before its first complete sample), ConfigError if it has no channel or baseline.
+        """
+        baseline = self.channel(node_id).baseline
+        if baseline is None:
+            raise ConfigError("node_id", f"patch {node_id} has no baseline to tare")
+        last = self._last_complete.get(node_id)
+        baseline.tare(self.raw_sample(node_id), None if last is None else last.force_N,
+                      None if last is None else last.valid, node_id=node_id)
 
     def raw_sample(self, node_id: int) -> NDArray[np.float64] | None:
         """The last complete ``(9, P)`` resistances of a patch in ohm, before ``scale``."""
@@ -485,9 +523,10 @@ class DataPlane(can.Listener):
             if first.words is not None:
                 codes = np.frombuffer(blob, dtype="<u2").reshape(len(rows), -1)[:, first.words]
             else:
-                pdos = len(first.channel.codec.layouts)
-                payload = np.frombuffer(blob, dtype=np.uint8).reshape(len(rows), pdos, 8)
-                codes = first.channel.codec.unpack(payload)[:, first.columns]
+                codec = first.channel.codec
+                payload = np.frombuffer(blob, dtype=np.uint8).reshape(
+                    len(rows), len(codec.layouts), first.stride)[:, :, :codec.width]
+                codes = codec.unpack(payload)[:, first.columns]
             channels = [jobs[i].slot.channel for i in rows]
             lsb = {channel.lsb_ohm for channel in channels}
             if len(lsb) == 1:  # open/saturated: +inf
@@ -499,12 +538,14 @@ class DataPlane(can.Listener):
                 if jobs[i].complete:
                     self._raw_samples[channels[m].node_id] = raw[m]
             shape = raw.shape[1:]
-            if all(np.shape(channel.scale) == shape for channel in channels):
-                scale = np.array([channel.scale for channel in channels], dtype=np.float64)
+            scales = [channel.scale if channel.baseline is None else channel.baseline.scale
+                      for channel in channels]
+            if all(np.shape(scale_) == shape for scale_ in scales):
+                scale = np.array(scales, dtype=np.float64)
             else:
                 scale = np.empty_like(raw)
-                for m, channel in enumerate(channels):
-                    scale[m] = channel.scale  # broadcast to (9, P)
+                for m, scale_ in enumerate(scales):
+                    scale[m] = scale_  # broadcast to (9, P)
             scaled = raw * scale
             scaled[undecodable[rows]] = np.nan
             out[rows, :, : first.channel.pillars] = scaled
@@ -516,9 +557,10 @@ class DataPlane(can.Listener):
             return
         complete = [job.complete for job in jobs]
         nodes = [job.slot.channel.force_node for job in jobs]
-        frames = batch_frames(nodes, force, valid, np.array(complete), reason)
+        frames = batch_frames(nodes, force, valid, np.array(complete), reason,
+                              [job.cycle[1] for job in jobs])
         # Every frame onto the bus first: the frames for the API come after.
-        published = [node.transmitting and self._transmit(f)
+        published = [node.transmitting and self._transmit(f, _bus_of(node, self.bus))
                      for node, f in zip(nodes, frames, strict=True)]
         out = []
         for i, job in enumerate(jobs):
@@ -526,6 +568,7 @@ class DataPlane(can.Listener):
             out.append(ForceFrame(job.slot.channel.node_id, nodes[i].node_id, cycle, counter,
                                   timestamp, force[i], valid[i], reason[i], job.complete,
                                   published[i]))
+        self._follow_baselines(out)
         stats = self.stats
         stats.samples += len(out)
         stats.batches += 1
@@ -538,8 +581,23 @@ class DataPlane(can.Listener):
                 stats.callback_errors += 1
                 logger.exception("data plane: subscriber %r failed", callback)
 
-    def _transmit(self, frames: list[tuple[int, bytes]]) -> bool:
-        send, frame, sent = self.bus.send, TxMessage.data_frame, 0
+    def _follow_baselines(self, frames: list[ForceFrame]) -> None:
+        """Remember each patch's last complete sample (for tare) and track drift on it."""
+        for out in frames:
+            if not out.complete:
+                continue
+            previous = self._last_complete.get(out.patch)
+            self._last_complete[out.patch] = out
+            baseline = self._slots[out.patch].channel.baseline if out.patch in self._slots \
+                else None
+            raw = self._raw_samples.get(out.patch)
+            if baseline is None or baseline.time_constant_s is None or raw is None:
+                continue
+            dt = out.timestamp - previous.timestamp if previous is not None else 0.0
+            baseline.track(raw, out.force_N, out.valid, max(dt, 0.0))
+
+    def _transmit(self, frames: list[tuple[int, bytes]], bus: can.BusABC) -> bool:
+        send, frame, sent = bus.send, TxMessage.frame, 0
         try:
             for cob, payload in frames:
                 send(frame(cob, payload))
@@ -588,6 +646,13 @@ class PdoRouter(can.Listener):
         for listener in self.others:
             listener.stop()
         self.dataplane.stop()
+
+
+def _bus_of(node: ForceNode, default: can.BusABC) -> can.BusABC:
+    """The bus a force node publishes on: the one it is attached to (several buses)."""
+    network = node.network
+    bus = network.bus if network is not None else None
+    return bus if bus is not None else default
 
 
 def _by_decoder(jobs: Sequence[_Job]) -> list[tuple[list[int], Decoder]]:

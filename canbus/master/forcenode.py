@@ -4,14 +4,17 @@
 
 Objects: 0x2000 forces, 27 INTEGER16 in mN (taxel*3 + axis + 1; Fx, Fy, Fz); 0x2001 the
 source patch's node-ID; 0x2004 per-taxel status (the ``decoder.reasons`` code, 0 OK);
-0x2005 valid taxels, UNSIGNED16 (bit k = taxel k valid, bit 15 = sample complete). A
-component that is invalid or does not fit INTEGER16 is sent as 0x8000 (-32768, "no
-value"), never clipped, and its taxel's valid bit is cleared.
+0x2005 valid taxels, UNSIGNED16 (bit k = taxel k valid, bit 15 = sample complete); 0x2006
+the counter byte of the SYNC the sample answers (0: none). A component that is invalid
+or does not fit INTEGER16 is sent as 0x8000 (-32768, "no value"), never clipped, and its
+taxel's valid bit is cleared.
 
 The default mapping is 4 forces per TPDO, TPDO 7 = the last 3 forces + 0x2005, all
 event-driven (type 254): :meth:`ForceNode.frames` returns the frames of one sample, sent
-as soon as it is decoded. The node answers SDO, sends its boot-up and heartbeat and obeys
-NMT like a patch node; it transmits only while OPERATIONAL (:attr:`transmitting`).
+as soon as it is decoded. On a CAN FD bus :func:`map_fd` puts a whole sample in TPDO 1
+(27 forces, 0x2005, 0x2006: 57 bytes, one 64-byte frame, CiA 1301). The node answers
+SDO, sends its boot-up and heartbeat and obeys NMT like a patch node; it transmits only
+while OPERATIONAL (:attr:`transmitting`).
 """
 
 from __future__ import annotations
@@ -28,10 +31,18 @@ from numpy.typing import ArrayLike, NDArray
 from canbus.device.local_device import TPDO_COUNT, LocalDevice
 from canbus.device.nmt_slave import OPERATIONAL, START
 from canbus.od import load_od
-from canbus.pdo_codec import MappedEntry, PdoCodec, read_defaults, read_layouts
+from canbus.pdo_codec import (
+    COB_ID_INVALID,
+    TPDO_COMM,
+    TPDO_MAP,
+    MappedEntry,
+    PdoCodec,
+    read_defaults,
+    read_layouts,
+)
 from skin.errors import BusError, ConfigError
 
-FORCES, SOURCE, STATUS, VALID = 0x2000, 0x2001, 0x2004, 0x2005
+FORCES, SOURCE, STATUS, VALID, ANSWERED = 0x2000, 0x2001, 0x2004, 0x2005, 0x2006
 NO_VALUE = -0x8000
 """INTEGER16 0x8000: the component has no value (invalid taxel or beyond +-32.767 N)."""
 COMPLETE = 1 << 15
@@ -68,8 +79,11 @@ def valid_bits(valid: ArrayLike, complete: ArrayLike) -> NDArray[np.uint16]:
 
 def batch_frames(nodes: Sequence[ForceNode], force_N: NDArray[np.float64],
                  valid: NDArray[np.bool_], complete: NDArray[np.bool_],
-                 reason: NDArray[np.uint8] | None = None) -> list[list[Frame]]:
-    """:meth:`ForceNode.frames` of ``n`` nodes at once: ``(n, 9, 3)``, ``(n, 9)``, ``(n,)``.
+                 reason: NDArray[np.uint8] | None = None,
+                 answered: ArrayLike = 0) -> list[list[Frame]]:
+    """:meth:`ForceNode.frames` of ``n`` nodes at once: ``(n, 9, 3)``, ``(n, 9)``, ``(n,)``;
+    ``answered``: the counter byte of the SYNC each sample answers (0x2006), ``(n,)`` or
+    one for all.
 
     Nodes whose TPDOs are mapped alike are packed by one ``PdoCodec.pack`` call.
     """
@@ -79,18 +93,20 @@ def batch_frames(nodes: Sequence[ForceNode], force_N: NDArray[np.float64],
     status = (np.where(bus_valid, 0, UNSPECIFIED).astype(np.uint8) if reason is None
               else np.asarray(reason, dtype=np.uint8))
     error_register = np.zeros((n, 1), dtype=np.int64)
-    table = np.concatenate([mN.reshape(n, 27), status, bits[:, None], error_register],
-                           axis=1, dtype=np.int64)
+    counters = np.broadcast_to(np.asarray(answered, dtype=np.int64), (n,))
+    table = np.concatenate([mN.reshape(n, 27), status, bits[:, None], error_register,
+                            counters[:, None]], axis=1, dtype=np.int64)
     flat_mN, bits_list = mN.reshape(n, 27), bits.tolist()
     groups: dict[_Layout, list[tuple[int, PdoCodec]]] = {}
+    counter_list = counters.tolist()
     for i, node in enumerate(nodes):
-        codec = node._adopt(flat_mN[i], status[i], bits_list[i])
+        codec = node._adopt(flat_mN[i], status[i], bits_list[i], counter_list[i])
         groups.setdefault(_layout(codec), []).append((i, codec))
     out: list[list[Frame]] = [[] for _ in range(n)]
     for key, members in groups.items():
         rows = table if len(members) == n else table[[i for i, _ in members]]
         payload = members[0][1].pack(rows[:, key.gather]).tobytes()
-        width = 8 * len(key.sizes)
+        width = key.width * len(key.sizes)
         for m, (i, codec) in enumerate(members):
             at = m * width
             out[i] = [(cob, payload[at + start:at + end])
@@ -103,13 +119,14 @@ class _Layout:
     """A mapping shape: nodes with the same one (identity) are packed together."""
 
     sizes: tuple[int, ...]
-    gather: NDArray[np.intp]  # row columns ``[forces (27), status (9), 0x2005, 0x1001]``
-    spans: tuple[tuple[int, int], ...]  # each PDO's bytes in its node's packed 8 * P bytes
+    gather: NDArray[np.intp]  # row columns ``[forces (27), status (9), 0x2005, 0x1001, 0x2006]``
+    width: int  # the codec's bytes per PDO
+    spans: tuple[tuple[int, int], ...]  # each PDO's bytes in its node's packed width * P
 
 
 _LAYOUTS: weakref.WeakKeyDictionary[PdoCodec, _Layout] = weakref.WeakKeyDictionary()
 _SHAPES: dict[tuple[tuple[MappedEntry, ...], ...], _Layout] = {}
-_FIRST_COLUMN = {FORCES: 0, STATUS: 27, VALID: 36, 0x1001: 37}
+_FIRST_COLUMN = {FORCES: 0, STATUS: 27, VALID: 36, 0x1001: 37, ANSWERED: 38}
 
 
 def _layout(codec: PdoCodec) -> _Layout:
@@ -124,12 +141,34 @@ def _layout(codec: PdoCodec) -> _Layout:
                 if obj not in _FIRST_COLUMN:  # TpdoTable admits only the EDS's mappable objects
                     raise ConfigError("pdo mapping", f"0x{obj:04X}:{sub:02X} is not published")
                 gather.append(_FIRST_COLUMN[obj] + max(sub - 1, 0))
-            sizes = tuple(int(size) for size in codec.sizes)
-            layout = _Layout(sizes, np.array(gather, dtype=np.intp),
-                             tuple((8 * p, 8 * p + size) for p, size in enumerate(sizes)))
+            sizes, width = tuple(int(size) for size in codec.sizes), codec.width
+            layout = _Layout(sizes, np.array(gather, dtype=np.intp), width,
+                             tuple((width * p, width * p + size) for p, size in enumerate(sizes)))
             _SHAPES[entries] = layout
         _LAYOUTS[codec] = layout
     return layout
+
+
+FD_MAPPING = tuple([MappedEntry(FORCES, k, 16) for k in range(1, 28)]
+                   + [MappedEntry(VALID, 0, 16), MappedEntry(ANSWERED, 0, 8)])
+"""A whole sample in one CAN FD TPDO: 27 forces, 0x2005, 0x2006 (57 bytes)."""
+
+
+def map_fd(node: ForceNode) -> None:
+    """Map the node's TPDO 1 to :data:`FD_MAPPING` and invalidate TPDO 2..7, with CiA 301's
+    sequence (invalidate, sub-index 0 = 0, entries, count, validate), as a master would by
+    SDO. The node must be on a CAN FD bus (its PDOs may hold 64 bytes)."""
+    with node.lock:
+        store = node.store
+        for n in range(TPDO_COUNT):
+            cob = int(store.value(TPDO_COMM + n, 1))
+            store.set_data(TPDO_COMM + n, 1, (cob | COB_ID_INVALID).to_bytes(4, "little"))
+        store.set_data(TPDO_MAP, 0, b"\x00")
+        for s, entry in enumerate(FD_MAPPING, start=1):
+            store.set_data(TPDO_MAP, s, entry.to_raw().to_bytes(4, "little"))
+        store.set_data(TPDO_MAP, 0, bytes([len(FD_MAPPING)]))
+        cob = int(store.value(TPDO_COMM, 1))
+        store.set_data(TPDO_COMM, 1, (cob & ~COB_ID_INVALID).to_bytes(4, "little"))
 
 
 @functools.lru_cache(maxsize=128)
@@ -185,7 +224,7 @@ class ForceNode(LocalDevice):
         return frozenset(tpdos | {emcy, 0x700 + self.node_id, sdo_tx})
 
     def frames(self, force_N: ArrayLike, valid: ArrayLike, complete: bool, *,
-               reason: ArrayLike | None = None) -> list[Frame]:
+               reason: ArrayLike | None = None, answered: int = 0) -> list[Frame]:
         """The TPDO frames of one sample: ``(9, 3)`` N, ``(9,)`` valid, the complete flag.
 
         Also the values an SDO read of 0x2000, 0x2004 and 0x2005 returns from now on.
@@ -196,15 +235,16 @@ class ForceNode(LocalDevice):
         f = np.asarray(force_N, dtype=np.float64).reshape(1, 9, 3)
         v = np.asarray(valid, dtype=bool).reshape(1, 9)
         r = None if reason is None else np.asarray(reason, dtype=np.uint8).reshape(1, 9)
-        return batch_frames([self], f, v, np.array([complete]), r)[0]
+        return batch_frames([self], f, v, np.array([complete]), r, answered)[0]
 
     def _adopt(self, forces_mN: NDArray[np.int16], status: NDArray[np.uint8],
-               valid: int) -> PdoCodec:
+               valid: int, answered: int) -> PdoCodec:
         """Take one sample's object values; the codec to pack them with."""
         with self.lock:
             self._forces_mN = forces_mN
             self._status = status
             self._valid = valid
+            self._answered = answered
             return self.tpdo.codec
 
     def _read_live(self, index: int, subindex: int, **_: Any) -> int | None:
@@ -214,6 +254,8 @@ class ForceNode(LocalDevice):
             return int(self._status[subindex - 1])
         if index == VALID:
             return self._valid
+        if index == ANSWERED:
+            return self._answered
         return None
 
     def _clear_application(self) -> None:
@@ -221,6 +263,7 @@ class ForceNode(LocalDevice):
         self._forces_mN = np.full(27, NO_VALUE, dtype=np.int16)
         self._status = np.zeros(9, dtype=np.uint8)
         self._valid = 0
+        self._answered = 0
 
     def _apply_defaults(self) -> None:
         """Power-on values the EDS cannot know: serial, source patch, heartbeat period."""

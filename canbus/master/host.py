@@ -9,32 +9,23 @@
         host.health()                              # {node_id: PatchHealth}
         host.tare(1)                               # re-zero patch 1 (refused while loaded)
 
-Two planes on one bus and one notifier thread. The management plane is canopen: a
-``Network`` on the caller's bus, one ``RemoteNode`` per configured patch (SDO, NMT,
-EMCY), boot-up and heartbeat consumers, a worker pool that configures patches (SDO
-waits for responses that arrive on the notifier thread, so it never runs there). The
-data plane is :class:`~canbus.master.dataplane.DataPlane`, a second listener on canopen's
-notifier: it assembles each patch's PDOs per SYNC cycle, decodes and publishes them
-through the patch's :class:`~canbus.master.forcenode.ForceNode`, and hands the frames here.
+One facade, two policies. :class:`HostManager` owns what every host has: one
+:class:`~canbus.master.buslink.BusLink` per bus (a canopen ``Network``, a notifier, a
+:class:`~canbus.master.dataplane.DataPlane` that turns its patches' PDOs into forces, a
+heartbeat consumer), one record per configured patch, the decoders, and the API.
+What it does with the patches is its policy's:
 
-Start-up: heartbeat and boot-up consumers; canopen's SDO scan (``host.scan``); every
-configured patch that answers is identified (0x1018 product code 1), configured
-(:mod:`canbus.master.patch_setup`) and started by NMT; a node at a force node's ID, or an
-unknown node whose predefined COB-IDs overlap the force nodes', refuses the start;
-other unknown nodes are reported and left alone. Then the force nodes boot and go
-OPERATIONAL, and SYNC starts. A configured patch that is absent at start, or boots
-later, is configured when its boot-up (or first heartbeat) arrives; one whose heartbeat
-stops is marked lost (:mod:`canbus.master.liveness`), its channel leaves the data plane and
-its force node publishes one all-invalid sample, so no consumer keeps stale forces.
+- :class:`~canbus.master.active.ActiveMaster` (the default) discovers the patches (boot-up,
+  canopen's SDO scan, 0x1018), configures them by SDO, starts them by NMT, produces SYNC on
+  each patch bus (or, with ``sync = "external"``, follows the SYNC another master
+  produces), re-configures a patch that boots again, and withdraws a lost patch's forces;
+- :class:`~canbus.master.follower.ListenOnly` (``listen_only``) transmits nothing: it
+  decodes what another master runs (or a recording ``skin replay`` sends), following the
+  NMT commands, boot-ups, heartbeats and SYNCs on the bus.
 
-Listen-only (``listen_only=True`` or ``host.listen_only``): another master runs the
-patches, or a recording is replayed onto the bus, and the host only decodes. It
-transmits nothing (no scan, SDO, NMT, SYNC, force node or force PDO). Each patch's
-channel is built from the config (:func:`~canbus.master.patch_setup.plan_setup`: the mapping
-the host would write for its mode; constants and R0 as a patch holding the configured
-ones reports them); every SYNC received opens a cycle (:class:`~canbus.master.sync_producer.
-SyncFollower`). A patch is decoded while it is OPERATIONAL as the bus shows it: the NMT
-commands any master sends it, its boot-up, its heartbeats (lost and back as above).
+Several buses: ``HostManager({"skin-a": bus_a, "arm": bus_b}, config)`` with the config's
+``[[buses]]``; each patch is on its bus, each force node on its own (``force_bus``). A
+``canopen.Network`` the caller already runs may stand for a bus: the host joins it.
 """
 
 from __future__ import annotations
@@ -42,160 +33,103 @@ from __future__ import annotations
 import logging
 import os
 import threading
-from collections.abc import Callable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor, wait
-from dataclasses import dataclass, field, replace
-from typing import Any, Self
+from collections.abc import Callable, Iterator, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
+from typing import Any, Self, cast
 
 import can
 import canopen
 import numpy as np
 from canopen.emcy import EmcyError
-from canopen.sdo.exceptions import SdoError
 from numpy.typing import NDArray
 
+from canbus.master.active import ActiveMaster
 from canbus.master.baseline import Baseline, PatchLoadedError
-from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel, PdoRouter
-from canbus.master.discovery import (
-    BootListener,
-    Identity,
-    UnknownNode,
-    read_identity,
-    scan,
-    sdo_client,
-)
+from canbus.master.buslink import BusLink
+from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
+from canbus.master.decoders import DecoderCache
+from canbus.master.discovery import UnknownNode
 from canbus.master.fanout import FrameCallback, FrameFanout
+from canbus.master.follower import ListenOnly
 from canbus.master.forcenode import ForceNode
-from canbus.master.hostconfig import (
-    HostConfig,
-    PatchConfig,
-    force_cob_ids,
-    load_host_config,
-    node_cob_ids,
-)
-from canbus.master.liveness import HeartbeatMonitor
-from canbus.master.patch_setup import PatchInfo, PatchSetup, patch_info, plan_setup, setup_patch
+from canbus.master.hostconfig import HostConfig, load_host_config
+from canbus.master.patch_setup import PatchSetup
+from canbus.master.patch_setup import configured_info as configured_info  # re-exported
+from canbus.master.patch_setup import warn_if_unlike_config as _warn_if_unlike_config  # noqa: F401
+from canbus.master.records import STATES, PatchHealth, PatchRecord
 from canbus.master.sync_producer import SyncFollower, SyncProducer
+from canbus.master.taxel_log import TaxelLog
 from canbus.od import load_od
-from canbus.txmessage import TxMessage
-from decoder.protocol import BaseDecoder, Decoder
-from decoder.reasons import Reason
-from decoder.registry import create_decoder, load_decoder
-from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH
-from skin.errors import BusError, SkinError
+from skin.constants import TAXELS_PER_PATCH
+from skin.errors import BusError
 
-__all__ = ["ForceFrame", "HostManager", "PatchHealth", "PatchLoadedError"]
+__all__ = ["STATES", "ForceFrame", "HostManager", "PatchHealth", "PatchLoadedError"]
 
 logger = logging.getLogger(__name__)
 
-NOTIFIER_CYCLE_S = 0.05  # canopen's notifier recv() timeout: stop() joins within one cycle
-NMT_COB_ID = 0x000
 EMCY_LOG_KEPT = 256
 """EMCYs of a patch kept in canopen's ``EmcyConsumer.log`` (trimmed to this many once it
 holds twice as many): a long-running host with a flapping taxel must not grow without
 bound. ``emcy.active`` is canopen's own, cleared by each error reset."""
-NMT_START, NMT_PRE_OPERATIONAL = 0x01, 0x80
-OPERATIONAL_STATE, STOPPED_STATE = 0x05, 0x04
 DEVICE_HARDWARE, ERROR_RESET = 0x5000, 0x0000
-STATES = ("absent", "configuring", "operational", "stopped", "lost", "failed")
-# Listen-only: the state an NMT command (from any master) puts a patch in.
-_NMT_COMMANDS = {NMT_START: "operational", 0x02: "stopped", NMT_PRE_OPERATIONAL: "configuring",
-                 0x81: "configuring", 0x82: "configuring"}  # resets: a boot-up follows
+EMCY_TEXT = {DEVICE_HARDWARE: "taxel fault (device hardware)", ERROR_RESET: "taxel recovered"}
+TAXEL_FAULTS = {1: "open", 2: "short", 3: "saturated"}  # 0x2004 two bits per pillar
 
-
-
-@dataclass(frozen=True)
-class PatchHealth:
-    """One patch as the host sees it.
-
-    ``state``: ``absent`` (never heard), ``configuring``, ``operational``, ``lost``
-    (heartbeat overdue) or ``failed`` (set-up refused or timed out; ``error`` says why).
-    Listen-only: ``configuring`` is pre-operational (booted, not started by its master),
-    ``stopped`` is stopped by an NMT command; ``failed`` does not occur.
-    """
-
-    state: str
-    lost: bool
-    faulty_taxels: tuple[int, ...]  # reported by EMCY, masked in the output
-    last_heartbeat: float | None  # time.time() of the last heartbeat
-    samples: int  # force frames published for the patch
-    incomplete: int  # of which incomplete
-    error: str | None = None
-
-
-@dataclass
-class _Patch:
-    config: PatchConfig
-    node: canopen.RemoteNode
-    force_node: ForceNode
-    masked: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(TAXELS_PER_PATCH, bool))
-    state: str = "absent"
-    error: str | None = None
-    setup: PatchSetup | None = None
-    channel: PatchChannel | None = None
-    baseline: Baseline | None = None
-    generation: int = 0
-    queued: bool = False  # a set-up job is queued and has not started
-    job: Future[None] | None = None  # the latest set-up job
-    samples: int = 0
-    incomplete: int = 0
-    last: ForceFrame | None = None
-    sdo_lock: threading.Lock = field(default_factory=threading.Lock)
+Buses = can.BusABC | canopen.Network | Mapping[str, can.BusABC | canopen.Network]
 
 
 class HostManager:
-    """Discovers, configures, starts and watches the patches of ``config`` on ``bus``.
+    """Discovers, configures, starts and watches the patches of ``config`` on its buses.
 
-    The caller owns ``bus`` (it is not shut down on stop). ``on_unknown`` is called
-    with an :class:`~canbus.master.discovery.UnknownNode` for every node the host does not
-    manage (found by the scan or by its boot-up); the host never writes to such a node.
-    ``listen_only`` (default: ``config.listen_only``): decode what another master runs
-    and send nothing (module docstring).
+    ``bus``: one python-can bus (or a connected ``canopen.Network``) for a config with one
+    bus, or a mapping from the config's bus names to them. The caller owns the buses (they
+    are not shut down on stop). ``on_unknown`` is called with an
+    :class:`~canbus.master.discovery.UnknownNode` for every node the host does not manage;
+    the host never writes to such a node. ``listen_only`` (default: ``config.listen_only``):
+    decode what another master runs and send nothing.
     """
 
-    def __init__(self, bus: can.BusABC, config: HostConfig, *,
+    def __init__(self, bus: Buses, config: HostConfig, *,
                  on_unknown: Callable[[UnknownNode], None] | None = None,
                  listen_only: bool | None = None) -> None:
-        self.bus = bus
         config = config.check()
         if listen_only is not None:
             config = replace(config, listen_only=listen_only)
         self.config = config
         self.listen_only = config.listen_only
         self.on_unknown = on_unknown
-        self.network = canopen.Network(bus)
-        self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
-        self._dataplane: DataPlane | None = None  # built by start(): it owns a thread
-        self._sync: SyncProducer | SyncFollower | None = None
-        self.monitor = HeartbeatMonitor(
-            self.network, self.config.heartbeat_ms, on_boot=self._on_patch_boot,
-            on_lost=self._on_lost, on_return=self._on_return,
-            on_change=self._on_change if self.listen_only else None)
-        self.boots = BootListener(self.network, self._on_any_boot)
         self.unknown_nodes: dict[int, UnknownNode] = {}
-        self._patches: dict[int, _Patch] = {}
-        for patch in self.config.patches:
-            node = canopen.RemoteNode(patch.node_id, load_od("skin-patch", patch.node_id))
-            node.sdo.RESPONSE_TIMEOUT = self.config.sdo_timeout_ms / 1000.0
-            force = ForceNode(patch.force_node, patch.node_id,
-                              heartbeat_ms=self.config.force_heartbeat_ms)
-            self._patches[patch.node_id] = _Patch(patch, node, force)
-            node.emcy.add_callback(self._emcy_handler(self._patches[patch.node_id]))
-            if self.listen_only:  # the channel is known from the config: no set-up job
-                self._patches[patch.node_id].setup = plan_setup(
-                    patch.node_id, node.object_dictionary, patch.mode, configured_info(patch))
-        self._force_ids = {p.force_node: p.node_id for p in self.config.patches}
-        self._decoders: dict[tuple[str, str, object], Decoder] = {}
-        self._warm: set[tuple[str, str, object, int]] = set()
+        self.decoders = DecoderCache()
         self.fanout = FrameFanout()
+        self.taxel_log = TaxelLog()
         self._lock = threading.RLock()
         self._changed = threading.Condition(self._lock)  # notified on every state change
-        self._executor: ThreadPoolExecutor | None = None
         self._running = False
-        self._scanning = False  # boot-ups and returns are left to the scan meanwhile
+        self.executor: ThreadPoolExecutor | None = None
+        self.links: dict[str, BusLink] = {}
+        for name, given in _by_name(bus, config).items():
+            self.links[name] = BusLink(
+                config.bus(name), given, heartbeat_ms=config.heartbeat_ms,
+                on_boot=self._on_patch_boot, on_lost=self._on_lost, on_return=self._on_return,
+                on_change=self._on_change if self.listen_only else None,
+                on_any_boot=self._on_any_boot)
+        self.patches: dict[int, PatchRecord] = {}
+        for patch in config.patches:
+            node = canopen.RemoteNode(patch.node_id, load_od("skin-patch", patch.node_id))
+            node.sdo.RESPONSE_TIMEOUT = config.sdo_timeout_ms / 1000.0
+            force = ForceNode(patch.force_node, patch.node_id,
+                              heartbeat_ms=config.force_heartbeat_ms)
+            record = PatchRecord(patch, self.links[patch.bus], self.links[patch.force_bus],
+                                 node, force)
+            self.patches[patch.node_id] = record
+            node.emcy.add_callback(self._emcy_handler(record))
+        self.force_ids = {p.force_node: p.node_id for p in config.patches}
+        self.policy: ActiveMaster | ListenOnly = \
+            ListenOnly(self) if self.listen_only else ActiveMaster(self)
 
     @classmethod
-    def from_config(cls, path: str | os.PathLike[str], bus: can.BusABC, **kwargs: Any) -> Self:
+    def from_config(cls, path: str | os.PathLike[str], bus: Buses, **kwargs: Any) -> Self:
         """A host for the config file at ``path`` (see ``examples/host.toml``)."""
         return cls(bus, load_host_config(path), **kwargs)
 
@@ -209,64 +143,30 @@ class HostManager:
         self.stop()
 
     def start(self) -> None:
-        """Discover and configure the patches present, boot the force nodes, start SYNC.
+        """Start every bus and the policy: discover and configure the patches present, boot
+        the force nodes, start SYNC (listen-only: start following).
 
-        Returns when the patches that answered the scan are configured (or failed).
-        Raises :class:`~skin.errors.BusError` if a node on the bus would collide with a
-        force node; the host is then stopped again. Listen-only: builds the decoders and
-        starts listening; nothing is sent.
+        Returns when the patches that answered the scan are configured (or failed). Raises
+        :class:`~skin.errors.BusError` if a node on a bus would collide with a force node;
+        the host is then stopped again.
         """
         if self._running:
             raise BusError("the host is already running")
         self._running = True
         try:
-            if self.listen_only:  # decoders built (and tables warmed) before any frame
-                for patch in self._patches.values():
-                    assert patch.setup is not None
-                    self._decoder(patch.config, patch.setup)
-        except BaseException:
-            self._running = False
-            raise
-        dataplane = DataPlane(self.bus, sync_window_s=self.config.sync_window_ms / 1000.0)
-        self._dataplane = dataplane
-        dataplane.subscribe(self._on_frames)
-        sync: SyncProducer | SyncFollower
-        if self.listen_only:
-            sync = SyncFollower(dataplane.on_sync)
-        else:
-            self._executor = ThreadPoolExecutor(max_workers=min(8, len(self._patches)),
-                                                thread_name_prefix="patch-setup")
-            sync = SyncProducer(self.bus, self.config.sync_period_ms / 1000.0,
-                                on_sync=dataplane.on_sync, counter=self.config.sync_counter)
-        self._sync = sync
-        # canopen's notifier, built here rather than by Network.connect() (which, on a bus
-        # it is given, builds just this) so that it starts with every listener: the data
-        # plane takes its patches' PDOs, canopen's listener and the SYNC follower get
-        # every other frame, from the first.
-        others: list[can.Listener] = [*self.network.listeners]
-        if isinstance(sync, SyncFollower):
-            others.append(sync)
-        listeners: list[can.Listener] = [PdoRouter(dataplane, others)]
-        self._scanning = isinstance(sync, SyncProducer) and self.config.scan
-        try:
-            self.boots.start()
-            for patch in self._patches.values():
-                if self.listen_only:  # EMCY only: no SDO client taking the bus's responses
-                    self.network.subscribe(0x80 + patch.config.node_id, patch.node.emcy.on_emcy)
-                else:
-                    self.network.add_node(patch.node)
-                # Our heartbeat period holds once the set-up has written 0x1017.
-                self.monitor.watch(patch.config.node_id, judged=self.listen_only)
-            if self.listen_only:
-                self.network.subscribe(NMT_COB_ID, self._on_nmt)
-            self.network.notifier = can.Notifier(self.bus, listeners,
-                                                 timeout=self.network.NOTIFIER_CYCLE)
-            self.monitor.start()
-            if isinstance(sync, SyncProducer):
-                jobs = self._discover() if self.config.scan else []
-                self._start_force_nodes()
-                wait(jobs)
-                sync.start()
+            self.policy.prepare()
+            self.policy.subscribe()  # before any notifier runs: frames queued count too
+            window_s = self.config.sync_window_ms / 1000.0
+            patch_buses = {p.link.name for p in self.patches.values()}
+            for link in self.links.values():
+                dataplane = None
+                if link.name in patch_buses:
+                    dataplane = DataPlane(link.bus, sync_window_s=window_s)
+                    dataplane.subscribe(self._on_frames)
+                follower = (SyncFollower(dataplane.on_sync)
+                            if dataplane is not None and self.config.sync_following else None)
+                link.listen(dataplane, follower)
+            self.policy.start()
         except BaseException:
             self.stop()
             raise
@@ -276,90 +176,59 @@ class HostManager:
         if not self._running:
             return
         self._running = False
-        if self._sync is not None:
-            self._sync.stop()
-            if self._sync.cycle:  # the last cycle's PDOs arrive within its window: wait
-                threading.Event().wait(self.config.sync_window_ms / 1000.0)
-        if self._dataplane is not None:
-            self._dataplane.flush()
-        self.monitor.stop()
-        self.boots.stop()
-        if self._executor is not None:
-            self._executor.shutdown(wait=True, cancel_futures=True)
-        for patch in self._patches.values():
-            patch.force_node.detach()
-            if patch.node.id in self.network.nodes:
-                del self.network[patch.node.id]
-            _unsubscribe(self.network, 0x80 + patch.config.node_id, patch.node.emcy.on_emcy)
-        _unsubscribe(self.network, NMT_COB_ID, self._on_nmt)
-        if self.network.notifier is not None:  # also stops the data plane (a listener)
-            self.network.notifier.stop(self.network.NOTIFIER_SHUTDOWN_TIMEOUT)
-            self.network.notifier = None
-        elif self._dataplane is not None:
-            self._dataplane.stop()
+        for link in self.links.values():
+            link.stop_sync()
+        if any(link.sync is not None and link.sync.cycle for link in self.links.values()):
+            # the last cycle's PDOs arrive within its window: wait for them
+            threading.Event().wait(self.config.sync_window_ms / 1000.0)
+        for link in self.links.values():
+            if link.dataplane is not None:
+                link.dataplane.flush()
+        self.policy.stop()
+        for link in self.links.values():
+            link.close()
+        self.taxel_log.flush()
         self.fanout.close()
 
-    def _discover(self) -> list[Future[None]]:
-        """Scan, refuse collisions, set up the configured patches found, report the rest.
-
-        Until the scan is over, boot-ups and heartbeats (queued before the start included)
-        start no set-up or identification: the scan finds those nodes too (canopen's
-        scanner also counts the nodes it hears), and an SDO transfer started meanwhile
-        would take the scan's answers for its own."""
-        try:
-            found = scan(self.network, self.config.scan_ms / 1000.0)
-        finally:
-            self._scanning = False
-        for node_id in found:
-            if node_id in self._force_ids:
-                raise BusError(f"node-ID {node_id} answers on the bus but is the force node "
-                               f"of patch {self._force_ids[node_id]}: change force_node")
-        jobs = []
-        for node_id in found:
-            if node_id in self._patches:
-                jobs.append(self._request_setup(node_id, restart=False))
-            elif node_id not in self.config.other_nodes:
-                self._check_no_collision(node_id)
-                jobs.append(self._submit(self._identify, node_id))
-        return [j for j in jobs if j is not None]
-
-    def _check_no_collision(self, node_id: int) -> None:
-        ours: set[int] = set()
-        for patch in self._patches.values():
-            ours |= force_cob_ids(patch.config)
-        clash = ours & set(node_cob_ids(node_id))
-        if clash:
-            listed = ", ".join(f"0x{c:03X}" for c in sorted(clash))
-            raise BusError(f"node {node_id} on the bus may transmit on {listed}, which the "
-                           "force nodes use: list it in host.other_nodes and change the "
-                           "force COB-IDs")
-
-    def _start_force_nodes(self) -> None:
-        for patch in self._patches.values():
-            force = patch.force_node
-            force.attach(self.network)
-            if patch.config.force_cob_ids is not None:
-                _set_tpdo_cob_ids(force, patch.config.force_cob_ids)
-            force.start()
+    @property
+    def running(self) -> bool:
+        return self._running
 
     # -- the public API ----------------------------------------------------------------
 
     @property
+    def bus(self) -> can.BusABC:
+        """The bus of a one-bus host."""
+        return self._only_link().bus
+
+    @property
+    def network(self) -> canopen.Network:
+        """The canopen Network of a one-bus host."""
+        return self._only_link().network
+
+    @property
     def dataplane(self) -> DataPlane:
-        """The data plane of the current (or last) run."""
-        if self._dataplane is None:
+        """The data plane of a one-bus host's current (or last) run."""
+        dataplane = self._only_link().dataplane
+        if dataplane is None:
             raise BusError("the host has not been started")
-        return self._dataplane
+        return dataplane
 
     @property
     def sync(self) -> SyncProducer | SyncFollower:
-        """The SYNC producer (listen-only: follower) of the current (or last) run."""
-        if self._sync is None:
+        """The SYNC producer (following: follower) of a one-bus host's current (or last) run."""
+        sync = self._only_link().sync
+        if sync is None:
             raise BusError("the host has not been started")
-        return self._sync
+        return sync
+
+    def _only_link(self) -> BusLink:
+        if len(self.links) != 1:
+            raise BusError(f"the host has {len(self.links)} buses: use host.links[name]")
+        return next(iter(self.links.values()))
 
     def on_forces(self, callback: FrameCallback) -> None:
-        """Call ``callback(frame)`` for every force frame, on the data plane's thread.
+        """Call ``callback(frame)`` for every force frame, on a data plane's thread.
 
         Keep it short: the next patch's frames wait for it. An exception is logged with
         its traceback and counted in :attr:`callback_errors`; the other callbacks run.
@@ -395,303 +264,119 @@ class HostManager:
         """Every configured patch's state, by node-ID."""
         out = {}
         with self._lock:
-            for node_id, p in self._patches.items():
-                lost = p.state == "lost"
+            for node_id, p in self.patches.items():
                 out[node_id] = PatchHealth(
-                    state=p.state, lost=lost,
+                    state=p.state, lost=p.state == "lost",
                     faulty_taxels=tuple(int(k) for k in np.flatnonzero(p.masked)),
-                    last_heartbeat=self.monitor.last_heartbeat(node_id),
-                    samples=p.samples, incomplete=p.incomplete, error=p.error)
+                    last_heartbeat=p.link.monitor.last_heartbeat(node_id),
+                    samples=p.samples, incomplete=p.incomplete, error=p.error,
+                    bus=p.link.name)
         return out
 
     def tare(self, node_id: int) -> None:
         """Re-zero patch ``node_id`` at its last complete sample.
 
-        Raises :class:`~canbus.master.baseline.PatchLoadedError` while any taxel of the patch
-        reads more than ``host.tare_threshold_N`` (or before its first sample), and
+        Raises :class:`~canbus.master.baseline.PatchLoadedError` while any taxel of the
+        patch reads more than ``host.tare_threshold_N`` (or before its first sample), and
         :class:`~skin.errors.BusError` if the patch is not operational.
         """
         with self._lock:
-            patch = self._patch(node_id)
-            if patch.state != "operational" or patch.baseline is None or patch.channel is None:
+            patch = self.patch(node_id)
+            channel = patch.channel
+            if patch.state != "operational" or channel is None:
                 raise BusError(f"patch {node_id} is {patch.state}: nothing to tare")
-            last = patch.last
-            raw = self.dataplane.raw_sample(node_id)
-            patch.baseline.tare(raw, None if last is None else last.force_N,
-                                None if last is None else last.valid, node_id=node_id)
+            dataplane = patch.link.dataplane
+        assert dataplane is not None
+        dataplane.tare(node_id)
+        logger.info("patch %d tared", node_id)
 
     def wait_operational(self, node_ids: list[int] | None = None, timeout: float = 10.0) -> bool:
         """Wait until the patches (default: all configured) are operational; False on
         time-out."""
-        wanted = list(self._patches) if node_ids is None else node_ids
+        wanted = list(self.patches) if node_ids is None else node_ids
         with self._changed:
             return self._changed.wait_for(
-                lambda: all(self._patch(n).state == "operational" for n in wanted), timeout)
+                lambda: all(self.patch(n).state == "operational" for n in wanted), timeout)
 
     def stats(self) -> dict[str, int]:
-        """Data plane counters plus SYNC cycles, overruns, API drops and callback errors."""
-        out = dict(self.dataplane.stats.snapshot())
-        sync = self.sync
-        out.update(sync_cycles=sync.cycle,
-                   sync_overruns=sync.overruns if isinstance(sync, SyncProducer) else 0,
-                   api_dropped=self.api_dropped, callback_errors=self.callback_errors)
+        """Data plane counters summed over the buses, plus SYNC cycles (the most of any bus),
+        overruns, API drops and callback errors."""
+        out: dict[str, int] = {}
+        cycles = overruns = 0
+        for link in self.links.values():
+            if link.dataplane is not None:
+                for key, value in link.dataplane.stats.snapshot().items():
+                    out[key] = out.get(key, 0) + value
+            if link.sync is not None:
+                cycles = max(cycles, link.sync.cycle)
+                overruns += link.sync.overruns if isinstance(link.sync, SyncProducer) else 0
+        out.update(sync_cycles=cycles, sync_overruns=overruns, api_dropped=self.api_dropped,
+                   callback_errors=self.callback_errors)
         return out
 
-    # -- data plane thread -------------------------------------------------------------
+    def bus_stats(self) -> dict[str, dict[str, Any]]:
+        """Per bus: its data plane's counters, SYNC cycles and overruns, and what the bus
+        itself counts when it can (the timed bus's wire statistics)."""
+        out: dict[str, dict[str, Any]] = {}
+        for name, link in self.links.items():
+            entry: dict[str, Any] = dict(link.dataplane.stats.snapshot()
+                                         if link.dataplane is not None else {})
+            sync = link.sync
+            entry["sync_cycles"] = sync.cycle if sync is not None else 0
+            entry["sync_overruns"] = sync.overruns if isinstance(sync, SyncProducer) else 0
+            entry["patches"] = sorted(n for n, p in self.patches.items() if p.link is link)
+            entry["force_nodes"] = sorted(p.config.force_node for p in self.patches.values()
+                                          if p.force_link is link)
+            wire = getattr(link.bus, "wire_stats", None)
+            if callable(wire):
+                entry["wire"] = _plain(wire())
+            out[name] = entry
+        return out
 
-    def _on_frames(self, frames: list[ForceFrame]) -> None:
-        for frame in frames:
-            patch = self._patches.get(frame.patch)
-            if patch is not None:
-                self._account(patch, frame)
-            self.fanout.publish(frame)
+    # -- what both policies use --------------------------------------------------------
 
-    def _account(self, patch: _Patch, frame: ForceFrame) -> None:
-        previous = patch.last
-        patch.last = frame
-        patch.samples += 1
-        if not frame.complete:
-            patch.incomplete += 1
-            return
-        baseline = patch.baseline
-        if baseline is None or baseline.time_constant_s is None:
-            return
-        raw = self.dataplane.raw_sample(frame.patch)
-        if raw is None:
-            return
-        cycles = frame.cycle - previous.cycle if previous is not None else 1
-        baseline.track(raw, frame.force_N, frame.valid,
-                       max(cycles, 1) * self.config.sync_period_ms / 1000.0)
-
-    # -- management plane --------------------------------------------------------------
-
-    def _patch(self, node_id: int) -> _Patch:
+    def patch(self, node_id: int) -> PatchRecord:
         try:
-            return self._patches[node_id]
+            return self.patches[node_id]
         except KeyError:
             raise BusError(f"node {node_id} is not a configured patch") from None
 
-    def _submit(self, job: Callable[[int], None], node_id: int) -> Future[None] | None:
-        executor = self._executor
-        if executor is None or not self._running:
-            return None
-        try:
-            return executor.submit(job, node_id)
-        except RuntimeError:  # shutting down
-            return None
-
-    def _request_setup(self, node_id: int, *, restart: bool) -> Future[None] | None:
-        """(Re)configure a patch; returns the set-up job that will do it. With ``restart``
-        (a boot-up: the node was reset) a set-up in progress starts over; without, a patch
-        being configured or operational is left as it is."""
-        with self._lock:
-            patch = self._patches[node_id]
-            if self._scanning:
-                return None  # the scan finds it and configures it
-            if not restart and patch.state in ("configuring", "operational"):
-                return patch.job
-            patch.generation += 1
-            self._take_offline(patch, "configuring")
-            if patch.queued:
-                return patch.job
-            patch.queued = True
-            patch.job = self._submit(self._setup, node_id)
-            return patch.job
-
-    def _take_offline(self, patch: _Patch, state: str) -> None:
-        if patch.channel is not None:
-            self.dataplane.remove_channel(patch.config.node_id)
-            patch.channel = None
-        self._set_state(patch, state)
-
-    def _set_state(self, patch: _Patch, state: str, error: str | None = None) -> None:
+    def set_state(self, patch: PatchRecord, state: str, error: str | None = None) -> None:
         with self._changed:
+            if patch.state != state:
+                logger.info("patch %d: %s -> %s%s", patch.node_id, patch.state, state,
+                            f" ({error})" if error else "")
             patch.state, patch.error = state, error
             self._changed.notify_all()
 
-    def _setup(self, node_id: int) -> None:
-        patch = self._patches[node_id]
-        with patch.sdo_lock:
-            with self._lock:
-                patch.queued = False
-                generation = patch.generation
-            try:
-                identity = read_identity(patch.node.sdo)
-                if identity.kind != "patch":
-                    raise BusError(f"node {node_id} is not a patch: {_describe(identity)}")
-                patch.node.nmt.send_command(NMT_PRE_OPERATIONAL)
-                setup = setup_patch(patch.node, patch.config.mode,
-                                    heartbeat_ms=self.config.heartbeat_ms)
-                _warn_if_unlike_config(patch.config, setup.info)
-                decoder, r0_ref = self._decoder(patch.config, setup)
-            except (SdoError, can.CanError, SkinError) as err:
-                with self._lock:
-                    if generation == patch.generation and self._running:
-                        self._set_state(patch, "failed", f"set-up failed: {err}")
-                        logger.error("patch %d: set-up failed: %s", node_id, err)
-                return
-            with self._lock:
-                if generation != patch.generation or not self._running:
-                    return  # a newer request (e.g. a boot-up) is queued and starts over
-                self._go_online(patch, setup, decoder, r0_ref)
-                patch.node.nmt.send_command(NMT_START)
-        logger.info("patch %d operational (%s, %s)", node_id, setup.mode,
-                    patch.config.decoder)
+    def take_offline(self, patch: PatchRecord, state: str) -> None:
+        dataplane = patch.link.dataplane
+        if patch.channel is not None and dataplane is not None:
+            dataplane.remove_channel(patch.node_id)
+            patch.channel = None
+        self.set_state(patch, state)
 
-    def _go_online(self, patch: _Patch, setup: PatchSetup, decoder: Decoder,
-                   r0_ref: NDArray[np.float64]) -> None:
+    def go_online(self, patch: PatchRecord, setup: PatchSetup) -> None:
+        """Decode the patch from now on (lock held by the caller)."""
+        decoder, r0_ref = self.decoders.get(patch.config, setup)
         p = setup.pillars
         drift = self.config.drift
-        channel = PatchChannel(
-            node_id=patch.config.node_id, codec=setup.codec, pillars=p,
-            lsb_ohm=setup.info.lsb_ohm, decoder=decoder, force_node=patch.force_node,
-            scale=np.ones((TAXELS_PER_PATCH, p)), masked=patch.masked,
-            answer_order=patch.config.answer_order)
-        patch.baseline = Baseline(
+        baseline = Baseline(
             r0_ref, setup.info.r0_ohm[:, :p], loaded_N=self.config.tare_threshold_N,
             time_constant_s=None if drift is None else drift.time_constant_s,
-            contact_N=0.1 if drift is None else drift.contact_N,
-            on_scale=lambda scale: setattr(channel, "scale", scale))
+            contact_N=0.1 if drift is None else drift.contact_N)
+        channel = PatchChannel(
+            node_id=patch.node_id, codec=setup.codec, pillars=p, lsb_ohm=setup.info.lsb_ohm,
+            decoder=decoder, force_node=patch.force_node, masked=patch.masked,
+            baseline=baseline, answer_order=patch.config.answer_order)
         patch.setup, patch.channel = setup, channel
-        self.dataplane.add_channel(channel)
-        self.monitor.judge(patch.config.node_id, True)
-        self._set_state(patch, "operational")
+        dataplane = patch.link.dataplane
+        assert dataplane is not None, "the patch's bus is listening"
+        dataplane.add_channel(channel)
+        patch.link.monitor.judge(patch.node_id, True)
+        self.set_state(patch, "operational")
 
-    def _decoder(self, config: PatchConfig, setup: PatchSetup) -> tuple[Decoder,
-                                                                         NDArray[np.float64]]:
-        """The decoder of a patch, shared by every patch with the same decoder, model file
-        and sensor constants (one batched decode call), and its zero-force resistances
-        (9, P) for the patch's pillars."""
-        constants = setup.info.constants
-        key = (config.decoder, os.fspath(config.model or ""),
-               constants if config.model is None else None)
-        with self._lock:
-            decoder = self._decoders.get(key)
-            if decoder is None:
-                if config.model is not None:
-                    decoder = load_decoder(config.model)
-                else:
-                    try:
-                        decoder = create_decoder(config.decoder, constants=constants)
-                    except TypeError:  # a plug-in decoder without sensor constants
-                        decoder = create_decoder(config.decoder)
-                self._decoders[key] = decoder
-        if isinstance(decoder, BaseDecoder):
-            r0 = decoder.r0_for(setup.pillars)
-        else:
-            r0 = constants.nominal_resistance_ohm[: setup.pillars]
-        r0_ref = np.broadcast_to(r0, (TAXELS_PER_PATCH, setup.pillars)).astype(np.float64)
-        with self._lock:
-            warm = (*key, setup.pillars) in self._warm
-        if not warm:
-            # A decoder may build tables on its first call (analytic z: the exact inverse
-            # table): here, on a set-up thread, not in the data plane's first cycle.
-            decoder.decode(r0_ref[None])
-            with self._lock:
-                self._warm.add((*key, setup.pillars))
-        return decoder, r0_ref
-
-    def _identify(self, node_id: int) -> None:
-        identity: Identity | None
-        try:
-            with sdo_client(self.network, node_id,
-                            timeout_s=self.config.sdo_timeout_ms / 1000.0) as client:
-                identity = read_identity(client)
-        except (SdoError, can.CanError):
-            identity = None
-        if identity is None:
-            reason = "did not answer SDO 0x1018"
-        elif identity.kind == "patch":
-            reason = "a patch that is not in the config"
-        else:
-            reason = f"not managed ({_describe(identity)})"
-        self._report_unknown(UnknownNode(node_id, identity, reason))
-
-    # canopen notifier thread: record and hand on only.
-
-    def _on_any_boot(self, node_id: int) -> None:
-        # Patches: the heartbeat monitor reports their boot-ups. Force node-IDs: buses that
-        # echo our own frames (udp_multicast) show our force nodes booting; a foreign node
-        # at such an ID is caught by the scan at start (listen-only: another master's
-        # force nodes, or the recorded host's).
-        if node_id in self._patches or node_id in self._force_ids:
-            return
-        if node_id in self.config.other_nodes:
-            return
-        if self.listen_only:  # no SDO: reported as heard
-            self._report_unknown(UnknownNode(node_id, None, "booted; not in the config "
-                                             "(listen-only: not identified)"))
-        elif not self._scanning:  # else the scan identifies it
-            self._submit(self._identify, node_id)
-
-    def _on_patch_boot(self, node_id: int) -> None:
-        patch = self._patches[node_id]
-        self._set_mask(patch, np.ones(TAXELS_PER_PATCH, dtype=bool), False)
-        if self.listen_only:
-            logger.info("patch %d booted", node_id)
-            self._follow(node_id, "configuring")
-            return
-        logger.info("patch %d booted: configuring it", node_id)
-        self.monitor.judge(node_id, False)  # a boot resets 0x1017 to the node's default
-        self._request_setup(node_id, restart=True)
-
-    def _on_return(self, node_id: int, state: int) -> None:
-        if self.listen_only:
-            self._follow(node_id, _state_name(state))
-            return
-        with self._lock:
-            patch = self._patches[node_id]
-            resume = (patch.state == "lost" and state == OPERATIONAL_STATE
-                      and patch.setup is not None and patch.channel is None)
-            if resume:
-                assert patch.setup is not None
-                decoder, r0_ref = self._decoder(patch.config, patch.setup)
-                self._go_online(patch, patch.setup, decoder, r0_ref)
-                logger.info("patch %d is back", node_id)
-                return
-        self._request_setup(node_id, restart=False)  # heard without a boot-up: configure it
-
-    def _on_lost(self, node_id: int) -> None:
-        with self._lock:
-            patch = self._patches[node_id]
-            if patch.state not in ("operational", "configuring", "stopped"):
-                return
-            patch.generation += 1  # a set-up in progress is void
-            self._take_offline(patch, "lost")
-        logger.warning("patch %d lost (no heartbeat for %.0f ms)", node_id,
-                       self.monitor.lost_after_s * 1000)
-        self._withdraw(patch)
-
-    def _withdraw(self, patch: _Patch) -> None:
-        """Publish one all-invalid sample: the last forces of a lost patch are void."""
-        force = patch.force_node
-        if self.listen_only or not force.transmitting:
-            return
-        reason = np.full(TAXELS_PER_PATCH, Reason.MISSING, dtype=np.uint8)
-        for cob_id, payload in force.frames(np.zeros((TAXELS_PER_PATCH, 3)),
-                                            np.zeros(TAXELS_PER_PATCH, bool), False,
-                                            reason=reason):
-            try:
-                self.bus.send(TxMessage.data_frame(cob_id, payload))
-            except can.CanError as err:
-                logger.warning("force node %d: withdrawal not sent: %s", force.node_id, err)
-
-    def _emcy_handler(self, patch: _Patch) -> Callable[[EmcyError], None]:
-        consumer = patch.node.emcy
-
-        def on_emcy(entry: EmcyError) -> None:
-            with consumer.emcy_received:  # canopen logs every EMCY: keep the newest only
-                if len(consumer.log) > 2 * EMCY_LOG_KEPT:
-                    del consumer.log[:-EMCY_LOG_KEPT]
-            taxel = entry.data[0] if entry.data else TAXELS_PER_PATCH
-            if taxel >= TAXELS_PER_PATCH or entry.code not in (DEVICE_HARDWARE, ERROR_RESET):
-                return
-            which = np.zeros(TAXELS_PER_PATCH, dtype=bool)
-            which[taxel] = True
-            self._set_mask(patch, which, entry.code == DEVICE_HARDWARE)
-        return on_emcy
-
-    def _set_mask(self, patch: _Patch, taxels: NDArray[np.bool_], masked: bool) -> None:
+    def set_mask(self, patch: PatchRecord, taxels: NDArray[np.bool_], masked: bool) -> None:
         """Mask (or unmask) ``taxels`` for the samples completed from now on.
 
         The data plane reads a patch's mask when it publishes, which may be after the
@@ -702,47 +387,12 @@ class HostManager:
         """
         if bool(np.all(patch.masked[taxels] == masked)):
             return
-        if self._dataplane is not None:
-            self._dataplane.publish_pending()
+        dataplane = patch.link.dataplane
+        if dataplane is not None:
+            dataplane.publish_pending()
         patch.masked[taxels] = masked
 
-    # -- listen-only: follow what the bus shows ----------------------------------------
-
-    def _follow(self, node_id: int, state: str) -> None:
-        """The patch is now in ``state`` (its master's NMT command or its heartbeat says)."""
-        with self._lock:
-            patch = self._patches[node_id]
-            if state != "operational":
-                self._take_offline(patch, state)
-            elif patch.channel is None and patch.setup is not None:
-                decoder, r0_ref = self._decoder(patch.config, patch.setup)  # built at start
-                self._go_online(patch, patch.setup, decoder, r0_ref)
-                logger.info("patch %d operational", node_id)
-
-    def _on_change(self, node_id: int, state: int) -> None:
-        """A heartbeat entered or left OPERATIONAL (an NMT command we did not see)."""
-        self._follow(node_id, _state_name(state))
-
-    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        """An NMT command from any master. Start: the patch is decoded from now on, and if
-        its heartbeat was not heard (lost, or not yet) it must come within ``lost_after``
-        or the patch is lost. Stop, pre-operational, resets: a patch heard and not lost
-        goes offline (a reset's boot-up follows)."""
-        if len(data) != 2 or data[0] not in _NMT_COMMANDS:
-            return
-        state, target = _NMT_COMMANDS[data[0]], data[1]
-        for node_id in (list(self._patches) if target == 0 else [target]):
-            patch = self._patches.get(node_id)
-            if patch is None:
-                continue
-            if state == "operational":
-                if not self.monitor.alive(node_id):
-                    self.monitor.expect(node_id)
-            elif patch.state in ("absent", "lost"):
-                continue
-            self._follow(node_id, state)
-
-    def _report_unknown(self, unknown: UnknownNode) -> None:
+    def report_unknown(self, unknown: UnknownNode) -> None:
         with self._lock:
             self.unknown_nodes[unknown.node_id] = unknown
         logger.warning("node %d: %s; left alone", unknown.node_id, unknown.reason)
@@ -753,47 +403,108 @@ class HostManager:
                 self.fanout.callback_errors += 1
                 logger.exception("on_unknown callback failed")
 
+    # -- data plane threads ------------------------------------------------------------
 
-def configured_info(patch: PatchConfig) -> PatchInfo:
-    """What a patch holding the configured constants and R0 (default: ``DEFAULT_CONSTANTS``
-    and its nominal R0) reports over SDO."""
-    r0 = None if patch.r0_ohm is None else np.reshape(patch.r0_ohm, (-1, 3))
-    return patch_info(patch.node_id, patch.constants or DEFAULT_CONSTANTS, r0)
+    def _on_frames(self, frames: list[ForceFrame]) -> None:
+        for frame in frames:
+            patch = self.patches.get(frame.patch)
+            if patch is not None:
+                patch.last = frame
+                patch.samples += 1
+                patch.incomplete += not frame.complete
+            self.taxel_log.note(frame)
+            self.fanout.publish(frame)
+
+    # -- bus threads: record and hand on ------------------------------------------------
+
+    def _on_patch_boot(self, node_id: int) -> None:
+        patch = self.patches.get(node_id)
+        if patch is None:
+            return
+        self.set_mask(patch, np.ones(TAXELS_PER_PATCH, dtype=bool), False)
+        self.policy.on_patch_boot(patch)
+
+    def _on_return(self, node_id: int, state: int) -> None:
+        patch = self.patches.get(node_id)
+        if patch is not None:
+            self.policy.on_return(patch, state)
+
+    def _on_lost(self, node_id: int) -> None:
+        patch = self.patches.get(node_id)
+        if patch is not None:
+            self.policy.on_lost(patch)
+
+    def _on_change(self, node_id: int, state: int) -> None:
+        patch = self.patches.get(node_id)
+        if patch is not None:
+            self.policy.on_change(patch, state)
+
+    def _on_any_boot(self, link: BusLink, node_id: int) -> None:
+        # Patches: the heartbeat monitor reports their boot-ups. Force node-IDs: buses that
+        # echo our own frames (udp_multicast) show our force nodes booting; a foreign node
+        # at such an ID is caught by the scan at start.
+        if node_id in self.patches or node_id in self.force_ids:
+            return
+        if node_id in self.config.other_nodes:
+            return
+        self.policy.on_unknown_boot(link, node_id)
+
+    def _emcy_handler(self, patch: PatchRecord) -> Callable[[EmcyError], None]:
+        consumer = patch.node.emcy
+
+        def on_emcy(entry: EmcyError) -> None:
+            with consumer.emcy_received:  # canopen logs every EMCY: keep the newest only
+                if len(consumer.log) > 2 * EMCY_LOG_KEPT:
+                    del consumer.log[:-EMCY_LOG_KEPT]
+            taxel = entry.data[0] if entry.data else TAXELS_PER_PATCH
+            _log_emcy(patch.node_id, entry)
+            if taxel >= TAXELS_PER_PATCH or entry.code not in (DEVICE_HARDWARE, ERROR_RESET):
+                return
+            which = np.zeros(TAXELS_PER_PATCH, dtype=bool)
+            which[taxel] = True
+            self.set_mask(patch, which, entry.code == DEVICE_HARDWARE)
+        return on_emcy
 
 
-def _warn_if_unlike_config(patch: PatchConfig, info: PatchInfo) -> None:
-    """The config's constants and R0 (for listen-only use) against what the patch reports."""
-    expected = configured_info(patch)
-    if patch.constants is not None and expected.constants != info.constants:
-        logger.warning("patch %d reports constants %s, the config says %s: decoding with the "
-                       "patch's", patch.node_id, info.constants, expected.constants)
-    if patch.r0_ohm is not None and not np.array_equal(expected.r0_ohm, info.r0_ohm):
-        logger.warning("patch %d reports another R0 than the config's r0_ohm: decoding with "
-                       "the patch's", patch.node_id)
+def _log_emcy(node_id: int, entry: EmcyError) -> None:
+    text = EMCY_TEXT.get(entry.code, entry.get_desc() or "error")
+    data = bytes(entry.data)
+    if entry.code == DEVICE_HARDWARE and len(data) >= 2:
+        status = data[1]
+        pillars = ", ".join(f"{axis} {TAXEL_FAULTS[status >> (2 * k) & 3]}"
+                            for k, axis in enumerate("zxy") if status >> (2 * k) & 3)
+        logger.warning("patch %d: EMCY 0x%04X %s: taxel %d (%s); masked", node_id,
+                       entry.code, text, data[0], pillars or "status 0")
+    elif entry.code == ERROR_RESET and data:
+        logger.info("patch %d: EMCY 0x%04X %s: taxel %d", node_id, entry.code, text, data[0])
+    else:
+        logger.warning("patch %d: EMCY 0x%04X %s (register 0x%02X, data %s)", node_id,
+                       entry.code, text, entry.register, data.hex())
 
 
-def _state_name(state: int) -> str:
-    """A patch's heartbeat state as a :class:`PatchHealth` state."""
-    if state == OPERATIONAL_STATE:
-        return "operational"
-    return "stopped" if state == STOPPED_STATE else "configuring"
+def _by_name(bus: Buses, config: HostConfig) -> dict[str, can.BusABC | canopen.Network]:
+    names = [b.name for b in config.buses]
+    if isinstance(bus, can.BusABC | canopen.Network):
+        if len(names) != 1:
+            raise BusError(f"the config has {len(names)} buses ({', '.join(names)}): give the "
+                           "host a mapping from each name to its bus")
+        return {names[0]: bus}
+    given = dict(cast(Mapping[str, can.BusABC | canopen.Network], bus))
+    if sorted(given) != sorted(names):
+        raise BusError(f"the config's buses are {', '.join(names)}; given "
+                       f"{', '.join(given) or 'none'}")
+    return given
 
 
-def _unsubscribe(network: canopen.Network, cob_id: int,
-                 callback: Callable[[int, bytearray, float], None]) -> None:
-    if callback in network.subscribers.get(cob_id, []):
-        network.unsubscribe(cob_id, callback)
+def _plain(value: Any) -> Any:
+    """A dataclass (a bus's statistics) as plain JSON-able values."""
+    import dataclasses
 
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {k: _plain(v) for k, v in dataclasses.asdict(value).items()}
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
 
-def _describe(identity: Identity) -> str:
-    return (f"vendor 0x{identity.vendor:08X}, product {identity.product}, "
-            f"revision 0x{identity.revision:08X}, serial {identity.serial}")
-
-
-def _set_tpdo_cob_ids(force: ForceNode, cob_ids: tuple[int, ...]) -> None:
-    """Move the force node's TPDOs to the configured COB-IDs (CiA 301: invalidate first)."""
-    for n, cob_id in enumerate(cob_ids):
-        index = 0x1800 + n
-        old = int(force.store.value(index, 1))
-        force.store.set_data(index, 1, (old | 0x8000_0000).to_bytes(4, "little"))
-        force.store.set_data(index, 1, cob_id.to_bytes(4, "little"))

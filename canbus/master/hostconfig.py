@@ -2,10 +2,10 @@
 
 Every error is a :class:`~skin.errors.ConfigError` naming the dotted field, e.g.
 ``patches[2].model: no such file 'm.msgpack'`` or ``patches[1].force_cob_ids[0]: 0x1C1
-is also patches[0].force_node TPDO 1``. The collision check covers every COB-ID a node
-on the bus may transmit on: NMT 0x000, SYNC 0x080, TIME 0x100, and for each patch,
-force node and ``other_nodes`` entry its CiA 301 predefined connection set (EMCY, TPDOs,
-RPDOs of the other nodes, SDO both ways, heartbeat) plus any COB-IDs the config sets.
+is also patches[0].force_node TPDO 1`` (the COB-ID check: :mod:`canbus.master.cobids`).
+The buses, ``[bus]`` or ``[[buses]]``: :mod:`canbus.master.busconfig`. A model file is
+read once, by the check, and the decoder it holds is kept in the checked config
+(``PatchConfig.prototype``) for the host to use.
 
 Example: ``examples/host.toml``; the format is documented in ``docs/host.md``.
 """
@@ -22,6 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from canbus.master.busconfig import BusConfig, buses_from_dict
+from canbus.master.cobids import check_cob_ids, restricted
+from canbus.master.cobids import force_cob_ids as force_cob_ids  # re-exported
+from canbus.master.cobids import node_cob_ids as node_cob_ids  # re-exported
+from canbus.master.cobids import predefined_tpdo_cob_ids as predefined_tpdo_cob_ids
 from decoder.protocol import Decoder
 from decoder.registry import decoder_class, load_decoder
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
@@ -31,13 +36,6 @@ MODES = ("z", "xyz")
 ANSWER_ORDERS = ("cob-id", "tpdo")
 TPDO_COUNT = 7
 FORCE_NODE_OFFSET = 64
-NMT, SYNC, TIME = 0x000, 0x080, 0x100
-_TPDO_BASES = (0x180, 0x280, 0x380, 0x480, 0x200, 0x300, 0x400)
-_RPDO_BASES = (0x200, 0x300, 0x400, 0x500)
-# CiA 301 table 43: identifiers no PDO may use (NMT, SYNC/EMCY of node 0, TIME, SDO, NMT
-# error control and LSS ranges).
-_RESTRICTED = ((0x000, 0x07F), (0x080, 0x080), (0x100, 0x180), (0x581, 0x5FF), (0x601, 0x67F),
-               (0x6E0, 0x6FF), (0x701, 0x77F), (0x780, 0x7FF))
 
 
 @dataclass(frozen=True)
@@ -54,6 +52,10 @@ class PatchConfig:
     r0_ohm: tuple[float, ...] | None = None  # its R0 (0x2002): 27 values, or 3 (z, x, y)
     answer_order: str = "cob-id"  # how the patch orders the TPDOs of one answer ("tpdo")
     position_m: tuple[float, float] | None = None  # where the patch sits on the skin (views)
+    bus: str = ""  # the bus the patch is on ("": the host's first bus)
+    force_bus: str = ""  # the bus its force node publishes on ("": the patch's)
+    prototype: Decoder | None = field(default=None, compare=False, repr=False)
+    """The model file's decoder, read once when the config was checked."""
 
     def __post_init__(self) -> None:
         if self.force_node == 0:
@@ -87,8 +89,11 @@ class HostConfig:
     tare_threshold_N: float = 0.05
     queue_size: int = 1024
     listen_only: bool = False  # follow another master's patches; transmit nothing
+    sync: str = "produce"  # "external": follow the SYNC another master produces
     drift: DriftConfig | None = None
+    buses: tuple[BusConfig, ...] = (BusConfig(),)
     source: str = field(default="<config>", compare=False)
+    checked: bool = field(default=False, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.sync_window_ms == 0.0:
@@ -102,84 +107,25 @@ class HostConfig:
 
     def check(self) -> HostConfig:
         """Every check of :func:`load_host_config`; returns the config with decoder names
-        resolved (``""`` -> the model file's name or ``"analytic"``)."""
-        patches = tuple(_check_patch(p, f"patches[{i}]") for i, p in enumerate(self.patches))
+        resolved (``""`` -> the model file's name or ``"analytic"``), model files read once
+        (``PatchConfig.prototype``) and every patch placed on a bus. A checked config is
+        returned as it is."""
+        if self.checked:
+            return self
+        patches = tuple(_check_patch(p, f"patches[{i}]", self.buses)
+                        for i, p in enumerate(self.patches))
         return _checked(replace(self, patches=patches))
 
+    def bus(self, name: str) -> BusConfig:
+        for bus in self.buses:
+            if bus.name == name:
+                return bus
+        raise KeyError(name)
 
-def predefined_tpdo_cob_ids(node_id: int) -> tuple[int, ...]:
-    """TPDO 1..7 of the patch and force EDS: 0x180..0x480 and 0x200..0x400 + node-ID."""
-    return tuple(base + node_id for base in _TPDO_BASES)
-
-
-def node_cob_ids(node_id: int) -> dict[int, str]:
-    """Every COB-ID a CANopen node may transmit on in the predefined connection set."""
-    ids = {0x080 + node_id: "EMCY", 0x580 + node_id: "SDO tx", 0x600 + node_id: "SDO rx",
-           0x700 + node_id: "heartbeat"}
-    for n, base in enumerate(_TPDO_BASES[:4], start=1):
-        ids[base + node_id] = f"TPDO {n}"
-    for n, base in enumerate(_RPDO_BASES, start=1):
-        ids.setdefault(base + node_id, f"RPDO {n}")
-    return ids
-
-
-def force_cob_ids(patch: PatchConfig) -> frozenset[int]:
-    """Every COB-ID the force node of ``patch`` transmits on: its TPDOs as configured,
-    EMCY, SDO responses and heartbeat."""
-    node = patch.force_node
-    tpdos = patch.force_cob_ids or predefined_tpdo_cob_ids(node)
-    return frozenset({0x080 + node, 0x580 + node, 0x700 + node, *tpdos})
-
-
-def restricted(cob_id: int) -> bool:
-    """A COB-ID CiA 301 reserves for other services (no PDO may use it)."""
-    return any(lo <= cob_id <= hi for lo, hi in _RESTRICTED)
-
-
-def check_cob_ids(config: HostConfig) -> None:
-    """Refuse a config in which two transmitters could share a COB-ID."""
-    owner: dict[int, str] = {NMT: "NMT", SYNC: "SYNC", TIME: "TIME"}
-    nodes: dict[int, str] = {}
-
-    def claim_node(node_id: int, where: str) -> None:
-        if node_id in nodes:
-            raise ConfigError(where, f"node-ID {node_id} is also {nodes[node_id]}")
-        nodes[node_id] = where
-
-    def claim(cob_id: int, what: str, where: str) -> None:
-        if cob_id in owner:
-            raise ConfigError(where, f"0x{cob_id:03X} ({what}) is also {owner[cob_id]}")
-        owner[cob_id] = what
-
-    for i, node in enumerate(config.other_nodes):
-        claim_node(node, f"host.other_nodes[{i}]")
-    for i, patch in enumerate(config.patches):
-        claim_node(patch.node_id, f"patches[{i}].node_id")
-        claim_node(patch.force_node, f"patches[{i}].force_node")
-    for i, node in enumerate(config.other_nodes):
-        for cob_id, service in node_cob_ids(node).items():
-            claim(cob_id, f"host.other_nodes[{i}] {service}", f"host.other_nodes[{i}]")
-    for i, patch in enumerate(config.patches):
-        where = f"patches[{i}]"
-        own = {**node_cob_ids(patch.node_id), **_tpdos(predefined_tpdo_cob_ids(patch.node_id))}
-        for cob_id, service in own.items():
-            claim(cob_id, f"{where}.node_id {service}", f"{where}.node_id")
-    for i, patch in enumerate(config.patches):
-        where = f"patches[{i}]"
-        services = node_cob_ids(patch.force_node)
-        default_tpdos = predefined_tpdo_cob_ids(patch.force_node)
-        for cob_id in set(services) - set(default_tpdos):
-            claim(cob_id, f"{where}.force_node {services[cob_id]}", f"{where}.force_node")
-        if patch.force_cob_ids is None:
-            for cob_id, service in _tpdos(default_tpdos).items():
-                claim(cob_id, f"{where}.force_node {service}", f"{where}.force_node")
-        else:
-            for k, cob_id in enumerate(patch.force_cob_ids):
-                claim(cob_id, f"{where}.force_node TPDO {k + 1}", f"{where}.force_cob_ids[{k}]")
-
-
-def _tpdos(cob_ids: tuple[int, ...]) -> dict[int, str]:
-    return {cob_id: f"TPDO {n}" for n, cob_id in enumerate(cob_ids, start=1)}
+    @property
+    def sync_following(self) -> bool:
+        """SYNC comes from another master (listen-only, or ``sync = "external"``)."""
+        return self.listen_only or self.sync == "external"
 
 
 def load_host_config(path: str | os.PathLike[str]) -> HostConfig:
@@ -201,7 +147,7 @@ def load_host_config(path: str | os.PathLike[str]) -> HostConfig:
 def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
                           source: str = "<config>") -> HostConfig:
     """Validate a parsed TOML document into a :class:`HostConfig`."""
-    _known(data, ("host", "drift", "patches"), "config")
+    _known(data, ("host", "drift", "patches", "bus", "buses"), "config")
     host = data.get("host", {})
     if not isinstance(host, dict):
         raise ConfigError("host", "must be a table ([host])")
@@ -223,35 +169,38 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
     tables = data.get("patches")
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
         raise ConfigError("patches", "missing: list the patches as [[patches]] tables")
-    patches = tuple(_patch(t, f"patches[{i}]", base) for i, t in enumerate(tables))
-    return _checked(HostConfig(patches=patches, source=source, **kwargs))
+    buses = buses_from_dict(data)
+    patches = tuple(_patch(t, f"patches[{i}]", base, buses) for i, t in enumerate(tables))
+    return _checked(HostConfig(patches=patches, source=source, buses=buses, **kwargs))
 
 
 def _checked(config: HostConfig) -> HostConfig:
     _check_host(config)
     check_cob_ids(config)
-    return config
+    return replace(config, checked=True)
 
 
 _HOST_FIELDS: dict[str, type] = {
     "sync_period_ms": float, "sync_window_ms": float, "sync_counter": bool,
     "heartbeat_ms": int, "force_heartbeat_ms": int, "sdo_timeout_ms": int, "scan": bool,
     "scan_ms": int, "other_nodes": list, "tare_threshold_N": float, "queue_size": int,
-    "listen_only": bool,
+    "listen_only": bool, "sync": str,
 }
+SYNC_MODES = ("produce", "external")
 _PATCH_FIELDS = ("node_id", "decoder", "model", "mode", "force_node", "force_cob_ids",
-                 "constants", "r0_ohm", "answer_order", "position_m")
+                 "constants", "r0_ohm", "answer_order", "position_m", "bus", "force_bus")
 # What a patch reports about itself: 0x2001 (LSB) and 0x2003 (adc_bits is not reported).
 CONSTANT_KEYS = ("resistance_lsb_ohm", "youngs_modulus_pa", "resistivity_ohm_m", "length_m",
                  "area_m2", "max_strain", "full_scale_force_N", "taxel_pitch_m")
 
 
-def _patch(table: dict[str, Any], where: str, base: Path) -> PatchConfig:
+def _patch(table: dict[str, Any], where: str, base: Path,
+           buses: tuple[BusConfig, ...]) -> PatchConfig:
     _known(table, _PATCH_FIELDS, where)
     if "node_id" not in table:
         raise ConfigError(f"{where}.node_id", "missing")
     kwargs: dict[str, Any] = {"node_id": _typed(table["node_id"], int, f"{where}.node_id")}
-    for key in ("decoder", "mode", "answer_order"):
+    for key in ("decoder", "mode", "answer_order", "bus", "force_bus"):
         if key in table:
             kwargs[key] = _typed(table[key], str, f"{where}.{key}")
     if "force_node" in table:
@@ -278,7 +227,7 @@ def _patch(table: dict[str, Any], where: str, base: Path) -> PatchConfig:
         kwargs["r0_ohm"] = tuple(_typed(v, float, f"{where}.r0_ohm[{k}]")
                                  for k, v in enumerate(values))
     patch = PatchConfig(**kwargs)
-    return _check_patch(patch, where)
+    return _check_patch(patch, where, buses)
 
 
 def _constants(table: Any, where: str) -> SensorConstants:
@@ -292,7 +241,7 @@ def _constants(table: Any, where: str) -> SensorConstants:
         raise ConfigError(f"{where}.{err.field}", err.problem) from err
 
 
-def _check_patch(patch: PatchConfig, where: str) -> PatchConfig:
+def _check_patch(patch: PatchConfig, where: str, buses: tuple[BusConfig, ...]) -> PatchConfig:
     _node_id(patch.node_id, f"{where}.node_id")
     _node_id(patch.force_node, f"{where}.force_node")
     if patch.mode not in MODES:
@@ -315,11 +264,27 @@ def _check_patch(patch: PatchConfig, where: str) -> PatchConfig:
         for k, value in enumerate(patch.r0_ohm):
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"{where}.r0_ohm[{k}]", f"must be > 0 ohm, got {value!r}")
-    return _check_decoder(patch, where)
+    return _check_decoder(_place(patch, where, buses), where)
+
+
+def _place(patch: PatchConfig, where: str, buses: tuple[BusConfig, ...]) -> PatchConfig:
+    """The patch with its bus and its force node's bus named."""
+    names = [bus.name for bus in buses]
+    bus = patch.bus or names[0]
+    if bus not in names:
+        raise ConfigError(f"{where}.bus", f"no bus {bus!r}; the buses: {', '.join(names)}")
+    force_bus = patch.force_bus or bus
+    if force_bus not in names:
+        raise ConfigError(f"{where}.force_bus", f"no bus {force_bus!r}; the buses: "
+                          f"{', '.join(names)}")
+    return replace(patch, bus=bus, force_bus=force_bus)
 
 
 def _check_decoder(patch: PatchConfig, where: str) -> PatchConfig:
     if patch.model is None:
+        if patch.prototype is not None:
+            raise ConfigError(f"{where}.model", "a decoder object needs the model file it was "
+                              "read from")
         name = patch.decoder or "analytic"
         try:
             cls = decoder_class(name)
@@ -327,12 +292,15 @@ def _check_decoder(patch: PatchConfig, where: str) -> PatchConfig:
             raise ConfigError(f"{where}.decoder", err.problem) from err
         _check_unfitted(cls, patch.pillars, where)
         return replace(patch, decoder=name)
-    if not patch.model.is_file():
+    if patch.prototype is not None:
+        model = patch.prototype
+    elif not patch.model.is_file():
         raise ConfigError(f"{where}.model", f"no such file {os.fspath(patch.model)!r}")
-    try:
-        model = load_decoder(patch.model)
-    except ModelFileError as err:
-        raise ConfigError(f"{where}.model", str(err)) from err
+    else:
+        try:
+            model = load_decoder(patch.model)
+        except ModelFileError as err:
+            raise ConfigError(f"{where}.model", str(err)) from err
     if patch.decoder and patch.decoder != model.name:
         raise ConfigError(f"{where}.decoder", f"{patch.decoder!r} but the model file holds "
                           f"a {model.name!r} model")
@@ -340,7 +308,7 @@ def _check_decoder(patch: PatchConfig, where: str) -> PatchConfig:
     if pillars is not None and pillars != patch.pillars:
         raise ConfigError(f"{where}.mode", f"{patch.mode!r} reads {patch.pillars} pillar(s) "
                           f"but the model was fitted on {pillars}")
-    return replace(patch, decoder=model.name)
+    return replace(patch, decoder=model.name, prototype=model)
 
 
 def _check_unfitted(cls: type[Decoder], pillars: int, where: str) -> None:
@@ -360,6 +328,9 @@ def _check_host(config: HostConfig) -> None:
         value = getattr(config, name)
         if not (math.isfinite(value) and value > 0):
             raise ConfigError(f"host.{name}", f"must be > 0, got {value!r}")
+    if config.sync not in SYNC_MODES:
+        raise ConfigError("host.sync", f"must be one of {', '.join(SYNC_MODES)}, got "
+                          f"{config.sync!r}")
     if config.sync_window_ms > config.sync_period_ms:
         raise ConfigError("host.sync_window_ms", f"{config.sync_window_ms:g} is longer than "
                           f"the SYNC period {config.sync_period_ms:g}")

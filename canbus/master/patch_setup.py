@@ -15,6 +15,7 @@ it), and :func:`plan_setup` is the mapping :func:`setup_patch` writes for a mode
 
 from __future__ import annotations
 
+import logging
 import struct
 from dataclasses import dataclass
 
@@ -23,11 +24,13 @@ import numpy as np
 from canopen.sdo.client import SdoClient
 from numpy.typing import ArrayLike, NDArray
 
-from canbus.master.hostconfig import TPDO_COUNT, predefined_tpdo_cob_ids
+from canbus.master.hostconfig import TPDO_COUNT, PatchConfig, predefined_tpdo_cob_ids
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM, TPDO_MAP, MappedEntry, PdoCodec, TpdoLayout
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
 
-RESISTANCES, LSB, NOMINAL, CONSTANTS = 0x2000, 0x2001, 0x2002, 0x2003
+logger = logging.getLogger(__name__)
+
+RESISTANCES, LSB, NOMINAL, CONSTANTS, ANSWERED = 0x2000, 0x2001, 0x2002, 0x2003, 0x2006
 HEARTBEAT_TIME = 0x1017
 SYNCHRONOUS = 1  # transmission type: every SYNC
 ENTRIES_PER_TPDO = 4  # 4 x UNSIGNED16 = 8 bytes
@@ -101,9 +104,18 @@ def _reported(node_id: int, lsb: float, r0: list[float], fields: list[float]) ->
     return PatchInfo(node_id, lsb, table, constants)
 
 
-def tpdo_layouts(node_id: int, mode: str) -> tuple[TpdoLayout, ...]:
+def tpdo_layouts(node_id: int, mode: str, *, fd: bool = False) -> tuple[TpdoLayout, ...]:
     """The mapping for ``mode``: xyz = 27 codes, 4 per TPDO, in TPDO 1..7; z = pillar z of
-    each taxel, one grid row (3 taxels) per TPDO, in TPDO 1..3. Predefined COB-IDs."""
+    each taxel, one grid row (3 taxels) per TPDO, in TPDO 1..3. Predefined COB-IDs.
+
+    ``fd`` (a CAN FD bus): the whole answer in TPDO 1, the codes (27 or 9) then 0x2006, the
+    counter of the SYNC answered (55 or 19 bytes: one 64- or 20-byte CAN FD frame)."""
+    if fd:
+        subs = list(range(1, 28)) if mode == "xyz" else [3 * t + 1 for t in range(9)]
+        if mode not in ("z", "xyz"):
+            raise ValueError(f"mode must be 'z' or 'xyz', got {mode!r}")
+        entries = (*(MappedEntry(RESISTANCES, s, 16) for s in subs), MappedEntry(ANSWERED, 0, 8))
+        return (TpdoLayout(1, predefined_tpdo_cob_ids(node_id)[0], entries),)
     if mode == "xyz":
         subs = list(range(1, 28))
         groups = [subs[k:k + ENTRIES_PER_TPDO] for k in range(0, 27, ENTRIES_PER_TPDO)]
@@ -137,14 +149,15 @@ def write_tpdo_mapping(sdo: SdoClient, node_id: int, layouts: tuple[TpdoLayout, 
 
 
 def plan_setup(node_id: int, od: canopen.ObjectDictionary, mode: str,
-               info: PatchInfo) -> PatchSetup:
-    """The set-up :func:`setup_patch` makes for ``mode``: the TPDO layouts it writes and
-    their codec, for a patch that reports ``info``. Nothing is sent."""
-    layouts = tpdo_layouts(node_id, mode)
+               info: PatchInfo, *, fd: bool = False) -> PatchSetup:
+    """The set-up :func:`setup_patch` makes for ``mode`` (on a CAN FD bus: ``fd``): the TPDO
+    layouts it writes and their codec, for a patch that reports ``info``. Nothing is sent."""
+    layouts = tpdo_layouts(node_id, mode, fd=fd)
     return PatchSetup(info, mode, layouts, PdoCodec(layouts, od))
 
 
-def setup_patch(node: canopen.RemoteNode, mode: str, *, heartbeat_ms: int) -> PatchSetup:
+def setup_patch(node: canopen.RemoteNode, mode: str, *, heartbeat_ms: int,
+                fd: bool = False) -> PatchSetup:
     """Read the patch's info, map its TPDOs for ``mode`` and set its heartbeat.
 
     The node should be PRE-OPERATIONAL (the caller sends the NMT command); SDO errors
@@ -152,7 +165,25 @@ def setup_patch(node: canopen.RemoteNode, mode: str, *, heartbeat_ms: int) -> Pa
     """
     node_id = int(node.id or 0)
     info = read_patch_info(node.sdo, node_id)
-    setup = plan_setup(node_id, node.object_dictionary, mode, info)
+    setup = plan_setup(node_id, node.object_dictionary, mode, info, fd=fd)
     write_tpdo_mapping(node.sdo, node_id, setup.layouts)
     node.sdo.download(HEARTBEAT_TIME, 0, _U16.pack(heartbeat_ms))
     return setup
+
+
+def configured_info(patch: PatchConfig) -> PatchInfo:
+    """What a patch holding the configured constants and R0 (default: ``DEFAULT_CONSTANTS``
+    and its nominal R0) reports over SDO."""
+    r0 = None if patch.r0_ohm is None else np.reshape(patch.r0_ohm, (-1, 3))
+    return patch_info(patch.node_id, patch.constants or DEFAULT_CONSTANTS, r0)
+
+
+def warn_if_unlike_config(patch: PatchConfig, info: PatchInfo) -> None:
+    """The config's constants and R0 (for listen-only use) against what the patch reports."""
+    expected = configured_info(patch)
+    if patch.constants is not None and expected.constants != info.constants:
+        logger.warning("patch %d reports constants %s, the config says %s: decoding with the "
+                       "patch's", patch.node_id, info.constants, expected.constants)
+    if patch.r0_ohm is not None and not np.array_equal(expected.r0_ohm, info.r0_ohm):
+        logger.warning("patch %d reports another R0 than the config's r0_ohm: decoding with "
+                       "the patch's", patch.node_id)

@@ -132,8 +132,9 @@ class NodeView:
         whole = [k for k, p in enumerate(payloads) if len(p) >= entry.layout.size]
         if not whole:
             return out
-        joined = b"".join(bytes(payloads[k][:8]).ljust(8, b"\0") for k in whole)
-        values = entry.codec.unpack(np.frombuffer(joined, dtype=np.uint8).reshape(-1, 1, 8))
+        width = entry.codec.width  # 8, or a CAN FD PDO's length
+        joined = b"".join(bytes(payloads[k][:width]).ljust(width, b"\0") for k in whole)
+        values = entry.codec.unpack(np.frombuffer(joined, dtype=np.uint8).reshape(-1, 1, width))
         namers = [self.namer(index, subindex) for index, subindex in entry.codec.variables]
         for k, row in zip(whole, values.tolist(), strict=True):
             out[k] = [name(value) for name, value in zip(namers, row, strict=True)]

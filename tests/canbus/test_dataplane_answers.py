@@ -122,8 +122,6 @@ _plans = st.fixed_dictionaries({
     "gap": st.floats(2e-5, 8e-4),  # between frames of one answer
     "lost": st.sets(st.integers(0, CYCLES * PDOS - 1), max_size=8),
     "repeated": st.sets(st.integers(0, CYCLES * PDOS - 1), max_size=4),  # at once, same bytes
-    "strays": st.lists(st.tuples(st.integers(0, CYCLES * PDOS - 1), st.integers(1, 12)),
-                       max_size=3),  # a copy of frame i, i+d frames later
     "swapped": st.sets(st.integers(0, CYCLES * PDOS - 2), max_size=4),  # i and i+1 swap
 })
 
@@ -133,10 +131,9 @@ def _stream(answers: list[list[can.Message]], plan: dict) -> list[tuple[can.Mess
 
     The patch sends its answers one after the other (a FIFO: an answer starts when the
     previous one is out), each ``delay`` after its SYNC; the way to the host then loses,
-    repeats, copies late and swaps frames. Runs of ``PDOS`` or more consecutive losses are
-    thinned: the one case classic CAN cannot tell (docs/host.md); so are the losses of a
-    stream with stray copies, as a stray standing in for a lost frame of the same PDO is
-    the same case.
+    repeats at once (a CAN retransmission) and swaps neighbouring frames. Runs of ``PDOS``
+    or more consecutive losses are thinned: a case classic CAN cannot tell (docs/host.md),
+    as is a late copy of an older frame, which a CAN bus never makes.
     """
     sent: list[tuple[can.Message, int]] = []
     t = 0.0
@@ -146,7 +143,7 @@ def _stream(answers: list[list[can.Message]], plan: dict) -> list[tuple[can.Mess
             msg.timestamp = t
             t += plan["gap"]
             sent.append((msg, k))
-    lost = set() if plan["strays"] else set(plan["lost"])
+    lost = set(plan["lost"])
     run = 0
     for i in range(len(sent)):
         run = run + 1 if i in lost else 0
@@ -159,11 +156,6 @@ def _stream(answers: list[list[can.Message]], plan: dict) -> list[tuple[can.Mess
             out.append(item)
             if i in plan["repeated"]:
                 out.append(item)
-    for i, d in plan["strays"]:
-        msg, k = sent[i]
-        stray = can.Message(timestamp=msg.timestamp, arbitration_id=msg.arbitration_id,
-                            data=msg.data, is_extended_id=False)
-        out.insert(min(len(out), i + d), (stray, k))
     for i in sorted(plan["swapped"]):
         if i + 1 < len(out):
             out[i], out[i + 1] = out[i + 1], out[i]

@@ -48,7 +48,8 @@ def test_the_documented_example_loads_with_its_values() -> None:
 
 def test_defaults_fill_a_minimal_config(tmp_path: Path) -> None:
     config = load_host_config(_write(tmp_path, "[[patches]]\nnode_id = 5\n"))
-    assert config.patches == (PatchConfig(5, "analytic", None, "xyz", 69, None),)
+    assert config.patches == (PatchConfig(5, "analytic", None, "xyz", 69, None, bus="default",
+                                          force_bus="default"),)
     assert config.sync_window_ms == pytest.approx(0.8 * config.sync_period_ms)
     assert config.drift is None and config.scan
 

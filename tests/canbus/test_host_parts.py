@@ -401,7 +401,7 @@ def test_the_emcy_log_of_a_long_running_host_stays_bounded() -> None:
 
     with can.Bus(interface="virtual", channel="emcy-log-bound") as bus:
         host = HostManager(bus, HostConfig(patches=(PatchConfig(1),)).check())
-        consumer = host._patches[1].node.emcy  # the canopen EmcyConsumer of patch 1
+        consumer = host.patches[1].node.emcy  # the canopen EmcyConsumer of patch 1
         for k in range(5 * EMCY_LOG_KEPT):  # taxel 4 flapping: fault, reset, fault, ...
             code = 0x5000 if k % 2 == 0 else 0x0000
             consumer.on_emcy(0x81, code.to_bytes(2, "little") + bytes([0x81 if code else 0,

@@ -1,0 +1,169 @@
+"""The buses of a host: ``[bus]`` (one) or ``[[buses]]`` (several, by name) in its config.
+
+A bus table names a python-can interface and how to open it::
+
+    [bus]                      # or [[buses]] with a name each
+    interface = "socketcan"    # any python-can interface: socketcan, timed, udp_multicast ...
+    channel = "can0"
+    bitrate = 1000000
+    fd = false                 # CAN FD: patches answer SYNC in one frame, forces go in one
+    data_bitrate = 5000000     # the FD data phase (with fd = true)
+    options = { port = 43114 } # more keyword arguments for can.Bus, as python-can names them
+
+Command-line bus flags (python-can's own ``-i -c -b --fd --data_bitrate --bus-kwargs``)
+override the one bus of a config; a config with several buses takes none.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import can
+
+from skin.errors import BusError, ConfigError
+
+DEFAULT_BUS = "default"
+_KEYS = ("name", "interface", "channel", "bitrate", "fd", "data_bitrate", "options")
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """One bus of the host; ``interface`` None: python-can's configuration decides."""
+
+    name: str = DEFAULT_BUS
+    interface: str | None = None
+    channel: str | int | None = None
+    bitrate: int | None = None
+    fd: bool = False
+    data_bitrate: int | None = None
+    options: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def described(self) -> str:
+        """``interface:channel`` for messages (``?`` where not set)."""
+        return f"{self.interface or '?'}:{self.channel if self.channel is not None else '?'}"
+
+    def kwargs(self) -> dict[str, Any]:
+        """The keyword arguments of ``can.Bus`` for this bus."""
+        out: dict[str, Any] = dict(self.options)
+        for key in ("interface", "channel", "bitrate", "data_bitrate"):
+            value = getattr(self, key)
+            if value is not None:
+                out[key] = value
+        if self.fd:
+            out["fd"] = True
+        return out
+
+
+def buses_from_dict(data: Mapping[str, Any]) -> tuple[BusConfig, ...]:
+    """The ``[bus]`` or ``[[buses]]`` tables of a parsed config (none: one default bus)."""
+    if "bus" in data and "buses" in data:
+        raise ConfigError("buses", "give either [bus] (one bus) or [[buses]] (several), not both")
+    if "bus" in data:
+        table = data["bus"]
+        if not isinstance(table, dict):
+            raise ConfigError("bus", "must be a table ([bus])")
+        if "name" in table:
+            raise ConfigError("bus.name", "the one bus needs no name; [[buses]] tables have one")
+        return (_bus(table, "bus", DEFAULT_BUS),)
+    if "buses" in data:
+        tables = data["buses"]
+        if not isinstance(tables, list) or not tables or \
+                not all(isinstance(t, dict) for t in tables):
+            raise ConfigError("buses", "list the buses as [[buses]] tables")
+        buses = []
+        for i, table in enumerate(tables):
+            if "name" not in table:
+                raise ConfigError(f"buses[{i}].name", "missing")
+            buses.append(_bus(table, f"buses[{i}]", None))
+        check_buses(tuple(buses))
+        return tuple(buses)
+    return (BusConfig(),)
+
+
+def _bus(table: Mapping[str, Any], where: str, name: str | None) -> BusConfig:
+    for key in table:
+        if key not in _KEYS:
+            raise ConfigError(f"{where}.{key}", f"unknown key; known: {', '.join(sorted(_KEYS))}")
+    kwargs: dict[str, Any] = {}
+    if name is None:
+        kwargs["name"] = _of(table["name"], str, f"{where}.name")
+    for key, kind in (("interface", str), ("bitrate", int), ("data_bitrate", int),
+                      ("fd", bool)):
+        if key in table:
+            kwargs[key] = _of(table[key], kind, f"{where}.{key}")
+    if "channel" in table:
+        channel = table["channel"]
+        if not isinstance(channel, str | int) or isinstance(channel, bool):
+            raise ConfigError(f"{where}.channel", f"must be a string or an integer, got "
+                              f"{type(channel).__name__}")
+        kwargs["channel"] = channel
+    if "options" in table:
+        if not isinstance(table["options"], dict):
+            raise ConfigError(f"{where}.options", "must be a table of can.Bus keyword arguments")
+        kwargs["options"] = dict(table["options"])
+    bus = BusConfig(**kwargs)
+    check_bus(bus, where)
+    return bus
+
+
+def _of(value: Any, kind: type, where: str) -> Any:
+    if isinstance(value, kind) and not (kind is not bool and isinstance(value, bool)):
+        return value
+    raise ConfigError(where, f"must be {kind.__name__}, got {type(value).__name__} {value!r}")
+
+
+def check_bus(bus: BusConfig, where: str) -> None:
+    if not bus.name or not bus.name.replace("-", "").replace("_", "").isalnum():
+        raise ConfigError(f"{where}.name", f"{bus.name!r}: use letters, digits, '-' and '_'")
+    for key in ("bitrate", "data_bitrate"):
+        value = getattr(bus, key)
+        if value is not None and not (isinstance(value, int) and 0 < value <= 20_000_000):
+            raise ConfigError(f"{where}.{key}", f"must be a positive bit rate, got {value!r}")
+    if bus.data_bitrate is not None and not bus.fd:
+        raise ConfigError(f"{where}.data_bitrate", "is the CAN FD data phase: set fd = true")
+    if "fd" in bus.options or any(k in bus.options for k in ("bitrate", "data_bitrate")):
+        raise ConfigError(f"{where}.options", "bitrate, data_bitrate and fd have keys of "
+                          "their own")
+
+
+def check_buses(buses: tuple[BusConfig, ...]) -> None:
+    names: set[str] = set()
+    for i, bus in enumerate(buses):
+        if bus.name in names:
+            raise ConfigError(f"buses[{i}].name", f"{bus.name!r} is also an earlier bus")
+        names.add(bus.name)
+
+
+def with_flags(bus: BusConfig, flags: Mapping[str, Any]) -> BusConfig:
+    """``bus`` with the command line's bus flags over it (python-can's names: interface,
+    channel, bitrate, fd, data_bitrate, and can.Bus keyword arguments)."""
+    changes: dict[str, Any] = {}
+    options = dict(bus.options)
+    for key, value in flags.items():
+        if value is None:
+            continue
+        if key in ("interface", "channel", "bitrate", "data_bitrate"):
+            changes[key] = value
+        elif key == "fd":
+            changes["fd"] = bool(value)
+        else:
+            options[key] = value
+    merged = replace(bus, **changes, options=options)
+    check_bus(merged, "bus")
+    return merged
+
+
+def open_bus(bus: BusConfig) -> can.BusABC:
+    """Open ``bus`` with python-can; a :class:`~skin.errors.BusError` naming it if that fails."""
+    if bus.interface is None and not can.util.load_config().get("interface"):
+        raise BusError(f"bus {bus.name!r}: no interface: give one (-i IFACE, or interface = "
+                       "... in the config's [bus] table, or python-can's configuration)")
+    try:
+        return can.Bus(**bus.kwargs())
+    except (can.CanError, OSError, ValueError, TypeError, ImportError, NotImplementedError) \
+            as err:
+        raise BusError(f"bus {bus.name!r} ({bus.described}): cannot open it: "
+                       f"{type(err).__name__}: {err}") from err

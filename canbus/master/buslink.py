@@ -1,0 +1,111 @@
+"""One bus of the host: its canopen ``Network``, its notifier, its data plane, its SYNC and
+its heartbeat consumer.
+
+A link either owns its network (built on the caller's python-can bus, with a notifier of
+its own whose one listener is a :class:`~canbus.master.dataplane.PdoRouter`) or joins a
+``canopen.Network`` the caller already runs (an application that is itself a CANopen
+master): then the data plane and the SYNC follower are added to that network's notifier
+and canopen's own listener keeps seeing every frame, as it did.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import can
+import canopen
+
+from canbus.master.busconfig import BusConfig
+from canbus.master.dataplane import DataPlane, PdoRouter
+from canbus.master.discovery import BootListener
+from canbus.master.liveness import HeartbeatMonitor
+from canbus.master.sync_producer import SyncFollower, SyncProducer
+from skin.errors import BusError
+
+NOTIFIER_CYCLE_S = 0.05  # canopen's notifier recv() timeout: stop() joins within one cycle
+
+
+class BusLink:
+    """The host's view of one bus (``config.name``)."""
+
+    def __init__(self, config: BusConfig, bus: can.BusABC | canopen.Network, *,
+                 heartbeat_ms: int, on_boot: Callable[[int], None],
+                 on_lost: Callable[[int], None], on_return: Callable[[int, int], None],
+                 on_change: Callable[[int, int], None] | None,
+                 on_any_boot: Callable[[BusLink, int], None]) -> None:
+        self.config = config
+        self.name = config.name
+        if isinstance(bus, canopen.Network):
+            if bus.bus is None:
+                raise BusError(f"bus {config.name!r}: the canopen Network is not connected")
+            self.network, self.joined = bus, True
+            self.bus: can.BusABC = bus.bus
+        else:
+            self.bus, self.joined = bus, False
+            self.network = canopen.Network(bus)
+            self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
+        self.monitor = HeartbeatMonitor(self.network, heartbeat_ms, on_boot=on_boot,
+                                        on_lost=on_lost, on_return=on_return,
+                                        on_change=on_change)
+        self.boots = BootListener(self.network, lambda node_id: on_any_boot(self, node_id))
+        self.dataplane: DataPlane | None = None
+        self.sync: SyncProducer | SyncFollower | None = None
+        self._added: list[can.Listener] = []
+
+    @property
+    def fd(self) -> bool:
+        """Patches on this bus answer in one CAN FD frame, force nodes publish in one."""
+        return self.config.fd
+
+    def listen(self, dataplane: DataPlane | None, follower: SyncFollower | None) -> None:
+        """Start receiving: the data plane takes its patches' PDOs, canopen's listener and
+        the SYNC follower every other frame, from the first one."""
+        self.dataplane = dataplane
+        if follower is not None:
+            self.sync = follower
+        others: list[can.Listener] = [] if self.joined else [*self.network.listeners]
+        if follower is not None:
+            others.append(follower)
+        listeners: list[can.Listener] = [PdoRouter(dataplane, others)] if dataplane is not None \
+            else others
+        self.boots.start()
+        if self.joined:
+            notifier = self.network.notifier
+            if notifier is None:
+                raise BusError(f"bus {self.name!r}: the canopen Network has no notifier")
+            for listener in listeners:
+                notifier.add_listener(listener)
+            self._added = listeners
+        else:  # what Network.connect() builds on a given bus, with our listeners first
+            self.network.notifier = can.Notifier(self.bus, listeners,
+                                                 timeout=self.network.NOTIFIER_CYCLE)
+        self.monitor.start()
+
+    def produce_sync(self, period_s: float, counter: bool) -> SyncProducer:
+        assert self.dataplane is not None, "listen() first"
+        producer = SyncProducer(self.bus, period_s, on_sync=self.dataplane.on_sync,
+                                counter=counter)
+        self.sync = producer
+        return producer
+
+    def stop_sync(self) -> None:
+        if isinstance(self.sync, SyncProducer):
+            self.sync.stop()
+
+    def close(self) -> None:
+        """Stop the heartbeat consumer, boot listener and notifier (it stops the data plane);
+        a joined network keeps running, without our listeners."""
+        self.monitor.stop()
+        self.boots.stop()
+        if self.joined:
+            notifier = self.network.notifier
+            for listener in self._added:
+                if notifier is not None and listener in notifier.listeners:
+                    notifier.remove_listener(listener)
+                listener.stop()
+            self._added = []
+        elif self.network.notifier is not None:
+            self.network.notifier.stop(self.network.NOTIFIER_SHUTDOWN_TIMEOUT)
+            self.network.notifier = None
+        elif self.dataplane is not None:
+            self.dataplane.stop()
