@@ -1,9 +1,10 @@
-"""Fail any test that leaves a python-can virtual channel open (as python-can's suite does)."""
+"""Fail any test that leaves a python-can virtual or timed channel open (as python-can does)."""
 
 from __future__ import annotations
 
 import itertools
 import os
+import threading
 from collections.abc import Iterator
 
 import can.interfaces.virtual
@@ -32,3 +33,15 @@ def udp_port() -> int:
     """A UDP port unique to this test: Linux hands a socket every group joined on its port,
     so tests, and two suites running at once, keep apart by port as well as by group."""
     return next(_udp_ports)
+
+
+@pytest.fixture(autouse=True)
+def _no_open_timed_channels() -> Iterator[None]:
+    """Fail a test that leaves a timed channel open (its wire's thread would run on)."""
+    yield
+    from canbus.timed.wire import close_all
+
+    left = close_all()
+    wire_threads = [t.name for t in threading.enumerate() if t.name.startswith("timed wire")]
+    assert not left, f"test left timed channels open: {sorted(map(str, left))}"
+    assert not wire_threads, f"timed wire threads still running: {wire_threads}"
