@@ -119,7 +119,7 @@ class Wire:
     """One channel's medium; use it through ``TimedBus``."""
 
     def __init__(self, channel: Hashable, bitrate: int, data_bitrate: int | None,
-                 realtime: bool, window_s: float) -> None:
+                 realtime: bool, window_s: float, resolution_s: float = 0.0) -> None:
         self.channel = channel
         self.bitrate = bitrate
         self.data_bitrate = data_bitrate
@@ -141,6 +141,9 @@ class Wire:
         self.frames = self.nominal_bits = self.data_bits = 0
         self.error_frames = self.retransmissions = 0
         self.busy_s = 0.0
+        self.off = 0
+        """Nodes that are bus off (their recovery is counted only while there are some)."""
+        self.resolution_s = resolution_s
         self.closed = False
         self.thread: threading.Thread | None = None
 
@@ -175,6 +178,7 @@ class Wire:
             if not node.open:
                 return
             self._event()
+            self.off -= node.bus_off
             node.open = False
             node.tx.clear()
             self.nodes.remove(node)
@@ -306,6 +310,13 @@ class Wire:
         return now
 
     def _serve(self) -> None:
+        """The real-time thread: sleep to the next event, carry out all that fell due.
+
+        Timed wake-ups are at least ``resolution_s`` apart (a wake-up costs more CPU than a
+        frame): back-to-back frames are delivered in small batches, each stamped with its
+        own end; a frame after an idle spell is delivered at its end.
+        """
+        last = -math.inf
         with self.lock:
             while not self.closed:
                 self._process(self._clock())
@@ -313,9 +324,10 @@ class Wire:
                 if wake_at is None:
                     self.wake.wait()
                     continue
-                timeout = wake_at - self._clock()
+                timeout = max(wake_at, last + self.resolution_s) - self._clock()
                 if timeout > 0:
                     self.wake.wait(timeout)
+                last = self._clock()
 
     def _process(self, until: float, stop: Callable[[], bool] | None = None) -> None:
         """Carry out every event up to ``until`` (or until ``stop()``). Lock held."""
@@ -330,7 +342,7 @@ class Wire:
                 continue
             if self.stuck is not None:
                 return
-            recovery, node = self._next_recovery()
+            recovery, node = self._next_recovery() if self.off else (math.inf, None)
             decision = self._arbitration()
             if decision is not None and decision[0] < recovery:
                 cutoff, start, winner, pending = decision
@@ -342,7 +354,7 @@ class Wire:
             if node is None or recovery > until:
                 return
             self._tick(recovery)
-            node.recover(recovery)
+            self._recover(node, recovery)
 
     def _next_time(self) -> float | None:
         """When the next event falls due; None if the wire waits for the outside."""
@@ -350,7 +362,7 @@ class Wire:
             return self.flight.done
         if self.stuck is not None:
             return None
-        recovery, _ = self._next_recovery()
+        recovery = self._next_recovery()[0] if self.off else math.inf
         decision = self._arbitration()
         first = min(recovery, decision[0] if decision is not None else math.inf)
         return None if first == math.inf else first
@@ -361,18 +373,28 @@ class Wire:
 
     def _arbitration(self) -> tuple[float, float, Node, Pending] | None:
         """(decision time, start, winner, its frame) of the next arbitration, if any."""
-        heads = []
+        earliest = math.inf
+        for node in self.nodes:
+            if node.tx and not node.bus_off:
+                ready = node.tx[0].submitted
+                if node.not_before > ready:
+                    ready = node.not_before
+                if ready < earliest:
+                    earliest = ready
+        if earliest == math.inf:
+            return None
+        cutoff = max(self.free_at - self.ifs_s, earliest)
+        best: tuple[int, float, int] | None = None
+        winner: Node | None = None
         for node in self.nodes:
             if node.tx and not node.bus_off:
                 pending = node.tx[0]
-                heads.append((max(pending.submitted, node.not_before), node, pending))
-        if not heads:
-            return None
-        earliest = min(h[0] for h in heads)
-        cutoff = max(self.free_at - self.ifs_s, earliest)
-        _, winner, pending = min(((p.key, p.submitted, n.index), n, p)
-                                 for ready, n, p in heads if ready <= cutoff)
-        return cutoff, max(self.free_at, earliest), winner, pending
+                if pending.submitted <= cutoff and node.not_before <= cutoff:
+                    rank = (pending.key, pending.submitted, node.index)
+                    if best is None or rank < best:
+                        best, winner = rank, node
+        assert winner is not None
+        return cutoff, max(self.free_at, earliest), winner, winner.tx[0]
 
     def _next_recovery(self) -> tuple[float, Node | None]:
         """When the first bus-off node recovers if the wire stays idle."""
@@ -386,21 +408,31 @@ class Wire:
                     best, first = at, node
         return best, first
 
+    def _recover(self, node: Node, at: float) -> None:
+        node.recover(at)
+        self.off -= 1
+
     def _launch(self, start: float, node: Node, pending: Pending) -> None:
-        run_s = RECOVERY_RUN_BITS * self.bit_s
-        for other in self.nodes:  # idle time before this frame counts towards recovery
-            if other.bus_off and start > other.counted_until:
-                other.recovery += int((start - max(other.counted_until, self.free_at)) / run_s)
-                other.counted_until = start
-                if other.recovery >= RECOVERY_SEQUENCES:
-                    other.recover(start)
+        if self.off:
+            run_s = RECOVERY_RUN_BITS * self.bit_s
+            for other in self.nodes:  # idle time before this frame counts towards recovery
+                if other.bus_off and start > other.counted_until:
+                    idle = start - max(other.counted_until, self.free_at)
+                    other.recovery += int(idle / run_s)
+                    other.counted_until = start
+                    if other.recovery >= RECOVERY_SEQUENCES:
+                        self._recover(other, start)
         flags = pending.flags | (F_ESI if node.passive and pending.flags & F_FD else 0)
         bits = bits_for(pending.can_id, flags, pending.dlc, pending.data)
         if pending.attempts:
             self.retransmissions += 1
         fd = bool(flags & F_FD)
-        acked = any(other is not node and other.acknowledge and other.understands(fd)
-                    for other in self.nodes)
+        acked = False
+        for other in self.nodes:
+            if (other.acknowledge and other is not node and other.open and not other.bus_off
+                    and (other.fd or not fd)):
+                acked = True
+                break
         if node.errors.hit():
             outcome = BIT_ERROR
             held = node.errors.error_time_s(bits, self.bit_s, self.data_bit_s) + (
@@ -423,12 +455,13 @@ class Wire:
         self.window.add(flight.start, flight.end, flight.done if flight.outcome == OK else None)
         self._tick(flight.done)
         fd = bool(flight.flags & F_FD)
-        for other in self.nodes:  # every frame and error frame ends with 11 recessive bits
-            if other.bus_off and other is not node:
-                other.recovery += 1
-                other.counted_until = flight.end
-                if other.recovery >= RECOVERY_SEQUENCES:
-                    other.recover(flight.end)
+        if self.off:
+            for other in self.nodes:  # every frame and error frame ends with 11 recessive bits
+                if other.bus_off and other is not node:
+                    other.recovery += 1
+                    other.counted_until = flight.end
+                    if other.recovery >= RECOVERY_SEQUENCES:
+                        self._recover(other, flight.end)
         if flight.outcome == OK:
             if node.tx and node.tx[0] is pending:
                 node.tx.popleft()
@@ -442,6 +475,7 @@ class Wire:
             pending.attempts += 1
             self.error_frames += 1
             node.transmit_error(ack_error=flight.outcome == ACK_ERROR, at=flight.end)
+            self.off += node.bus_off
             for other in self.nodes:
                 if other is not node and other.understands(fd):
                     if flight.outcome == BIT_ERROR:
@@ -462,17 +496,21 @@ class Wire:
         stamp = self.started + flight.done
         takers = []
         for node in self.nodes:
-            if not node.understands(fd) or (node is sender and not node.receive_own):
+            if node.bus_off or (fd and not node.fd):
                 continue
-            if node is not sender:
+            if node is sender:
+                if not node.receive_own:
+                    continue
+            elif node.rec:
                 node.received_ok()
             if node.rx_limit and node.rx.qsize() >= node.rx_limit:
                 node.lost_overflow += 1
             else:
                 takers.append(node)
+        last = len(takers) - 1
         for k, node in enumerate(takers):  # copies first: the last taker gets the template
             is_rx = node is not sender
-            if k == len(takers) - 1:
+            if k == last:
                 template.timestamp, template.is_rx = stamp, is_rx
                 node.rx.put(template)
             else:
@@ -550,18 +588,20 @@ DEFAULT_BITRATE, DEFAULT_DATA_BITRATE = 1_000_000, 5_000_000
 
 
 def join(channel: Hashable, *, bitrate: int, data_bitrate: int | None, fd: bool,
-         realtime: bool, window_s: float, **node: object) -> tuple[Wire, Node]:
+         realtime: bool, window_s: float, resolution_s: float,
+         **node: object) -> tuple[Wire, Node]:
     """A new node on the channel's wire (created if needed); bitrates and clock must agree.
 
     ``data_bitrate`` None: the wire's, or 5 Mbit/s for the first CAN FD bus. ``node``: the
-    keyword arguments of :meth:`Wire.add_node`.
+    keyword arguments of :meth:`Wire.add_node`. The first bus sets the statistics window and
+    the thread's resolution.
     """
     with _wires_lock:
         wire = _wires.get(channel)
         if wire is None:
             if fd and data_bitrate is None:
                 data_bitrate = DEFAULT_DATA_BITRATE
-            wire = Wire(channel, bitrate, data_bitrate, realtime, window_s)
+            wire = Wire(channel, bitrate, data_bitrate, realtime, window_s, resolution_s)
             _wires[channel] = wire
         else:
             _agree(wire, bitrate, data_bitrate, fd, realtime)
