@@ -26,6 +26,11 @@ MAX_BITRATE, MAX_DATA_BITRATE = 1_000_000, 20_000_000
 DEFAULT_RESOLUTION_S = 0.0005
 
 
+def _number(value: Any) -> Any:
+    """python-can's configuration from the environment gives numbers as text."""
+    return int(value) if isinstance(value, str) and value.strip().isdigit() else value
+
+
 def _bitrates(bitrate: int | None, data_bitrate: int | None, fd: bool,
               timing: Any) -> tuple[int, int | None, bool]:
     if isinstance(timing, can.BitTimingFd):
@@ -35,7 +40,8 @@ def _bitrates(bitrate: int | None, data_bitrate: int | None, fd: bool,
     elif timing is not None:
         raise TimedBusConfigError(f"timing must be a can.BitTiming or can.BitTimingFd, "
                                   f"got {type(timing).__name__}")
-    bitrate = DEFAULT_BITRATE if bitrate is None else bitrate
+    bitrate = DEFAULT_BITRATE if bitrate is None else _number(bitrate)
+    data_bitrate = None if data_bitrate is None else _number(data_bitrate)
     if not (isinstance(bitrate, int) and 0 < bitrate <= MAX_BITRATE):
         raise TimedBusConfigError(f"bitrate must be an int in 1..{MAX_BITRATE} bit/s, "
                                   f"got {bitrate!r}")
@@ -114,7 +120,11 @@ class TimedBus(can.BusABC):
                                 else ""))
         self._can_protocol = can.CanProtocol.CAN_FD if fd else can.CanProtocol.CAN_20
         self._fd = fd
-        super().__init__(channel=channel, can_filters=can_filters, **kwargs)
+        try:
+            super().__init__(channel=channel, can_filters=can_filters, **kwargs)
+        except BaseException:
+            self._wire.remove_node(self._node)
+            raise
 
     # ------------------------------------------------------------------ python-can
 

@@ -30,9 +30,9 @@ def _describe_bus(bus: BusPlan, plan: Plan) -> list[str]:
     if bus.force_nodes:
         who.append(f"force nodes {_nodes(bus.force_nodes)}")
     kinds = ", ".join(f"{KIND_NAMES[k]} {v:,.0f}" for k, v in bus.frames_per_s.items())
-    verdict = ("fits" if bus.fits else "does not fit") + (
-        f", above the {plan.target_pct:g} % target" if bus.over_target else
-        f", under the {plan.target_pct:g} % target")
+    verdict = ("does not fit" if not bus.fits else
+               f"fits, above the {plan.target_pct:g} % target" if bus.over_target else
+               f"fits, under the {plan.target_pct:g} % target")
     period = f" per {1e3 / plan.rate_hz:.3g} ms cycle" if plan.rate_hz > 0 else ""
     return [
         f"{bus.name} ({'; '.join(who)}): {sum(bus.frames_per_s.values()):,.0f} frames/s "
@@ -40,7 +40,8 @@ def _describe_bus(bus: BusPlan, plan: Plan) -> list[str]:
         f"  load:  {bus.load_best_pct:.1f} % (no stuffing) to {bus.load_worst_pct:.1f} % "
         f"(worst-case stuffing): {verdict}",
         f"  cycle: {bus.cycle_ms_best:.2f} to {bus.cycle_ms_worst:.2f} ms of wire{period}",
-        f"  max under {plan.target_pct:g} %: {bus.max_rate_hz:,.1f} Hz per node, "
+        f"  max under {plan.target_pct:g} %: {bus.max_rate_hz:,.1f} Hz per "
+        f"{'patch' if bus.patches else 'force node'}, "
         f"{bus.max_patch_samples_per_s:,.0f} samples/s on this bus",
     ]
 
