@@ -16,11 +16,11 @@ from can.typechecking import AutoDetectedConfig, Channel
 
 from canbus import framebits
 from canbus.timed import message
+from canbus.timed.channels import DEFAULT_BITRATE, join, leave, open_channels
 from canbus.timed.errors import TimedBusConfigError, TimedBusError
 from canbus.timed.faults import BitErrors
 from canbus.timed.node import Pending
 from canbus.timed.stats import NodeStats, WireStats
-from canbus.timed.wire import DEFAULT_BITRATE, join, open_channels
 
 MAX_BITRATE, MAX_DATA_BITRATE = 1_000_000, 20_000_000
 DEFAULT_RESOLUTION_S = 0.0005
@@ -123,7 +123,7 @@ class TimedBus(can.BusABC):
         try:
             super().__init__(channel=channel, can_filters=can_filters, **kwargs)
         except BaseException:
-            self._wire.remove_node(self._node)
+            leave(self._wire, self._node)
             raise
 
     # ------------------------------------------------------------------ python-can
@@ -153,7 +153,7 @@ class TimedBus(can.BusABC):
 
     def shutdown(self) -> None:
         super().shutdown()
-        self._wire.remove_node(self._node)
+        leave(self._wire, self._node)
 
     def flush_tx_buffer(self) -> None:
         self._wire.flush(self._node)

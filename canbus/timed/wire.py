@@ -16,7 +16,8 @@ the next arbitration unless the wire has nothing else to send): so a late wake-u
 wire's thread never changes the order or the timestamps.
 
 Real time (the default): the clock is ``time.time()``; the wire's thread sleeps until the
-end of the frame on the wire, delivers every frame whose end has passed, decides the next
+end of the frame on the wire (timed wake-ups at least ``resolution_s`` apart), delivers
+every frame whose end has passed, each stamped with its own end, decides the next
 arbitrations and sleeps again. Simulated time (``realtime=False``): no thread; the clock
 starts at ``time.time()`` and moves only as frames cross the wire (or by
 :meth:`Wire.advance`); the readers drive it: a ``recv`` runs the wire until its node has a
@@ -36,7 +37,7 @@ import can
 
 from canbus.framebits import F_ESI, F_FD, IFS_BITS, FrameBits, bits_for
 from canbus.timed import message
-from canbus.timed.errors import TimedBusConfigError, TimedBusError
+from canbus.timed.errors import TimedBusError
 from canbus.timed.faults import (
     ERROR_FRAME_BITS,
     RECOVERY_RUN_BITS,
@@ -49,29 +50,6 @@ from canbus.timed.node import Node, Pending
 from canbus.timed.stats import LoadWindow, NodeStats, WireStats
 
 OK, BIT_ERROR, ACK_ERROR = 0, 1, 2
-
-_wires: dict[Hashable, Wire] = {}
-_wires_lock = threading.Lock()
-
-
-def open_channels() -> list[Hashable]:
-    """Channels with a timed wire in this process (a bus still open on each)."""
-    with _wires_lock:
-        return list(_wires)
-
-
-def close_all() -> list[Hashable]:
-    """Close every channel (its buses can no longer send or receive); the channels it closed.
-
-    For test fixtures that must not let one test's forgotten bus run into the next.
-    """
-    with _wires_lock:
-        wires = list(_wires.values())
-    for wire in wires:
-        for node in list(wire.nodes):
-            wire.remove_node(node)
-    return [wire.channel for wire in wires]
-
 
 @dataclass(slots=True)
 class _Flight:
@@ -156,7 +134,7 @@ class Wire:
     def add_node(self, *, name: str | None, fd: bool, receive_own: bool,
                  receive_error_frames: bool, acknowledge: bool, tx_limit: int, rx_limit: int,
                  errors: BitErrors) -> Node:
-        """A new node; called by :func:`join` under the registry lock."""
+        """A new node (``canbus.timed.channels.join`` calls it under the registry lock)."""
         with self.lock:
             node = Node(index=self._next_index, name=name or f"node{self._next_index}", fd=fd,
                         receive_own=receive_own, receive_error_frames=receive_error_frames,
@@ -172,11 +150,12 @@ class Wire:
             self.wake.notify_all()
         return node
 
-    def remove_node(self, node: Node) -> None:
-        """The node leaves; its queued frames go (one on the wire finishes)."""
-        with _wires_lock, self.lock:
+    def remove_node(self, node: Node) -> bool:
+        """The node leaves; its queued frames go (one on the wire finishes). True if it was
+        the last: the wire is then closed and its thread told to end (:meth:`join_thread`)."""
+        with self.lock:
             if not node.open:
-                return
+                return False
             self._event()
             self.off -= node.bus_off
             node.open = False
@@ -184,13 +163,14 @@ class Wire:
             self.nodes.remove(node)
             node.rx.put(None)  # wakes a reader blocked in recv
             node.room.notify_all()
-            last = not self.nodes
-            if last:
-                self.closed = True
-                self.wake.notify_all()
-                if _wires.get(self.channel) is self:
-                    del _wires[self.channel]
-        if last and self.thread is not None and self.thread is not threading.current_thread():
+            if self.nodes:
+                return False
+            self.closed = True
+            self.wake.notify_all()
+            return True
+
+    def join_thread(self) -> None:
+        if self.thread is not None and self.thread is not threading.current_thread():
             self.thread.join()
 
     def update(self, node: Node, *, acknowledge: bool | None = None,
@@ -475,7 +455,7 @@ class Wire:
             pending.attempts += 1
             self.error_frames += 1
             node.transmit_error(ack_error=flight.outcome == ACK_ERROR, at=flight.end)
-            self.off += node.bus_off
+            self.off += node.bus_off and node.open  # a node gone since counts no more
             for other in self.nodes:
                 if other is not node and other.understands(fd):
                     if flight.outcome == BIT_ERROR:
@@ -582,48 +562,3 @@ class Wire:
                 busy_s=self.busy_s + extra * length - ahead,
                 window_s=window_s or self.window.span_s, window_frames=frames,
                 window_busy_s=busy, nodes=tuple(n.snapshot() for n in self.nodes))
-
-
-DEFAULT_BITRATE, DEFAULT_DATA_BITRATE = 1_000_000, 5_000_000
-
-
-def join(channel: Hashable, *, bitrate: int, data_bitrate: int | None, fd: bool,
-         realtime: bool, window_s: float, resolution_s: float,
-         **node: object) -> tuple[Wire, Node]:
-    """A new node on the channel's wire (created if needed); bitrates and clock must agree.
-
-    ``data_bitrate`` None: the wire's, or 5 Mbit/s for the first CAN FD bus. ``node``: the
-    keyword arguments of :meth:`Wire.add_node`. The first bus sets the statistics window and
-    the thread's resolution.
-    """
-    with _wires_lock:
-        wire = _wires.get(channel)
-        if wire is None:
-            if fd and data_bitrate is None:
-                data_bitrate = DEFAULT_DATA_BITRATE
-            wire = Wire(channel, bitrate, data_bitrate, realtime, window_s, resolution_s)
-            _wires[channel] = wire
-        else:
-            _agree(wire, bitrate, data_bitrate, fd, realtime)
-        return wire, wire.add_node(fd=fd, **node)  # type: ignore[arg-type]
-
-
-def _agree(wire: Wire, bitrate: int, data_bitrate: int | None, fd: bool,
-           realtime: bool) -> None:
-    channel = wire.channel
-    if wire.bitrate != bitrate:
-        raise TimedBusConfigError(f"timed channel {channel!r} runs at {wire.bitrate} bit/s; "
-                                  f"this bus asked for {bitrate}")
-    if wire.realtime != realtime:
-        raise TimedBusConfigError(f"timed channel {channel!r} runs "
-                                  f"{'in real' if wire.realtime else 'in simulated'} time; "
-                                  f"this bus asked for realtime={realtime}")
-    if data_bitrate is None and fd and wire.data_bitrate is None:
-        data_bitrate = DEFAULT_DATA_BITRATE
-    if data_bitrate is not None:
-        if wire.data_bitrate is None:
-            wire.data_bitrate = data_bitrate
-        elif wire.data_bitrate != data_bitrate:
-            raise TimedBusConfigError(
-                f"timed channel {channel!r} has a data phase at {wire.data_bitrate} bit/s; "
-                f"this bus asked for {data_bitrate}")

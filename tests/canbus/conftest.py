@@ -39,7 +39,7 @@ def udp_port() -> int:
 def _no_open_timed_channels() -> Iterator[None]:
     """Fail a test that leaves a timed channel open (its wire's thread would run on)."""
     yield
-    from canbus.timed.wire import close_all
+    from canbus.timed.channels import close_all
 
     left = close_all()
     wire_threads = [t.name for t in threading.enumerate() if t.name.startswith("timed wire")]

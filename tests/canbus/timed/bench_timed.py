@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 
 import can
 
-from canbus.timed.wire import _wires
+from canbus.timed.channels import wire_of
 
 CYCLE_S = 0.01
 
@@ -106,7 +106,7 @@ def run(scenario: str, interface: str, channels: int, patches: int, short: int,
     cycle = _cycle(patches, short)
     messages = [[(group[role], can.Message(arbitration_id=cob, data=data, is_extended_id=False))
                  for role, cob, data in cycle] for group in buses]
-    wires = [_wires.get(name) for name in names] if interface == "timed" else []
+    wires = [wire_of(name) for name in names] if interface == "timed" else []
     wire_cpu0 = [_thread_cpu(w.thread) for w in wires if w is not None]
     stats0 = [group["listener"].wire_stats() for group in buses] if interface == "timed" else []
     cycles = round(seconds / CYCLE_S)
