@@ -193,3 +193,26 @@ def test_a_reader_blocked_in_recv_is_woken_by_shutdown(open_bus: OpenBus) -> Non
     bus.shutdown()
     reader.join(2.0)
     assert not reader.is_alive() and result
+
+
+def test_classic_nodes_neither_receive_nor_acknowledge_fd_frames(open_bus: OpenBus) -> None:
+    fd_sender, classic = open_bus(fd=True), open_bus()
+    fd_sender.send(frame(0x181, bytes(16), is_fd=True, bitrate_switch=True))
+    assert classic.recv(0.01) is None  # no FD node acknowledges: the sender retries
+    assert fd_sender.node_stats().tec == 128 and fd_sender.state == can.BusState.PASSIVE
+    fd_reader = open_bus(fd=True)
+    got = fd_reader.recv(1.0)
+    assert got is not None and got.is_fd
+    # an error-passive node's FD frames carry ESI recessive
+    assert got.error_state_indicator
+    fd_sender.send(frame(0x182, b"\x01"))  # classic frames reach every node
+    assert classic.recv(1.0) is not None and fd_reader.recv(1.0) is not None
+
+
+def test_bit_timing_objects_give_the_bitrates(open_bus: OpenBus) -> None:
+    timing = can.BitTimingFd.from_sample_point(
+        f_clock=80_000_000, nom_bitrate=500_000, nom_sample_point=80.0,
+        data_bitrate=2_000_000, data_sample_point=80.0)
+    bus = open_bus(timing=timing)
+    assert (bus.bitrate, bus.data_bitrate, bus.protocol) == (
+        500_000, 2_000_000, can.CanProtocol.CAN_FD)
