@@ -1,34 +1,54 @@
-"""Bus-load planner: CAN frame bit counts and the load N patches put on a bus.
+"""Bus-load planner: bounds on a frame's bits, and the load N patches put on their buses.
 
-Classic CAN data frame with an 11-bit identifier and n data bytes:
-SOF 1 + identifier 11 + RTR 1 + IDE 1 + r0 1 + DLC 4 + data 8n + CRC 15 = 34 + 8n bits
-are subject to bit stuffing; CRC delimiter 1 + ACK 2 + EOF 7 + intermission 3 = 13 bits
-are not. Without stuffing a frame is 47 + 8n bits (111 for 8 bytes). Worst-case stuffing
-adds one bit per 4 after the first stuffed bit: floor((34 + 8n - 1) / 4) bits (24 for
-8 bytes, 135 in all). At 1 Mbit/s that is 7,407 to 9,009 frames/s of 8 bytes.
+Bounds (``canbus.framebits`` has the exact count of any one frame; these contain it):
 
-CAN FD (11-bit identifier, ISO CRC): the arbitration phase (SOF, identifier, RRS, IDE,
-FDF, res, BRS = 17 bits, plus stuffing) and the tail (CRC delimiter, ACK, EOF,
-intermission = 12 bits) run at the nominal bitrate; ESI, DLC, data, stuff count and CRC
-run at the data bitrate. The fixed stuff bits of the CRC field (one per 4 bits) are
-counted; dynamic stuffing is counted in the worst case only.
+Classic CAN, n data bytes: SOF..CRC is 34 + 8n bits (11-bit id; 54 + 8n with a 29-bit id)
+under stuffing, then CRC delimiter, ACK slot, ACK delimiter, EOF and intermission (13 bits).
+No stuffing: 47 + 8n bits (111 for 8 bytes). Worst case: one stuff bit after the first 5
+bits, then one per 4 bits, floor((34 + 8n - 1) / 4) (24 for 8 bytes: 135 bits).
+
+CAN FD with bit rate switch (ISO 11898-1:2015, padded to a DLC length): at the nominal rate
+SOF..res (16 bits, 35 with a 29-bit id), BRS, ACK slot, ACK delimiter, EOF and intermission
+(12); at the data rate ESI, DLC, data, stuff count (4), CRC (17 up to 16 bytes, else 21),
+6 or 7 fixed stuff bits and the CRC delimiter. Dynamic stuffing (SOF..data, none after the
+last data bit) adds at most floor((16 - 1) / 4) = 3 bits before BRS and floor((22 + 8n - 2)
+/ 4) in all; the worst case puts the most of them at the slower nominal rate.
+
+The plan counts every frame that crosses a bus in operation: the patches' TPDOs, one SYNC
+per cycle per bus (1-byte counter; its rate is the sample rate), the force PDOs the host
+republishes when they share the bus, and heartbeats (patches every ``heartbeat_ms``, force
+nodes every ``force_heartbeat_ms``). SYNC, heartbeats, NMT, SDO and EMCY stay classic frames
+on a CAN FD bus. Set-up traffic (SDO, NMT) and EMCY are rare and not counted.
 """
 
 from __future__ import annotations
 
-import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal
 
-FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+from canbus.framebits import FD_LENGTHS, TAIL_BITS
+
+Forces = Literal["same-bus", "other-bus", "none"]
+FORCES: tuple[Forces, ...] = ("same-bus", "other-bus", "none")
+SYNC_COB_ID = 0x080
+HEARTBEAT_BASE = 0x700
+FORCE_NODE_OFFSET = 64
+"""A patch's force node is at node-ID patch + 64 (the host's default)."""
+TPDO_BASES = (0x180, 0x280, 0x380, 0x480, 0x200, 0x300, 0x400)
+"""COB-ID bases of TPDO 1..7 (1..4 predefined, 5..7 on the unused predefined RPDO 1..3 ids)."""
+CYCLIC = ("sync", "patch_pdo", "force_pdo")
+"""Frame kinds sent once per SYNC cycle; heartbeats run on their own period."""
 
 
-def classic_frame_bits(data_bytes: int, *, worst_case_stuffing: bool) -> int:
-    """Bits on the wire of one classic CAN frame with an 11-bit identifier."""
+def classic_frame_bits(data_bytes: int, *, worst_case_stuffing: bool,
+                       extended: bool = False) -> int:
+    """Bits on the wire of one classic CAN frame (intermission included)."""
     if not 0 <= data_bytes <= 8:
         raise ValueError(f"classic CAN carries 0..8 data bytes, got {data_bytes}")
-    stuffed_region = 34 + 8 * data_bytes
+    stuffed_region = (54 if extended else 34) + 8 * data_bytes
     stuff = (stuffed_region - 1) // 4 if worst_case_stuffing else 0
-    return stuffed_region + stuff + 13
+    return stuffed_region + stuff + 1 + TAIL_BITS
 
 
 def fd_length(data_bytes: int) -> int:
@@ -39,70 +59,255 @@ def fd_length(data_bytes: int) -> int:
     raise ValueError(f"CAN FD carries at most 64 data bytes, got {data_bytes}")
 
 
-def fd_frame_time_s(data_bytes: int, nominal_bps: float, data_bps: float, *,
-                    worst_case_stuffing: bool) -> float:
-    """Seconds one CAN FD frame (11-bit identifier, bit-rate switch) occupies the bus."""
+def fd_frame_bits(data_bytes: int, *, worst_case_stuffing: bool, extended: bool = False,
+                  brs: bool = True) -> tuple[int, int]:
+    """(nominal-rate bits, data-rate bits) of one CAN FD frame; all nominal without BRS.
+
+    The worst case bounds the frame's *time* (for a data bitrate at least the nominal one):
+    it puts as many stuff bits as can be at the nominal rate.
+    """
     length = fd_length(data_bytes)
-    crc_bits = 17 if length <= 16 else 21
-    arbitration = 17
-    data_phase = 1 + 4 + 8 * length + 4 + crc_bits  # ESI, DLC, data, stuff count, CRC
-    data_phase += math.ceil((4 + crc_bits) / 4)  # fixed stuff bits in stuff count and CRC
+    prefix = 35 if extended else 16  # SOF..res
+    stuffed = (41 if extended else 22) + 8 * length  # SOF..data
+    crc = 17 if length <= 16 else 21
+    nominal = prefix + 1 + TAIL_BITS
+    data = (stuffed - prefix - 1) + 4 + crc + (2 + crc // 4) + 1
     if worst_case_stuffing:
-        arbitration += (arbitration - 1) // 4
-        data_phase += (1 + 4 + 8 * length - 1) // 4
-    return (arbitration + 12) / nominal_bps + data_phase / data_bps
+        head, total = (prefix - 1) // 4, (stuffed - 2) // 4
+        nominal, data = nominal + head, data + total - head
+    return (nominal, data) if brs else (nominal + data, 0)
+
+
+def fd_frame_time_s(data_bytes: int, nominal_bps: float, data_bps: float, *,
+                    worst_case_stuffing: bool, extended: bool = False) -> float:
+    """Seconds one CAN FD frame with bit rate switch occupies the bus."""
+    nominal, data = fd_frame_bits(data_bytes, worst_case_stuffing=worst_case_stuffing,
+                                  extended=extended)
+    return nominal / nominal_bps + data / data_bps
+
+
+def frame_time_s(data_bytes: int, bitrate: int, data_bitrate: int | None, *, fd: bool,
+                 worst_case_stuffing: bool) -> float:
+    """Seconds one 11-bit-id frame occupies the bus: classic, or CAN FD with BRS."""
+    if fd:
+        if data_bitrate is None:
+            raise ValueError("a CAN FD frame needs a data bitrate")
+        return fd_frame_time_s(data_bytes, bitrate, data_bitrate,
+                               worst_case_stuffing=worst_case_stuffing)
+    return classic_frame_bits(data_bytes, worst_case_stuffing=worst_case_stuffing) / bitrate
+
+
+def patch_payloads(mode: str, *, fd: bool) -> list[int]:
+    """Payload bytes of a patch's TPDOs for one sample.
+
+    Classic (the EDS mappings, UNSIGNED16 codes): 3-axis 27 codes, 4 per TPDO (6 x 8 bytes +
+    1 x 6); z-only 9 codes, 3 per TPDO (3 x 6). CAN FD: one TPDO with every code and the
+    SYNC counter it answers (1 byte): 55 bytes (3-axis) or 19 (z-only).
+    """
+    values = {"z": 9, "xyz": 27}[mode]
+    if fd:
+        return [2 * values + 1]
+    per_pdo = 3 if mode == "z" else 4
+    full, rest = divmod(values, per_pdo)
+    return [2 * per_pdo] * full + ([2 * rest] if rest else [])
+
+
+sample_payloads = patch_payloads
+
+
+def force_payloads(*, fd: bool) -> list[int]:
+    """Payload bytes of a force node's PDOs for one sample, in either patch mode.
+
+    27 INTEGER16 forces and 0x2005 (UNSIGNED16): classic 4 per PDO, 7 x 8 bytes; CAN FD one
+    PDO with the SYNC counter too: 57 bytes.
+    """
+    return [2 * 28 + 1] if fd else [8] * 7
+
+
+@dataclass(frozen=True)
+class PlannedFrame:
+    """One periodic frame on a bus, as the plan counts it."""
+
+    kind: str
+    """``patch_pdo``, ``force_pdo``, ``sync`` or ``heartbeat``."""
+    cob_id: int
+    data_bytes: int
+    """Payload as the sender gives it (a CAN FD controller pads it to a DLC length)."""
+    fd: bool
+    """CAN FD with bit rate switch; else a classic frame."""
+    per_s: float
+    best_s: float
+    """Wire time without stuffing."""
+    worst_s: float
+    """Wire time with worst-case stuffing."""
+
+
+@dataclass(frozen=True)
+class BusPlan:
+    """The frames on one bus and the load they make."""
+
+    name: str
+    patches: tuple[int, ...]
+    """Node-IDs of the patches whose TPDOs cross this bus."""
+    force_nodes: tuple[int, ...]
+    """Node-IDs of the force nodes whose PDOs cross this bus."""
+    frames: tuple[PlannedFrame, ...]
+    frames_per_s: dict[str, float]
+    """By kind."""
+    load_best_pct: float
+    load_worst_pct: float
+    cycle_ms_best: float
+    """Wire time of one cycle's frames (SYNC, patch and force PDOs), no stuffing."""
+    cycle_ms_worst: float
+    max_rate_hz: float
+    """The largest sample rate with the worst-case load at the target."""
+    max_patch_samples_per_s: float
+    """Samples per second of all patches on this bus together at ``max_rate_hz``."""
+    fits: bool
+    """The worst-case load is at most 100 %."""
+    over_target: bool
 
 
 @dataclass(frozen=True)
 class Plan:
-    """Bus load of ``patches`` patches each sending ``frames_per_sample`` frames per sample."""
+    """The load of ``patches`` patches at ``rate_hz`` on ``buses`` buses (and a force bus)."""
 
     patches: int
     rate_hz: float
     mode: str
     bitrate: int
     data_bitrate: int | None
+    forces: Forces
+    heartbeat_ms: int
+    force_heartbeat_ms: int
     frames_per_sample: int
+    """Frames a patch sends per sample."""
+    force_frames_per_sample: int
+    """Frames a force node sends per sample (0 with ``forces="none"``)."""
     frames_per_s: float
+    """On all buses together."""
+    buses: tuple[BusPlan, ...]
+    worst_bus: str
+    """The bus with the highest worst-case load; the top-level load is its load."""
     load_best_pct: float
     load_worst_pct: float
+    cycle_ms_best: float
+    cycle_ms_worst: float
     target_pct: float
     max_rate_hz: float
+    """The largest sample rate every bus carries under the target."""
+    max_patch_samples_per_s: float
+    """The smallest, over the buses with patches, of their patch-samples/s under the target."""
+    fits: bool
+    over_target: bool
 
-    @property
-    def over_target(self) -> bool:
-        return self.load_worst_pct > self.target_pct
+
+def spread(node_ids: Sequence[int], buses: int) -> list[tuple[int, ...]]:
+    """``node_ids`` in order over ``buses`` buses, as evenly as possible (the first get more)."""
+    size, extra = divmod(len(node_ids), buses)
+    out, at = [], 0
+    for k in range(buses):
+        n = size + (k < extra)
+        out.append(tuple(node_ids[at:at + n]))
+        at += n
+    return out
 
 
-def sample_payloads(mode: str, *, fd: bool) -> list[int]:
-    """Payload bytes of the TPDOs of one sample (the EDS mappings: 2 bytes per value)."""
-    values = {"z": 9, "xyz": 27}[mode]
-    if fd:
-        return [2 * values]
-    per_pdo = 3 if mode == "z" else 4
-    full, rest = divmod(values, per_pdo)
-    return [2 * per_pdo] * full + ([2 * rest] if rest else [])
+def _frame(kind: str, cob_id: int, data_bytes: int, per_s: float, bitrate: int,
+           data_bitrate: int | None, fd: bool) -> PlannedFrame:
+    best = frame_time_s(data_bytes, bitrate, data_bitrate, fd=fd, worst_case_stuffing=False)
+    worst = frame_time_s(data_bytes, bitrate, data_bitrate, fd=fd, worst_case_stuffing=True)
+    return PlannedFrame(kind, cob_id, data_bytes, fd, per_s, best, worst)
+
+
+def _node_frames(kind: str, node: int, payloads: list[int], rate_hz: float,
+                 heartbeat_ms: int, bitrate: int, data_bitrate: int | None) -> list[PlannedFrame]:
+    fd = data_bitrate is not None
+    out = [_frame(kind, base + node, size, rate_hz, bitrate, data_bitrate, fd)
+           for base, size in zip(TPDO_BASES, payloads, strict=False)]
+    if heartbeat_ms > 0:
+        out.append(_frame("heartbeat", HEARTBEAT_BASE + node, 1, 1000.0 / heartbeat_ms,
+                          bitrate, None, False))
+    return out
+
+
+def _bus(name: str, patches: tuple[int, ...], force_nodes: tuple[int, ...], sync: bool, *,
+         mode: str, rate_hz: float, bitrate: int, data_bitrate: int | None, target_pct: float,
+         heartbeat_ms: int, force_heartbeat_ms: int) -> BusPlan:
+    fd = data_bitrate is not None
+    frames: list[PlannedFrame] = []
+    if sync:
+        frames.append(_frame("sync", SYNC_COB_ID, 1, rate_hz, bitrate, None, False))
+    for node in patches:
+        frames += _node_frames("patch_pdo", node, patch_payloads(mode, fd=fd), rate_hz,
+                               heartbeat_ms, bitrate, data_bitrate)
+    for node in force_nodes:
+        frames += _node_frames("force_pdo", node, force_payloads(fd=fd), rate_hz,
+                               force_heartbeat_ms, bitrate, data_bitrate)
+    per_s: dict[str, float] = {}
+    for f in frames:
+        per_s[f.kind] = per_s.get(f.kind, 0.0) + f.per_s
+    best = sum(f.per_s * f.best_s for f in frames)
+    worst = sum(f.per_s * f.worst_s for f in frames)
+    cyclic = [f for f in frames if f.kind in CYCLIC]
+    cycle_best = sum(f.best_s for f in cyclic)
+    cycle_worst = sum(f.worst_s for f in cyclic)
+    fixed = worst - rate_hz * cycle_worst  # heartbeats: their rate does not follow the SYNC
+    room = target_pct / 100.0 - fixed
+    max_rate = max(room, 0.0) / cycle_worst if cycle_worst else float("inf")
+    samples = len(patches or force_nodes)
+    return BusPlan(
+        name=name, patches=patches, force_nodes=force_nodes, frames=tuple(frames),
+        frames_per_s=per_s, load_best_pct=100.0 * best, load_worst_pct=100.0 * worst,
+        cycle_ms_best=1e3 * cycle_best, cycle_ms_worst=1e3 * cycle_worst,
+        max_rate_hz=max_rate, max_patch_samples_per_s=max_rate * samples,
+        fits=worst <= 1.0, over_target=100.0 * worst > target_pct)
 
 
 def plan(patches: int, rate_hz: float, mode: str, bitrate: int, *,
-         data_bitrate: int | None = None, target_pct: float = 70.0) -> Plan:
-    """Bus load in %, frames/s and the largest sample rate under ``target_pct``."""
+         data_bitrate: int | None = None, target_pct: float = 70.0,
+         forces: Forces = "same-bus", buses: int = 1, heartbeat_ms: int = 100,
+         force_heartbeat_ms: int = 1000) -> Plan:
+    """The load of every bus: patches 1..N spread over ``buses`` buses in node order.
+
+    ``data_bitrate`` set means CAN FD: one PDO per sample with bit rate switch. ``forces``:
+    ``same-bus`` puts each patch's force PDOs (force node patch + 64) on the patch's bus,
+    ``other-bus`` all of them on one more bus (named ``forces``; no SYNC there: force PDOs
+    are event-driven), ``none`` leaves them out. A heartbeat period of 0 disables it.
+    """
+    if mode not in ("z", "xyz"):
+        raise ValueError(f"mode is z or xyz, got {mode!r}")
+    if forces not in FORCES:
+        raise ValueError(f"forces is one of {', '.join(FORCES)}, got {forces!r}")
+    if patches < 1 or buses < 1:
+        raise ValueError("patches and buses must be at least 1")
+    if buses > patches:
+        raise ValueError(f"{buses} buses for {patches} patches: a bus would carry none")
     fd = data_bitrate is not None
-    payloads = sample_payloads(mode, fd=fd)
 
-    def sample_time(worst: bool) -> float:
-        if data_bitrate is not None:
-            return sum(fd_frame_time_s(n, bitrate, data_bitrate, worst_case_stuffing=worst)
-                       for n in payloads)
-        return sum(classic_frame_bits(n, worst_case_stuffing=worst) for n in payloads) / bitrate
+    def bus(name: str, group: Sequence[int], force_nodes: Sequence[int], sync: bool) -> BusPlan:
+        return _bus(name, tuple(group), tuple(n + FORCE_NODE_OFFSET for n in force_nodes),
+                    sync, mode=mode, rate_hz=rate_hz, bitrate=bitrate,
+                    data_bitrate=data_bitrate, target_pct=target_pct,
+                    heartbeat_ms=heartbeat_ms, force_heartbeat_ms=force_heartbeat_ms)
 
-    best, worst = sample_time(False), sample_time(True)
+    groups = spread(range(1, patches + 1), buses)
+    plans = [bus(f"bus {k}", group, group if forces == "same-bus" else (), True)
+             for k, group in enumerate(groups)]
+    if forces == "other-bus":
+        plans.append(bus("forces", (), range(1, patches + 1), False))
+    worst = max(plans, key=lambda p: p.load_worst_pct)
+    with_patches = [p for p in plans if p.patches]
     return Plan(
         patches=patches, rate_hz=rate_hz, mode=mode, bitrate=bitrate,
-        data_bitrate=data_bitrate, frames_per_sample=len(payloads),
-        frames_per_s=patches * rate_hz * len(payloads),
-        load_best_pct=100.0 * patches * rate_hz * best,
-        load_worst_pct=100.0 * patches * rate_hz * worst,
-        target_pct=target_pct,
-        max_rate_hz=target_pct / 100.0 / (patches * worst),
-    )
+        data_bitrate=data_bitrate, forces=forces, heartbeat_ms=heartbeat_ms,
+        force_heartbeat_ms=force_heartbeat_ms,
+        frames_per_sample=len(patch_payloads(mode, fd=fd)),
+        force_frames_per_sample=0 if forces == "none" else len(force_payloads(fd=fd)),
+        frames_per_s=sum(sum(p.frames_per_s.values()) for p in plans),
+        buses=tuple(plans), worst_bus=worst.name,
+        load_best_pct=worst.load_best_pct, load_worst_pct=worst.load_worst_pct,
+        cycle_ms_best=worst.cycle_ms_best, cycle_ms_worst=worst.cycle_ms_worst,
+        target_pct=target_pct, max_rate_hz=min(p.max_rate_hz for p in plans),
+        max_patch_samples_per_s=min(p.max_patch_samples_per_s for p in with_patches),
+        fits=all(p.fits for p in plans), over_target=any(p.over_target for p in plans))

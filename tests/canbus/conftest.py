@@ -1,9 +1,10 @@
-"""Fail any test that leaves a python-can virtual channel open (as python-can's suite does)."""
+"""Fail any test that leaves a python-can virtual or timed channel open (as python-can does)."""
 
 from __future__ import annotations
 
 import itertools
 import os
+import threading
 from collections.abc import Iterator
 
 import can.interfaces.virtual
@@ -42,3 +43,15 @@ def host() -> Iterator[Host]:
     h = Host()
     yield h
     h.close()
+
+
+@pytest.fixture(autouse=True)
+def _no_open_timed_channels() -> Iterator[None]:
+    """Fail a test that leaves a timed channel open (its wire's thread would run on)."""
+    yield
+    from canbus.timed.channels import close_all
+
+    left = close_all()
+    wire_threads = [t.name for t in threading.enumerate() if t.name.startswith("timed wire")]
+    assert not left, f"test left timed channels open: {sorted(map(str, left))}"
+    assert not wire_threads, f"timed wire threads still running: {wire_threads}"

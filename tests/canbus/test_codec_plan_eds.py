@@ -12,7 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from canbus import busload, codes
+from canbus import codes
 from canbus.od import SHIPPED, eds_file, load_od
 from canbus.pdo_codec import PdoCodec, read_defaults, read_layouts
 from canbus.tools.edscheck import check
@@ -121,24 +121,3 @@ def test_codes_reserve_fault_values() -> None:
     assert status[0, 0] == 1 | 2 << 2 | 3 << 4 and status[1, 0] == 2 << 4
 
 
-def test_busload_matches_hand_calculation() -> None:
-    assert busload.classic_frame_bits(8, worst_case_stuffing=False) == 111
-    assert busload.classic_frame_bits(8, worst_case_stuffing=True) == 135
-    assert int(1e6 / 135) == 7407 and int(1e6 / 111) == 9009
-    p = busload.plan(1, 1000 / 7, "xyz", 1_000_000)
-    assert p.frames_per_sample == 7 and p.frames_per_s == pytest.approx(1000)
-    bits6, bits6w = 47 + 48, 47 + 48 + (34 + 48 - 1) // 4
-    assert p.load_best_pct == pytest.approx(100 * (6 * 111 + bits6) / 7 / 1000, rel=1e-9)
-    assert p.load_worst_pct == pytest.approx(100 * (6 * 135 + bits6w) / 7 / 1000, rel=1e-9)
-    assert busload.plan(16, p.max_rate_hz / 16, "xyz", 1_000_000).load_worst_pct == (
-        pytest.approx(70.0))
-
-
-def test_plan_cli_warns_above_target(tmp_path: Path) -> None:
-    out = tmp_path / "plan.json"
-    run = subprocess.run([sys.executable, "-m", "skin.cli", "plan", "--patches", "16", "--rate",
-                          "100", "--mode", "xyz", "--bitrate", "1000000", "--json", str(out)],
-                         capture_output=True, text=True)
-    assert run.returncode == 0
-    assert "warning: worst-case load" in run.stderr
-    assert '"frames_per_s": 11200.0' in out.read_text()

@@ -1,0 +1,422 @@
+"""Frames as they go on the wire (ISO 11898-1:2015): the exact bits and how long they take.
+
+Bit values: dominant = 0, recessive = 1. A frame as seen on an idle bus that acknowledges it:
+
+Classic base format (11-bit id):  SOF, id 11, RTR, IDE 0, r0 0, DLC 4, data 8n, CRC 15
+Classic extended (29-bit id):     SOF, id[28:18], SRR 1, IDE 1, id[17:0], RTR, r1 0, r0 0,
+                                  DLC 4, data 8n, CRC 15
+CAN FD base format:               SOF, id 11, RRS 0, IDE 0, FDF 1, res 0, BRS, ESI, DLC 4,
+                                  data 8n, stuff count 4, CRC 17 or 21
+CAN FD extended:                  SOF, id[28:18], SRR 1, IDE 1, id[17:0], RRS 0, FDF 1, res 0,
+                                  BRS, ESI, DLC 4, data 8n, stuff count 4, CRC 17 or 21
+then always: CRC delimiter 1, ACK slot 0 (a receiver acknowledged), ACK delimiter 1,
+EOF 1111111, intermission 111 (the 3-bit interframe space before the next SOF).
+
+Stuffing. Classic: from SOF to the last CRC bit, after 5 equal bits the transmitter inserts
+one complementary bit, which counts as the first bit of the next run; a stuff bit follows
+the last CRC bit too if it ends a run of 5. CRC-15 (x^15+x^14+x^10+x^8+x^7+x^4+x^3+1,
+register starting at 0) is computed over the unstuffed bits SOF..data.
+
+CAN FD: dynamic stuffing as above from SOF to the last data bit (the last DLC bit when there
+is no data), except that no dynamic stuff bit follows that last bit: the fixed stuff bit
+that opens the stuff count is the complement of the bit before it and does its job (the
+stuff count does not count it either). The stuff count is the number of dynamic stuff bits
+mod 8 as a 3-bit Gray code plus an even parity bit. Fixed stuff bits (each the complement of
+the bit before it): one before the stuff count, then one after every 4th bit of stuff count
+and CRC together: 6 with CRC-17 (data up to 16 bytes), 7 with CRC-21. The CRC (CRC-17 0x3685B
+or CRC-21 0x302899, register starting at 1 followed by zeros) covers SOF..data *with* its
+dynamic stuff bits, and the stuff count, not the fixed stuff bits.
+
+Bit rate switch: with BRS recessive the data bitrate runs from ESI through the CRC
+delimiter. The bitrate switches at the sample point of BRS and back at the sample point of
+the CRC delimiter, so those two bits are each part nominal, part fast; together they last
+exactly one nominal plus one data bit, which is how they are counted here: BRS as nominal,
+the CRC delimiter as data phase. Every stuff bit inserted after BRS is in the data phase.
+
+:func:`frame_bits` gives the counts fast: cached by frame content, the header's stuffing
+state and CRC register cached by header, the payload run through table-driven stuffing and
+CRC-15 16 bits at a time. :func:`wire_frame` builds the whole bit sequence one bit at a time,
+plainly; it is the reference the fast path is tested against.
+"""
+
+from __future__ import annotations
+
+import array
+import functools
+import struct
+from dataclasses import dataclass
+from typing import NamedTuple
+
+FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+"""CAN FD payload length of each DLC code 0..15."""
+IFS_BITS = 3
+"""Intermission: the recessive bits between EOF and the next SOF."""
+TAIL_BITS = 1 + 1 + 7 + IFS_BITS
+"""ACK slot, ACK delimiter, EOF and intermission: nominal-rate bits after the CRC delimiter."""
+CRC15, CRC17, CRC21 = 0x4599, 0x3685B, 0x302899
+
+_GRAY_PARITY = (0b0000, 0b0011, 0b0110, 0b0101, 0b1100, 0b1111, 0b1010, 0b1001)
+"""Stuff count mod 8 -> 3-bit Gray code followed by its even parity bit."""
+F_EXTENDED, F_REMOTE, F_FD, F_BRS, F_ESI = 1, 2, 4, 8, 16
+"""Frame flags of :func:`bits_for`: 29-bit id, remote frame, CAN FD, bit rate switch, ESI."""
+_MAX_STANDARD_ID, _MAX_EXTENDED_ID = 0x7FF, 0x1FFFFFFF
+
+
+class FrameBits(NamedTuple):
+    """Bits one frame occupies on the wire, intermission included."""
+
+    nominal: int
+    """Bits at the nominal bitrate (all of them unless CAN FD with bit rate switch)."""
+    data: int
+    """Bits at the data bitrate (ESI through the CRC delimiter of a CAN FD frame with BRS)."""
+    stuff: int
+    """Dynamic stuff bits (part of ``nominal`` and ``data``; fixed stuff bits are not counted)."""
+
+    @property
+    def total(self) -> int:
+        return self.nominal + self.data
+
+    def duration_s(self, bitrate: float, data_bitrate: float | None = None) -> float:
+        """Seconds on the wire: nominal bits at ``bitrate``, the data phase at ``data_bitrate``."""
+        if self.data == 0:
+            return self.nominal / bitrate
+        if data_bitrate is None:
+            raise ValueError("a CAN FD frame with bit rate switch needs a data bitrate")
+        return self.nominal / bitrate + self.data / data_bitrate
+
+
+def fd_dlc(length: int) -> int:
+    """The DLC code of the smallest CAN FD payload that holds ``length`` bytes."""
+    for code, size in enumerate(FD_LENGTHS):
+        if size >= length:
+            return code
+    raise ValueError(f"CAN FD carries at most 64 data bytes, got {length}")
+
+
+def arbitration_key(can_id: int, *, extended: bool = False, remote: bool = False) -> int:
+    """The arbitration field as a number: the smaller key wins arbitration.
+
+    Bits in wire order: base id (11), then RTR (base format) or SRR = 1 (extended), IDE,
+    then the 18 extension bits and RTR of an extended frame (zeros for a base frame, whose
+    arbitration has ended). So a data frame beats a remote frame of the same id, and a base
+    frame beats an extended frame with the same 11 leading id bits. CAN FD frames carry RRS
+    = 0 where RTR would be: they arbitrate as data frames.
+    """
+    if extended:
+        return (can_id >> 18) << 21 | 0b11 << 19 | (can_id & 0x3FFFF) << 1 | remote
+    return can_id << 21 | remote << 20
+
+
+def _check(can_id: int, length: int, flags: int, dlc: int) -> None:
+    limit = _MAX_EXTENDED_ID if flags & F_EXTENDED else _MAX_STANDARD_ID
+    if not 0 <= can_id <= limit:
+        raise ValueError(f"identifier 0x{can_id:X} out of range 0..0x{limit:X}")
+    if flags & F_FD:
+        if flags & F_REMOTE:
+            raise ValueError("CAN FD has no remote frames")
+        if length > 64:
+            raise ValueError(f"CAN FD carries at most 64 data bytes, got {length}")
+    else:
+        if flags & (F_BRS | F_ESI):
+            raise ValueError("BRS and ESI exist only in CAN FD frames")
+        if not 0 <= dlc <= 8:
+            raise ValueError(f"a classic CAN DLC is 0..8 here, got {dlc}")
+        if length > 8 or (flags & F_REMOTE and length):
+            raise ValueError(f"a classic {'remote' if flags & F_REMOTE else 'data'} frame "
+                             f"cannot carry {length} data bytes")
+        if not flags & F_REMOTE and length != dlc:
+            raise ValueError(f"DLC {dlc} does not match {length} data bytes")
+
+
+def _flags(extended: bool, remote: bool, fd: bool, brs: bool, esi: bool) -> int:
+    return (F_EXTENDED * extended | F_REMOTE * remote | F_FD * fd | F_BRS * (fd and brs)
+            | F_ESI * (fd and esi))
+
+
+# ----------------------------------------------------------------------------------------
+# Fast path
+
+
+def _crc15_table() -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        reg = byte << 7
+        for _ in range(8):
+            reg = ((reg << 1) ^ CRC15 if reg & 0x4000 else reg << 1) & 0x7FFF
+        table.append(reg)
+    return tuple(table)
+
+
+def _stuff_table(width: int) -> bytes:
+    """Stuffing as a state machine over ``width``-bit chunks.
+
+    State: the value of the current run and its length 1..4 (``value << 2 | length - 1``;
+    a run of 5 has just taken a stuff bit, which starts a run of 1 of the other value).
+    Entry ``[state << width | chunk]``: stuff bits inserted (0..4) | next state << 3 |
+    64 if a stuff bit follows the chunk's last bit.
+    """
+    table = bytearray(8 << width)
+    for state in range(8):
+        for chunk in range(1 << width):
+            value, run, count, last = state >> 2, (state & 3) + 1, 0, 0
+            for shift in range(width - 1, -1, -1):
+                bit = (chunk >> shift) & 1
+                run, value, last = (run + 1 if bit == value else 1), bit, 0
+                if run == 5:
+                    value, run, count, last = 1 - bit, 1, count + 1, 64
+            table[state << width | chunk] = count | (value << 2 | run - 1) << 3 | last
+    return bytes(table)
+
+
+_CRC15_TABLE = _crc15_table()
+_STUFF8, _STUFF7 = _stuff_table(8), _stuff_table(7)
+
+
+@functools.cache
+def _tables16() -> tuple[bytes, array.array[int]]:
+    """The stuffing and CRC-15 tables over 16-bit words, composed from the 8-bit ones."""
+    import numpy as np
+
+    stuff8 = np.frombuffer(_STUFF8, dtype=np.uint8).reshape(8, 256).astype(np.int32)
+    first = stuff8[:, :, None]
+    second = stuff8[(first >> 3) & 7, np.arange(256)[None, None, :]]
+    stuff16 = (first & 7) + (second & 7) | (second & 0x78)
+    crc8 = np.array(_CRC15_TABLE, dtype=np.int32)
+    high = crc8[np.arange(1 << 16) >> 8]
+    crc16 = ((high << 8) & 0x7FFF) ^ crc8[(high >> 7) ^ (np.arange(1 << 16) & 0xFF)]
+    return stuff16.astype(np.uint8).tobytes(), array.array("H", crc16.astype(np.uint16).tobytes())
+
+
+_WORDS = tuple(struct.Struct(f">{n}H").unpack_from for n in range(33))
+
+
+def crc15(data: bytes) -> int:
+    """CRC-15 of ``data`` read MSB first, register starting at 0 (leading zero bits are free)."""
+    reg, table = 0, _CRC15_TABLE
+    for byte in data:
+        reg = ((reg << 8) & 0x7FFF) ^ table[(reg >> 7) ^ byte]
+    return reg
+
+
+@functools.lru_cache(maxsize=4096)
+def _header(value: int, length: int) -> tuple[int, int, int, int]:
+    """Stuffing state, stuff bits, stuff-after-last flag and CRC-15 register after the
+    ``length`` bits of ``value`` (a frame's first bits: SOF..DLC)."""
+    run_value = run = count = last = reg = 0
+    for shift in range(length - 1, -1, -1):
+        bit = (value >> shift) & 1
+        run, run_value, last = (run + 1 if bit == run_value and run else 1), bit, 0
+        if run == 5:
+            run_value, run, count, last = 1 - bit, 1, count + 1, 64
+        feedback = bit ^ (reg >> 14)
+        reg = (reg << 1) & 0x7FFF
+        if feedback:
+            reg ^= CRC15
+    return run_value << 2 | run - 1, count, last, reg
+
+
+def stuff_count(value: int, length: int, *, after_last: bool = True) -> int:
+    """Dynamic stuff bits the ``length``-bit sequence ``value`` (MSB first, first bit 0) takes.
+
+    With ``after_last`` False (CAN FD) no stuff bit follows the sequence's last bit.
+    """
+    _, count, last, _ = _header.__wrapped__(value, length)
+    return count - (not after_last and last > 0)
+
+
+def _run(state: int, count: int, last: int, data: bytes,
+         crc: int | None) -> tuple[int, int, int, int]:
+    """Carry stuffing (and the CRC-15 register, unless ``crc`` is None) through ``data``."""
+    stuff16, crc16 = _tables16()
+    words = _WORDS[len(data) >> 1](data)
+    entry = last
+    if crc is None:
+        for word in words:
+            entry = stuff16[state << 16 | word]
+            count += entry & 7
+            state = (entry >> 3) & 7
+    else:
+        for word in words:
+            entry = stuff16[state << 16 | word]
+            count += entry & 7
+            state = (entry >> 3) & 7
+            crc = ((crc << 16) & 0x7FFF) ^ crc16[((crc << 1) ^ word) & 0xFFFF]
+    if len(data) & 1:
+        byte = data[-1]
+        entry = _STUFF8[state << 8 | byte]
+        count += entry & 7
+        state = (entry >> 3) & 7
+        if crc is not None:
+            crc = ((crc << 8) & 0x7FFF) ^ _CRC15_TABLE[(crc >> 7) ^ byte]
+    return state, count, entry & 64, crc or 0
+
+
+@functools.lru_cache(maxsize=1 << 16)
+def bits_for(can_id: int, flags: int, dlc: int, data: bytes) -> FrameBits:
+    """:func:`frame_bits` with the flags as one number (``F_*``), cached: the hot path.
+
+    ``dlc`` is the classic DLC; a CAN FD frame's comes from ``len(data)``.
+    """
+    length = len(data)
+    _check(can_id, length, flags, dlc)
+    extended = flags & F_EXTENDED
+    if not flags & F_FD:
+        remote = (flags & F_REMOTE) >> 1
+        if extended:
+            header = (can_id >> 18) << 27 | 0b11 << 25 | (can_id & 0x3FFFF) << 7 | remote << 6
+            size = 39
+        else:
+            header, size = can_id << 7 | remote << 6, 19
+        state, count, _, reg = _header(header | dlc, size)
+        state, count, _, reg = _run(state, count, 0, data, reg)
+        entry = _STUFF8[state << 8 | reg >> 7]
+        count += entry & 7
+        count += _STUFF7[(entry >> 3 & 7) << 7 | reg & 0x7F] & 7
+        return FrameBits(size + 8 * length + 15 + count + 1 + TAIL_BITS, 0, count)
+    code = fd_dlc(length)
+    padded = FD_LENGTHS[code]
+    brs, esi = (flags & F_BRS) >> 3, (flags & F_ESI) >> 4
+    if extended:
+        header = (can_id >> 18) << 29 | 0b11 << 27 | (can_id & 0x3FFFF) << 9 | 0b010 << 6
+        size, prefix = 41, 35  # prefix: SOF..res, the bits before BRS
+    else:
+        header, size, prefix = can_id << 10 | 0b0010 << 6, 22, 16
+    header |= brs << 5 | esi << 4 | code
+    state, count, last, _ = _header(header, size)
+    _, stuff, last, _ = _run(state, count, last, data + bytes(padded - length), None)
+    stuff -= last > 0  # no dynamic stuff bit after the last data bit: a fixed one follows
+    head_stuff = _header(header >> (size - prefix), prefix)[1]  # stuffing is causal
+    crc_bits = 17 if padded <= 16 else 21
+    fixed = 2 + crc_bits // 4  # before the stuff count, after it, after every 4th CRC bit
+    fast = (size + 8 * padded - prefix - 1) + (stuff - head_stuff) + 4 + crc_bits + fixed + 1
+    slow = prefix + 1 + head_stuff + TAIL_BITS
+    if brs:
+        return FrameBits(slow, fast, stuff)
+    return FrameBits(slow + fast, 0, stuff)
+
+
+def frame_bits(can_id: int, data: bytes, *, extended: bool = False, remote: bool = False,
+               dlc: int | None = None, fd: bool = False, brs: bool = False,
+               esi: bool = False) -> FrameBits:
+    """Bits a frame occupies on the wire (cached by content).
+
+    ``data`` is the payload; a CAN FD payload whose length is not a DLC length is padded
+    with zero bytes to the next one, as controllers send it. ``dlc`` is the classic DLC
+    (default ``len(data)``; a remote frame gives the requested length and no data).
+    """
+    flags = _flags(extended, remote, fd, brs, esi)
+    return bits_for(can_id, flags, len(data) if dlc is None or fd else dlc, bytes(data))
+
+
+# ----------------------------------------------------------------------------------------
+# Reference: the whole frame, one bit at a time
+
+
+@dataclass(frozen=True)
+class WireFrame:
+    """Every bit of one frame from SOF through the intermission, as the wire carries it."""
+
+    bits: str
+    """'0' dominant, '1' recessive; the ACK slot as acknowledged (dominant)."""
+    stuffed_end: int
+    """Bits ``[0, stuffed_end)`` are under dynamic stuffing (SOF..CRC; FD: SOF..data)."""
+    stuff_at: tuple[int, ...]
+    """Indices of the dynamic stuff bits."""
+    fixed_stuff_at: tuple[int, ...]
+    """Indices of the fixed stuff bits (CAN FD)."""
+    data_phase: tuple[int, int]
+    """``[start, end)`` of the bits at the data bitrate; empty unless CAN FD with BRS."""
+    crc: int
+    stuff_count: int
+    """The stuff count field's value before Gray coding (CAN FD), else 0."""
+
+    @property
+    def counts(self) -> FrameBits:
+        start, end = self.data_phase
+        return FrameBits(len(self.bits) - (end - start), end - start, len(self.stuff_at))
+
+
+def _bits_of(value: int, width: int) -> list[int]:
+    return [(value >> shift) & 1 for shift in range(width - 1, -1, -1)]
+
+
+def _crc(bits: list[int], poly: int, width: int, init: int) -> int:
+    reg, top, mask = init, 1 << (width - 1), (1 << width) - 1
+    for bit in bits:
+        feedback = bit ^ bool(reg & top)
+        reg = (reg << 1) & mask
+        if feedback:
+            reg ^= poly & mask
+    return reg
+
+
+def _stuff(bits: list[int], *, after_last: bool) -> tuple[list[int], list[int], list[int]]:
+    """Insert dynamic stuff bits: the stuffed bits, the stuff bits' indices and, for every
+    input bit, its index in the stuffed sequence."""
+    out: list[int] = []
+    at: list[int] = []
+    where: list[int] = []
+    run_value, run = -1, 0
+    for i, bit in enumerate(bits):
+        where.append(len(out))
+        out.append(bit)
+        run = run + 1 if bit == run_value else 1
+        run_value = bit
+        if run == 5 and (after_last or i < len(bits) - 1):
+            at.append(len(out))
+            out.append(1 - bit)
+            run_value, run = 1 - bit, 1
+    return out, at, where
+
+
+def wire_frame(can_id: int, data: bytes, *, extended: bool = False, remote: bool = False,
+               dlc: int | None = None, fd: bool = False, brs: bool = False,
+               esi: bool = False) -> WireFrame:
+    """The frame's bits on the wire, built field by field (the reference for :func:`frame_bits`)."""
+    flags = _flags(extended, remote, fd, brs, esi)
+    data = bytes(data)
+    if fd:
+        dlc = fd_dlc(len(data))
+        data = data + bytes(FD_LENGTHS[dlc] - len(data))
+    elif dlc is None:
+        dlc = len(data)
+    _check(can_id, len(data), flags, dlc)
+    bits = [0]  # SOF
+    if extended:
+        bits += [*_bits_of(can_id >> 18, 11), 1, 1, *_bits_of(can_id & 0x3FFFF, 18)]
+    else:
+        bits += _bits_of(can_id, 11)
+    if fd:
+        bits += [0] if extended else [0, 0]  # RRS (and IDE of a base frame)
+        bits += [1, 0]  # FDF, res
+        brs_at = len(bits)
+        bits += [int(brs), int(esi)]
+    else:
+        bits += [int(remote), 0, 0]  # RTR, then IDE and r0 (base) or r1 and r0 (extended)
+    bits += _bits_of(dlc, 4)
+    for byte in data:
+        bits += _bits_of(byte, 8)
+    if not fd:
+        crc = _crc(bits, CRC15, 15, 0)
+        stuffed, at, _ = _stuff(bits + _bits_of(crc, 15), after_last=True)
+        tail = [1, 0, 1] + [1] * (7 + IFS_BITS)
+        return WireFrame("".join(map(str, stuffed + tail)), len(stuffed), tuple(at), (), (0, 0),
+                         crc, 0)
+    stuffed, at, where = _stuff(bits, after_last=False)
+    count = len(at)
+    code = _bits_of(_GRAY_PARITY[count % 8], 4)
+    width = 17 if len(data) <= 16 else 21
+    crc = _crc(stuffed + code, CRC17 if width == 17 else CRC21, width, 1 << (width - 1))
+    out = list(stuffed)
+    fixed: list[int] = []
+    for i, bit in enumerate(code + _bits_of(crc, width)):
+        if i % 4 == 0:
+            fixed.append(len(out))
+            out.append(1 - out[-1])
+        out.append(bit)
+    out.append(1)  # CRC delimiter
+    fast_end = len(out)
+    out += [0, 1] + [1] * (7 + IFS_BITS)
+    phase = (where[brs_at] + 1, fast_end) if brs else (0, 0)
+    return WireFrame("".join(map(str, out)), len(stuffed), tuple(at), tuple(fixed), phase,
+                     crc, count)

@@ -1,0 +1,108 @@
+"""A node on a timed wire (one bus instance): its queues, error counters and tallies."""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections import deque
+from dataclasses import dataclass, field
+
+import can
+
+from canbus.timed.faults import BUS_OFF_ABOVE, PASSIVE_ABOVE, BitErrors
+from canbus.timed.stats import NodeStats
+
+
+@dataclass(eq=False, slots=True)
+class Pending:
+    """A frame in a transmit queue."""
+
+    template: can.Message
+    """What receivers get (timestamp and ``is_rx`` set per copy)."""
+    can_id: int
+    flags: int
+    """``canbus.framebits`` flags (``F_ESI`` is added while the transmitter is error passive)."""
+    dlc: int
+    data: bytes
+    key: int
+    """Arbitration key: the smallest wins."""
+    submitted: float = 0.0
+    attempts: int = 0
+
+
+@dataclass(eq=False)
+class Node:
+    """One bus instance's controller: a FIFO transmit queue, a receive queue, counters."""
+
+    index: int
+    name: str
+    fd: bool
+    receive_own: bool
+    receive_error_frames: bool
+    acknowledge: bool
+    tx_limit: int
+    rx_limit: int
+    """0: unbounded."""
+    errors: BitErrors
+    room: threading.Condition
+    """Notified when the transmit queue shrinks (shares the wire's lock)."""
+    tx: deque[Pending] = field(default_factory=deque)
+    rx: queue.SimpleQueue[can.Message | None] = field(default_factory=queue.SimpleQueue)
+    open: bool = True
+    tec: int = 0
+    rec: int = 0
+    bus_off: bool = False
+    recovery: int = 0
+    """Sequences of 11 recessive bits seen while bus off."""
+    counted_until: float = 0.0
+    """Wire time up to which idle bits were counted towards recovery."""
+    not_before: float = 0.0
+    """Earliest start of this node's next frame (suspend transmission, recovery)."""
+    sent: int = 0
+    received: int = 0
+    lost_overflow: int = 0
+    tx_errors: int = 0
+    bus_off_count: int = 0
+
+    @property
+    def passive(self) -> bool:
+        return self.tec > PASSIVE_ABOVE or self.rec > PASSIVE_ABOVE
+
+    @property
+    def state(self) -> can.BusState:
+        if self.bus_off:
+            return can.BusState.ERROR
+        return can.BusState.PASSIVE if self.passive else can.BusState.ACTIVE
+
+    def understands(self, fd: bool) -> bool:
+        """Receives (and acknowledges) a frame of this kind: open, not bus off, FD if needed."""
+        return self.open and not self.bus_off and (self.fd or not fd)
+
+    def sent_ok(self) -> None:
+        self.sent += 1
+        self.tec = max(0, self.tec - 1)
+
+    def received_ok(self) -> None:
+        self.rec = PASSIVE_ABOVE if self.rec > PASSIVE_ABOVE else max(0, self.rec - 1)
+
+    def transmit_error(self, *, ack_error: bool, at: float) -> None:
+        """Error frame on its frame; bus off past TEC 255, recovery counted from ``at``."""
+        self.tx_errors += 1
+        if not (ack_error and self.passive):
+            self.tec += 8
+        if self.tec > BUS_OFF_ABOVE:
+            self.bus_off, self.recovery, self.counted_until = True, 0, at
+            self.bus_off_count += 1
+
+    def receive_error(self) -> None:
+        self.rec = min(self.rec + 1, 255)
+
+    def recover(self, at: float) -> None:
+        self.bus_off, self.tec, self.rec, self.recovery = False, 0, 0, 0
+        self.not_before = max(self.not_before, at)
+
+    def snapshot(self) -> NodeStats:
+        return NodeStats(name=self.name, fd=self.fd, state=self.state, tec=self.tec,
+                         rec=self.rec, sent=self.sent, received=self.received,
+                         lost_overflow=self.lost_overflow, errors=self.tx_errors,
+                         bus_off_count=self.bus_off_count, pending=len(self.tx))
