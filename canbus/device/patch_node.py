@@ -90,6 +90,11 @@ class PatchNode(LocalDevice):
     def frames_on_event(self, now: float) -> list[Frame]:
         return batch_frames_on_event([self], now)
 
+    def _on_state(self, state: int) -> None:
+        super()._on_state(state)
+        if state == OPERATIONAL:  # pack once now, not first in the first SYNC's answer
+            _frames_locked([self], lambda node, payloads: [], 0)
+
     def _read_live(self, index: int, subindex: int, **_: Any) -> int | None:
         if index == RESISTANCES and subindex:
             return int(self.codes.reshape(-1)[subindex - 1])

@@ -73,6 +73,9 @@ class ActiveMaster:
         jobs = self._discover() if host.config.scan else []
         self._start_force_nodes()
         wait(jobs)
+        for link in host.links.values():
+            if link.dataplane is not None:
+                link.dataplane.warm_up()
         if not host.config.sync_following:
             period_s = host.config.sync_period_ms / 1000.0
             for link in host.links.values():

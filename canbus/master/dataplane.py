@@ -67,7 +67,7 @@ from canbus.pdo_codec import PdoCodec
 from canbus.txmessage import TxMessage
 from decoder.protocol import Decoder
 from decoder.reasons import Reason
-from skin.constants import TAXELS_PER_PATCH
+from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH
 from skin.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -447,6 +447,24 @@ class DataPlane(can.Listener):
             if jobs:
                 self._publish(jobs)
 
+    def warm_up(self) -> None:
+        """Run every channel's publishing path once on a sample at rest, sending nothing,
+        so that the first cycle does not pay for code and tables run the first time."""
+        with self._publish_lock:
+            jobs = [_Job(slot, (0, 0, 0.0), _rest_payload(slot), 0, False)
+                    for slot in list(self._slots.values())]
+            if not jobs:
+                return
+            resistance = self._resistances(jobs, np.zeros((len(jobs), TAXELS_PER_PATCH), bool))
+            for rows, decoder in _by_decoder(jobs):
+                pillars = jobs[rows[0]].slot.channel.pillars
+                result = decoder.decode(resistance[rows, :, :pillars])
+                nodes = [jobs[i].slot.channel.force_node for i in rows]
+                batch_frames(nodes, result.force_N, result.valid, np.zeros(len(rows), bool),
+                             result.reason, 0)
+                for node in nodes:
+                    node.clear_sample()  # an SDO read shows "no value" until the first one
+
     def stop(self) -> None:
         """Stop the publishing thread after it published what is queued (``can.Listener``)."""
         thread, self._thread = self._thread, None
@@ -646,6 +664,23 @@ class PdoRouter(can.Listener):
         for listener in self.others:
             listener.stop()
         self.dataplane.stop()
+
+
+def _rest_payload(slot: _Slot) -> bytes:
+    """The slot's raw bytes with every code at the decoder's zero-force resistance."""
+    channel = slot.channel
+    codec = channel.codec
+    values = np.zeros((1, len(codec.variables)))
+    rest = (channel.baseline.r0_ref if channel.baseline is not None else
+            np.broadcast_to(DEFAULT_CONSTANTS.nominal_resistance_ohm[:channel.pillars],
+                            (TAXELS_PER_PATCH, channel.pillars)))
+    codes = np.clip(np.rint(rest / channel.lsb_ohm), 1, 0xFFFD)
+    values[0, slot.columns.ravel()] = codes.ravel()
+    packed = codec.pack(values)[0]  # (PDOs, width)
+    raw = bytearray(slot.stride * len(codec.layouts))
+    for p in range(len(codec.layouts)):
+        raw[slot.stride * p:slot.stride * p + codec.width] = packed[p].tobytes()
+    return bytes(raw)
 
 
 def _bus_of(node: ForceNode, default: can.BusABC) -> can.BusABC:

@@ -258,6 +258,11 @@ class ForceNode(LocalDevice):
             return self._answered
         return None
 
+    def clear_sample(self) -> None:
+        """Forget the last sample: every force reads 0x8000 again, no taxel valid."""
+        with self.lock:
+            self._clear_application()
+
     def _clear_application(self) -> None:
         """No sample published yet: every force reads 0x8000, no taxel valid."""
         self._forces_mN = np.full(27, NO_VALUE, dtype=np.int16)

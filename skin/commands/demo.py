@@ -1,11 +1,20 @@
-"""``skin demo``: simulated patches and the host manager on the embedded virtual bus.
+"""``skin demo``: simulated patches and the host manager on a bus that keeps time.
 
 The scene's patches (``--patches N``: node-IDs 1..N, every load of the scene on every
-patch) run as CANopen nodes on their own canopen Network; the host discovers, configures
-and starts them, sends SYNC at the scene's rate, decodes and publishes the forces. A
-third bus on the same channel timestamps every SYNC and force TPDO, so latency is
-measured on the bus: from a SYNC frame to the last force TPDO (TPDO 7) of each patch's
-sample. The simulation is computed before the run and served one step per SYNC, so the
+patch) run as CANopen nodes; the host discovers, configures and starts them, sends SYNC
+at the scene's rate, decodes and publishes the forces on the patches' bus. By default
+the bus is the timed bus (``canbus.timed``) at 1 Mbit/s: every frame holds the wire for
+its exact bits, so the figures are those of a real bus; ``--bus virtual`` is python-can's
+zero-time bus, ``--fd`` CAN FD (a whole sample in one frame each way), ``--buses N``
+spreads the patches over N buses, each with its own SYNC. Before anything runs, the
+bus-load planner (``skin plan``) says whether the traffic fits: a bus it cannot carry is
+refused (``--overload`` runs it anyway), one it carries only without worst-case stuffing
+is warned about.
+
+Latency is measured on the bus: from a SYNC frame to the last force PDO of the cycle
+(``latency_ms``) and of each patch's sample (``sample_latency_ms``); ``wire_ms`` is the
+time the cycle's frames held the wire, so a user sees how much is the bus and how much is
+canskin. The simulation is computed before the run and served one step per SYNC, so the
 simulated patches answer at once and the truth of every cycle is known: ``rmse_N``
 compares the published forces of the valid taxels of complete samples with it.
 """
@@ -20,21 +29,24 @@ import os
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import can
-    import numpy as np
-    from numpy.typing import NDArray
+    import canopen
 
-    from canbus.master.dataplane import ForceFrame
+    from canbus.busload import Plan
+    from canbus.device.patch_server import PatchServer
     from canbus.master.host import HostManager
     from sim import Scene
+    from skin.commands.demo_rig import BusClock, Record
 
 DEFAULT_PATCHES = 4
 DEFAULT_SECONDS = 3.0
 REFRESH_S = 0.25  # live view: at most 4 renders a second, off the data path
 SPACING_M = 0.05
+BUS_KINDS = ("timed", "virtual")
 
 
 def _scene(name: str, patches: int | None) -> Scene:
@@ -61,139 +73,293 @@ def _scene(name: str, patches: int | None) -> Scene:
     return scene_from_dict(data)
 
 
-class _Replay:
-    """A precomputed simulation served one step per read, filing each cycle's truth.
+@dataclass
+class _Bus:
+    """One bus of the demo: its name, patches, the host's end and the patches' end."""
 
-    ``on_sync`` must run before the patch server's own SYNC handler (subscribe it first):
-    it turns the SYNC counter into the host's cycle number, and ``read`` files the true
-    forces of the step it serves under that cycle in ``truth`` / ``known``.
-    """
-
-    def __init__(self, resistance_ohm: NDArray[np.float64], force_N: NDArray[np.float64],
-                 node_ids: tuple[int, ...], truth: NDArray[np.float64],
-                 known: NDArray[np.bool_]) -> None:
-        self.resistance_ohm, self.force_N = resistance_ohm, force_N
-        self.node_ids = node_ids
-        self.pillars = int(resistance_ohm.shape[-1])
-        self.truth, self.known = truth, known  # (cycles, patches, 9, 3), (cycles,)
-        self.cycle = 0
-        self.position = 0
-
-    def on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if data:  # counter = cycle % 240 + 1: the next cycle with that counter
-            self.cycle += (data[0] - 2 - self.cycle) % 240 + 1
-        else:
-            self.cycle += 1
-
-    def read(self) -> NDArray[np.float64]:
-        k = self.position % len(self.resistance_ohm)
-        self.position += 1
-        if self.cycle < len(self.truth):
-            self.truth[self.cycle] = self.force_N[k]
-            self.known[self.cycle] = True
-        sample: NDArray[np.float64] = self.resistance_ohm[k]
-        return sample
+    name: str
+    patches: tuple[int, ...]
+    host_bus: can.BusABC
+    network: canopen.Network
+    server: PatchServer
+    clock: BusClock
+    wire_start: Any = None
+    wire_end: Any = None
+    frames_sent: int = 0
 
 
-class _BusClock:
-    """Bus timestamps of every SYNC and of every force node's TPDO 7 (a sample's last).
+def _open(kind: str, channel: str, args: argparse.Namespace, *, own: bool = False) -> can.BusABC:
+    import can
 
-    A listener on the simulated patches' bus, which receives every SYNC and force TPDO
-    anyway: a bus of its own would add a copy and a thread's work to every frame of the
-    run it measures. A virtual bus stamps a frame once, when it is sent, so every
-    receiver sees the same time.
-    """
-
-    def __init__(self, force_ids: set[int], tpdo7: dict[int, int]) -> None:
-        self.force_ids = force_ids  # every force TPDO COB-ID
-        self.tpdo7 = tpdo7  # COB-ID of a force node's TPDO 7 -> its patch
-        self.syncs: list[float] = []
-        self.ends: dict[int, list[float]] = {p: [] for p in tpdo7.values()}
-        self.force_frames = 0
-
-    def __call__(self, msg: can.Message) -> None:
-        cob_id = msg.arbitration_id
-        if cob_id == 0x080:
-            self.syncs.append(msg.timestamp)
-        elif cob_id in self.force_ids:
-            self.force_frames += 1
-            patch = self.tpdo7.get(cob_id)
-            if patch is not None:
-                self.ends[patch].append(msg.timestamp)
+    if kind == "virtual":
+        protocol = can.CanProtocol.CAN_FD if args.fd else can.CanProtocol.CAN_20
+        return can.Bus(interface="virtual", channel=channel, protocol=protocol,
+                       receive_own_messages=own)
+    return can.Bus(interface="timed", channel=channel, bitrate=args.bitrate, fd=args.fd,
+                   data_bitrate=args.data_bitrate if args.fd else None,
+                   receive_own_messages=own)
 
 
-class _Record:
-    """What the host published, per cycle and patch, in arrays allocated up front.
+def _plan(args: argparse.Namespace, scene: Scene, heartbeat_ms: int,
+          force_heartbeat_ms: int) -> Plan:
+    from canbus.busload import plan
 
-    The callback copies a frame into place and keeps the latest per patch for the live
-    view: the run allocates no long-lived objects for the garbage collector to walk.
-    """
-
-    def __init__(self, cycles: int, node_ids: tuple[int, ...]) -> None:
-        import numpy as np
-
-        self.column = {n: j for j, n in enumerate(node_ids)}
-        shape = (cycles, len(node_ids))
-        self.force = np.zeros((*shape, 9, 3))
-        self.valid = np.zeros((*shape, 9), dtype=bool)
-        self.complete = np.zeros(shape, dtype=bool)
-        self.published = np.zeros(shape, dtype=bool)
-        self.latest: dict[int, ForceFrame] = {}
-
-    def __call__(self, frame: ForceFrame) -> None:
-        self.latest[frame.patch] = frame
-        c, j = frame.cycle, self.column[frame.patch]
-        if c < len(self.force):
-            self.force[c, j] = frame.force_N
-            self.valid[c, j] = frame.valid
-            self.complete[c, j] = frame.complete
-            self.published[c, j] = frame.published
-
-    def latencies_ms(self, clock: _BusClock) -> NDArray[np.float64]:
-        """SYNC -> last force TPDO of every published sample, in ms: the i-th TPDO 7 of a
-        force node ends the i-th published sample of its patch."""
-        import numpy as np
-
-        syncs = np.asarray(clock.syncs)
-        out = []
-        for patch, j in self.column.items():
-            cycles = np.flatnonzero(self.published[:, j])
-            ends = np.asarray(clock.ends[patch][: len(cycles)])
-            cycles = cycles[: len(ends)]
-            ok = cycles <= len(syncs)
-            out.append(1000.0 * (ends[ok] - syncs[cycles[ok] - 1]))
-        return np.concatenate(out) if out else np.empty(0)
-
-    def rmse_N(self, truth: NDArray[np.float64], known: NDArray[np.bool_]) -> float:
-        """Over the valid taxels of complete samples whose truth is known."""
-        import numpy as np
-
-        chosen = self.complete & known[:, None]
-        error = (self.force[chosen] - truth[chosen])[self.valid[chosen]]
-        return float(np.sqrt(np.mean(error ** 2))) if error.size else math.nan
+    return plan(len(scene.node_ids), scene.rate_hz, scene.mode, args.bitrate,
+                data_bitrate=args.data_bitrate if args.fd else None, buses=args.buses,
+                forces="same-bus", heartbeat_ms=heartbeat_ms,
+                force_heartbeat_ms=force_heartbeat_ms)
 
 
-def _table(host: HostManager, live: _Record, elapsed: float, seconds: float) -> Any:
+def _check_plan(args: argparse.Namespace, plan: Plan) -> None:
+    """Refuse a bus the plan says cannot carry the traffic; warn about a tight one."""
+    from skin.errors import ConfigError
+
+    worst = max(plan.buses, key=lambda b: b.load_best_pct)
+    kind = f"CAN FD {args.bitrate:,}/{args.data_bitrate:,}" if args.fd else \
+        f"CAN {args.bitrate:,}"
+    numbers = (f"{plan.patches} patches x {plan.rate_hz:g} Hz ({plan.mode}) with their force "
+               f"PDOs on {args.buses} bus{'es' if args.buses > 1 else ''} of {kind} bit/s: "
+               f"{worst.load_best_pct:.0f}-{worst.load_worst_pct:.0f} % load, "
+               f"{worst.cycle_ms_best:.2f}-{worst.cycle_ms_worst:.2f} ms of wire per "
+               f"{1000 / plan.rate_hz:g} ms cycle")
+    if args.bus == "virtual":
+        if not plan.fits:
+            print(f"note: on a real bus this would not fit: {numbers} (skin plan)",
+                  file=sys.stderr)
+        return
+    if worst.load_best_pct > 100.0 and not args.overload:
+        raise ConfigError("--patches", f"{numbers}: it cannot fit; use --fd, --buses "
+                          f"{math.ceil(worst.load_best_pct / 70)}, fewer patches, or "
+                          "--overload to watch it fail")
+    if not plan.fits:
+        print(f"warning: {numbers} (skin plan); with worst-case stuffing it does not fit, "
+              "so samples may come late", file=sys.stderr)
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from skin.commands.cpu import pinned
+    from skin.errors import ConfigError
+
+    if not args.seconds > 0:
+        raise ConfigError("--seconds", f"must be > 0, got {args.seconds}")
+    if args.buses < 1:
+        raise ConfigError("--buses", f"must be at least 1, got {args.buses}")
+    if args.data_bitrate is not None and not args.fd:
+        raise ConfigError("--data-bitrate", "is the CAN FD data phase: add --fd")
+    if args.data_bitrate is None:
+        args.data_bitrate = 5_000_000
+    if args.cpu is None:  # see add_subparser
+        args.cpu = "last" if args.bus == "virtual" else "all"
+    with pinned(args.cpu) as cpus:  # before the first thread starts: threads inherit it
+        return _run_demo(args, cpus)
+
+
+def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
+    import canopen
+    import numpy as np
+
+    from canbus.busload import spread
+    from canbus.device.patch_server import PatchServer
+    from canbus.master.busconfig import BusConfig
+    from canbus.master.host import HostManager
+    from canbus.master.hostconfig import HostConfig, PatchConfig, predefined_tpdo_cob_ids
+    from sim import Simulator
+    from skin.commands.demo_rig import BusClock, Record, Replay
+    from skin.errors import BusError, ConfigError
+
+    scene = _scene(args.scene, args.patches)
+    if args.buses > len(scene.node_ids):
+        raise ConfigError("--buses", f"{args.buses} buses for {len(scene.node_ids)} patches")
+    groups = spread(scene.node_ids, args.buses)
+    names = [f"skin{k}" for k in range(len(groups))]
+    buses = tuple(BusConfig(name=name, fd=args.fd) for name in names)
+    rate_hz = scene.rate_hz
+    config = HostConfig(
+        patches=tuple(PatchConfig(n, mode=scene.mode, bus=names[k])
+                      for k, group in enumerate(groups) for n in group),
+        sync_period_ms=1000.0 / rate_hz, scan_ms=100, buses=buses).check()
+    plan = _plan(args, scene, config.heartbeat_ms, config.force_heartbeat_ms)
+    _check_plan(args, plan)
+
+    steps = math.ceil(args.seconds * rate_hz) + int(rate_hz) + 2
+    simulated = Simulator(scene).run(steps)
+    truth = np.zeros((steps, len(scene.node_ids), 9, 3))
+    known = np.zeros((steps, len(scene.node_ids)), dtype=bool)
+    live = Record(steps, scene.node_ids)
+    timed = args.bus == "timed"
+    opened: list[_Bus] = []
+    try:
+        for name, group in zip(names, groups, strict=True):
+            channel = f"demo-{os.getpid()}-{name}"
+            host_bus = _open(args.bus, channel, args)  # first: the patches' frames need it
+            patch_net = canopen.Network(_open(args.bus, channel, args, own=timed))
+            patch_net.NOTIFIER_CYCLE = 0.05
+            patch_net.connect()
+            last = {(predefined_tpdo_cob_ids(n + 64)[0 if args.fd else -1]): n for n in group}
+            clock = BusClock(last, args.bitrate if timed else None,
+                             args.data_bitrate if timed and args.fd else None)
+            clock.force_cobs = {c for n in group for c in
+                                predefined_tpdo_cob_ids(n + 64)[:1 if args.fd else 7]}
+            assert patch_net.notifier is not None
+            patch_net.notifier.add_listener(clock)
+            columns = [live.column[n] for n in group]
+            replay = Replay(simulated.resistance_ohm, simulated.force_N, group, columns, truth,
+                            known)
+            server = PatchServer(patch_net, replay)
+            patch_net.subscribe(0x080, replay.on_sync)  # before the server's: it labels cycles
+            opened.append(_Bus(name, group, host_bus, patch_net, server, clock))
+        host = HostManager({b.name: b.host_bus for b in opened}, config)
+        # The nodes' object dictionaries are ~50k long-lived objects: a full collection
+        # walking them stalled every thread for ~75 ms mid-run. Collect once, freeze them.
+        gc.collect()
+        gc.freeze()
+        # Before the start: a sample published before the record saw it would still end on
+        # the bus clock, and every later sample would be matched to the SYNC before its own.
+        host.on_forces(live)
+        for bus in opened:
+            bus.server.start()
+        try:
+            with host:
+                if not host.wait_operational(timeout=10.0):
+                    states = {n: h.state for n, h in host.health().items()}
+                    raise BusError(f"the patches did not all become operational: {states}")
+                print(_banner(args, scene, config, cpus), flush=True)
+                for bus in opened:
+                    bus.wire_start = _wire(bus.host_bus)
+                started = time.monotonic()
+                _watch(host, live, args.seconds)
+                for bus in opened:
+                    bus.wire_end = _wire(bus.host_bus)
+            seconds = time.monotonic() - started
+            stats = host.stats()
+        finally:
+            for bus in opened:
+                bus.server.stop()
+                bus.frames_sent = bus.server.frames_sent
+    finally:
+        gc.unfreeze()
+        for bus in opened:
+            bus.network.disconnect()
+            bus.host_bus.shutdown()
+    record = _summary(args, scene, plan, opened, live, stats, seconds, truth, known, cpus)
+    _print(record)
+    if args.json:
+        from skin.atomic import atomic_write
+
+        with atomic_write(args.json) as handle:
+            handle.write(json.dumps(record, indent=2).encode() + b"\n")
+    return 0
+
+
+def _wire(bus: can.BusABC) -> Any:
+    stats = getattr(bus, "wire_stats", None)
+    return stats() if callable(stats) else None
+
+
+def _banner(args: argparse.Namespace, scene: Scene, config: Any, cpus: set[int] | None) -> str:
+    where = "any CPU" if cpus is None else f"CPU {','.join(map(str, sorted(cpus)))}"
+    kind = "virtual (zero-time)" if args.bus == "virtual" else (
+        f"timed CAN FD {args.bitrate:,}/{args.data_bitrate:,} bit/s" if args.fd else
+        f"timed CAN {args.bitrate:,} bit/s")
+    buses = f" on {args.buses} buses" if args.buses > 1 else ""
+    return (f"skin demo: {len(config.patches)} patches ({scene.name}, {scene.mode}, "
+            f"{config.patches[0].decoder}) at {scene.rate_hz:g} Hz, {kind}{buses}, {where}")
+
+
+def _summary(args: argparse.Namespace, scene: Scene, plan: Plan, opened: list[_Bus],
+             live: Record, stats: dict[str, int], seconds: float, truth: Any, known: Any,
+             cpus: set[int] | None) -> dict[str, Any]:
+    import numpy as np
+
+    from skin.commands.demo_rig import percentiles
+
+    cycle = np.concatenate([live.cycle_latencies_ms(b.clock, list(b.patches)) for b in opened])
+    sample = np.concatenate([live.sample_latencies_ms(b.clock, list(b.patches))
+                             for b in opened])
+    wire = np.concatenate([1000.0 * np.asarray(b.clock.wire_s[1:-1]) for b in opened])
+    used = stats["frames_in"] - stats["late_frames"] - stats["duplicate_frames"] - \
+        stats["out_of_order_frames"] - stats["malformed_frames"]
+    seen = sum(b.clock.force_frames for b in opened)
+    dropped = (sum(b.frames_sent for b in opened) - used) + (stats["frames_out"] - seen) + \
+        stats["send_errors"]
+    loads = [round(b.wire_end.load_since(b.wire_start), 2)
+             if b.wire_start is not None and b.wire_end is not None else None for b in opened]
+    p50, p99, worst = percentiles(cycle, [50, 99, 100])
+    s50, s99, smax = percentiles(sample, [50, 99, 100])
+    w50, w99 = percentiles(wire, [50, 99])
+    measured = [x for x in loads if x is not None]
+    return {
+        "bus": args.bus, "bitrate": args.bitrate if args.bus == "timed" else None,
+        "data_bitrate": args.data_bitrate if args.fd else None, "fd": args.fd,
+        "buses": len(opened), "patches": len(scene.node_ids), "seconds": round(seconds, 3),
+        "scene": scene.name, "mode": scene.mode, "rate_hz": scene.rate_hz,
+        "samples": stats["samples"], "complete_samples": stats["complete_samples"],
+        "incomplete_samples": stats["incomplete_samples"], "dropped_frames": dropped,
+        "samples_per_s": round(stats["samples"] / seconds, 1),
+        "bus_load_pct": max(measured) if measured else None,
+        "bus_loads_pct": {b.name: load for b, load in zip(opened, loads, strict=True)},
+        "plan": {"load_pct": {"best": round(plan.load_best_pct, 2),
+                              "worst": round(plan.load_worst_pct, 2)},
+                 "cycle_ms": {"best": round(plan.cycle_ms_best, 3),
+                              "worst": round(plan.cycle_ms_worst, 3)},
+                 "buses": {name: {"best": round(b.load_best_pct, 2),
+                                  "worst": round(b.load_worst_pct, 2)}
+                           for name, b in zip([o.name for o in opened], plan.buses,
+                                              strict=False)}},
+        "wire_ms": {"p50": _figure(w50), "p99": _figure(w99)},
+        "latency_ms": {"p50": _figure(p50), "p99": _figure(p99), "max": _figure(worst)},
+        "sample_latency_ms": {"p50": _figure(s50), "p99": _figure(s99), "max": _figure(smax)},
+        "rmse_N": _figure(live.rmse_N(truth, known), 5),
+        "decoder": "analytic",
+        "sync_overruns": stats["sync_overruns"],
+        "cpus": None if cpus is None else sorted(cpus),
+    }
+
+
+def _print(record: dict[str, Any]) -> None:
+    print(f"  samples   {record['samples']} ({record['complete_samples']} complete, "
+          f"{record['incomplete_samples']} incomplete) in {record['seconds']:.1f} s = "
+          f"{record['samples_per_s']:g}/s; dropped frames {record['dropped_frames']}")
+    latency, wire = record["latency_ms"], record["wire_ms"]
+    line = (f"  latency   SYNC -> the cycle's last force PDO: p50 {_ms(latency['p50'])}, "
+            f"p99 {_ms(latency['p99'])}")
+    if wire["p50"] is not None:
+        line += f"; the cycle's frames hold the wire {_ms(wire['p50'])} (p50)"
+    print(line)
+    if record["bus_load_pct"] is not None:
+        plan = record["plan"]["load_pct"]
+        print(f"  bus load  {record['bus_load_pct']:.1f} % measured (plan: {plan['best']:.1f}-"
+              f"{plan['worst']:.1f} %)")
+    print(f"  accuracy  rmse {record['rmse_N']:.4f} N against the simulator's true forces")
+
+
+def _ms(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f} ms"
+
+
+def _table(host: HostManager, live: Record, elapsed: float, seconds: float) -> Any:
     import numpy as np
     from rich.table import Table
 
     table = Table(title=f"skin demo  {elapsed:4.1f} / {seconds:g} s", title_justify="left")
-    for column in ("patch", "state", "samples", "incomplete", "peak |F| N", "taxel",
-                   "sum Fz N"):
+    several = len(host.links) > 1
+    for column in ("patch", *(("bus",) if several else ()), "state", "samples", "incomplete",
+                   "peak |F| N", "taxel", "sum Fz N"):
         table.add_column(column, justify="right")
     for node_id, health in sorted(host.health().items()):
+        where = (str(node_id), *((health.bus,) if several else ()), health.state)
         frame = live.latest.get(node_id)
         if frame is None:
-            table.add_row(str(node_id), health.state, "0", "0", "-", "-", "-")
+            table.add_row(*where, "0", "0", "-", "-", "-")
             continue
         magnitude = np.linalg.norm(frame.force_N, axis=1)
         k = int(np.argmax(magnitude))
-        table.add_row(str(node_id), health.state, str(health.samples), str(health.incomplete),
+        table.add_row(*where, str(health.samples), str(health.incomplete),
                       f"{magnitude[k]:.2f}", str(k), f"{frame.force_N[:, 2].sum():.2f}")
     return table
 
 
-def _line(host: HostManager, live: _Record, elapsed: float) -> str:
+def _line(host: HostManager, live: Record, elapsed: float) -> str:
     import numpy as np
 
     stats = host.stats()
@@ -206,7 +372,7 @@ def _line(host: HostManager, live: _Record, elapsed: float) -> str:
             f"{stats['incomplete_samples']} incomplete  peak {peak:.2f} N ({where})")
 
 
-def _watch(host: HostManager, live: _Record, seconds: float) -> None:
+def _watch(host: HostManager, live: Record, seconds: float) -> None:
     """Show live forces for ``seconds``: a rich table on a terminal, a line a second if not."""
     started = time.monotonic()
     stop = threading.Event()
@@ -234,111 +400,11 @@ def _figure(value: float, digits: int = 3) -> float | None:
     return None if math.isnan(value) else round(value, digits)
 
 
-def _demo(args: argparse.Namespace) -> int:
-    from skin.commands.cpu import pinned
-    from skin.errors import ConfigError
-
-    if not args.seconds > 0:
-        raise ConfigError("--seconds", f"must be > 0, got {args.seconds}")
-    with pinned(args.cpu) as cpus:  # before the first thread starts: threads inherit it
-        return _run_demo(args, cpus)
-
-
-def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
-    import can
-    import canopen
-    import numpy as np
-
-    from canbus.device.patch_server import PatchServer
-    from canbus.master.host import HostManager
-    from canbus.master.hostconfig import HostConfig, PatchConfig, predefined_tpdo_cob_ids
-    from sim import Simulator
-    from skin.atomic import atomic_write
-    from skin.errors import BusError
-
-    scene = _scene(args.scene, args.patches)
-    rate_hz = scene.rate_hz
-    steps = math.ceil(args.seconds * rate_hz) + int(rate_hz) + 2
-    simulated = Simulator(scene).run(steps)
-    truth = np.zeros((steps, len(scene.node_ids), 9, 3))
-    known = np.zeros(steps, dtype=bool)
-    replay = _Replay(simulated.resistance_ohm, simulated.force_N, scene.node_ids, truth, known)
-    config = HostConfig(
-        patches=tuple(PatchConfig(n, mode=scene.mode) for n in scene.node_ids),
-        sync_period_ms=1000.0 / rate_hz, scan_ms=100).check()
-    channel = f"skin-demo-{os.getpid()}"
-    tpdo7 = {predefined_tpdo_cob_ids(p.force_node)[-1]: p.node_id for p in config.patches}
-    patch_net = canopen.Network()
-    patch_net.NOTIFIER_CYCLE = 0.05
-    patch_net.connect(interface="virtual", channel=channel)
-    force_ids = {c for p in config.patches for c in predefined_tpdo_cob_ids(p.force_node)}
-    clock = _BusClock(force_ids, tpdo7)
-    assert patch_net.notifier is not None
-    patch_net.notifier.add_listener(clock)
-    host_bus = can.Bus(interface="virtual", channel=channel)
-    live = _Record(steps, scene.node_ids)
-    server = PatchServer(patch_net, replay)
-    patch_net.subscribe(0x080, replay.on_sync)  # before the server's: it labels the cycle
-    host = HostManager(host_bus, config)
-    # The nodes' object dictionaries are ~50k long-lived objects: a full collection walking
-    # them stalled every thread for ~75 ms mid-run. Collect once now and freeze them.
-    gc.collect()
-    gc.freeze()
-    # Before the start: a sample published before the record saw it would still end on
-    # the bus clock, and every later sample would be matched to the SYNC before its own.
-    host.on_forces(live)
-    try:
-        with server, host:
-            if not host.wait_operational(timeout=10.0):
-                states = {n: h.state for n, h in host.health().items()}
-                raise BusError(f"the patches did not all become operational: {states}")
-            where = "any CPU" if cpus is None else f"CPU {','.join(map(str, sorted(cpus)))}"
-            print(f"skin demo: {len(config.patches)} patches ({scene.name}, {scene.mode}, "
-                  f"{config.patches[0].decoder}) at {rate_hz:g} Hz on virtual:{channel}, "
-                  f"{where}", flush=True)
-            started = time.monotonic()
-            _watch(host, live, args.seconds)
-        seconds = time.monotonic() - started
-        stats = host.stats()
-    finally:
-        gc.unfreeze()
-        host_bus.shutdown()
-        patch_net.disconnect()
-    latency = live.latencies_ms(clock)
-    used = stats["frames_in"] - stats["late_frames"] - stats["duplicate_frames"] - \
-        stats["malformed_frames"]
-    dropped = (server.frames_sent - used) + (stats["frames_out"] - clock.force_frames) + \
-        stats["send_errors"]
-    p50, p99, worst = (np.percentile(latency, [50, 99, 100]).tolist() if latency.size
-                       else [math.nan] * 3)
-    record = {
-        "patches": len(config.patches), "seconds": round(seconds, 3), "scene": scene.name,
-        "mode": scene.mode, "rate_hz": rate_hz, "samples": stats["samples"],
-        "complete_samples": stats["complete_samples"],
-        "incomplete_samples": stats["incomplete_samples"], "dropped_frames": dropped,
-        "samples_per_s": round(stats["samples"] / seconds, 1),
-        "latency_ms": {"p50": _figure(p50), "p99": _figure(p99), "max": _figure(worst)},
-        "rmse_N": _figure(live.rmse_N(truth, known), 5),
-        "decoder": config.patches[0].decoder,
-        "sync_overruns": stats["sync_overruns"],
-        "cpus": None if cpus is None else sorted(cpus),
-    }
-    print(f"  samples   {record['samples']} ({record['complete_samples']} complete, "
-          f"{record['incomplete_samples']} incomplete) in {seconds:.1f} s = "
-          f"{record['samples_per_s']:g}/s; dropped frames {dropped}")
-    print(f"  latency   SYNC -> forces on the bus: p50 {p50:.2f} ms, p99 {p99:.2f} ms")
-    print(f"  accuracy  rmse {record['rmse_N']:.4f} N against the simulator's true forces")
-    if args.json:
-        with atomic_write(args.json) as handle:
-            handle.write(json.dumps(record, indent=2).encode() + b"\n")
-    return 0
-
-
 def add_subparser(subparsers: Any) -> None:
     from skin.commands.cpu import add_cpu_argument
 
     parser = subparsers.add_parser(
-        "demo", help="simulated patches + the host on a virtual bus: live forces, a summary")
+        "demo", help="simulated patches + the host on a timed bus: live forces, a summary")
     parser.add_argument("--patches", type=int, default=DEFAULT_PATCHES, metavar="N",
                         help=f"patches, node-IDs 1..N (default {DEFAULT_PATCHES})")
     parser.add_argument("--seconds", type=float, default=DEFAULT_SECONDS, metavar="S",
@@ -346,6 +412,21 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--scene", default="indenter", metavar="NAME",
                         help="a shipped scene or a .toml path; its loads press every patch "
                              "(default indenter)")
+    parser.add_argument("--bus", choices=BUS_KINDS, default="timed",
+                        help="timed: a simulated wire that keeps time (default); virtual: "
+                             "python-can's zero-time bus")
+    parser.add_argument("--bitrate", type=int, default=1_000_000, metavar="B",
+                        help="nominal bit rate of the timed bus (default 1000000)")
+    parser.add_argument("--fd", action="store_true",
+                        help="CAN FD: a patch answers SYNC in one frame, its forces go in one")
+    parser.add_argument("--data-bitrate", type=int, default=None, metavar="B",
+                        help="CAN FD data phase (default 5000000)")
+    parser.add_argument("--buses", type=int, default=1, metavar="N",
+                        help="spread the patches over N buses, each with its own SYNC")
+    parser.add_argument("--overload", action="store_true",
+                        help="run even when the plan says the bus cannot carry the traffic")
     parser.add_argument("--json", metavar="FILE", help="write the summary figures as JSON")
-    add_cpu_argument(parser, default="last")
-    parser.set_defaults(func=_demo)
+    add_cpu_argument(parser, default="last with --bus virtual, else all")
+    # On the zero-time bus one CPU for every thread keeps a cycle's hand-offs in one cache;
+    # the timed bus adds a wire thread per bus, and the run needs both CPUs of a small host.
+    parser.set_defaults(func=_demo, cpu=None)

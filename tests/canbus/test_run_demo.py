@@ -129,21 +129,63 @@ def test_skin_run_names_a_bus_it_cannot_open(tmp_path: Path,
 
 def test_skin_demo_reports_every_figure(tmp_path: Path,
                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """The timed bus by default: the wire's time is part of every figure."""
     out = tmp_path / "demo.json"
-    assert _in_thread(["demo", "--patches", "2", "--seconds", "0.5", "--json", str(out)]) == 0
+    assert _in_thread(["demo", "--patches", "2", "--seconds", "1.0", "--json", str(out)]) == 0
     record = json.loads(out.read_text())
     assert record["patches"] == 2 and record["decoder"] == "analytic"
-    assert record["seconds"] >= 0.5 and record["samples"] > 0
+    assert (record["bus"], record["bitrate"], record["fd"], record["buses"]) == \
+        ("timed", 1_000_000, False, 1)
+    assert record["seconds"] >= 1.0 and record["samples"] > 0
     assert record["samples"] == record["complete_samples"] + record["incomplete_samples"]
     assert isinstance(record["dropped_frames"], int) and record["dropped_frames"] >= 0
     assert record["samples_per_s"] > 0
-    assert 0 < record["latency_ms"]["p50"] <= record["latency_ms"]["p99"]
+    assert 0 < record["wire_ms"]["p50"] <= record["latency_ms"]["p50"] <= \
+        record["latency_ms"]["p99"] <= record["latency_ms"]["max"]
+    plan = record["plan"]["load_pct"]
+    assert plan["best"] <= record["bus_load_pct"] <= plan["worst"]  # the planner counts truly
     assert 0 < record["rmse_N"] < 0.2  # the indenter, 3-axis, exact inverse: crosstalk only
     text = capsys.readouterr().out
-    assert "skin demo: 2 patches (indenter, xyz, analytic)" in text and "rmse" in text
+    assert "skin demo: 2 patches (indenter, xyz, analytic) at 100 Hz, timed CAN" in text
+    assert "rmse" in text and "measured (plan: " in text
+    assert record["cpus"] is None  # the timed bus's threads roam
+
+
+def test_skin_demo_on_the_virtual_bus_pins_one_cpu(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "demo.json"
+    assert _in_thread(["demo", "--bus", "virtual", "--patches", "2", "--seconds", "0.5",
+                       "--json", str(out)]) == 0
+    record = json.loads(out.read_text())
+    assert record["bus"] == "virtual" and record["bus_load_pct"] is None
+    assert record["wire_ms"] == {"p50": None, "p99": None}
+    assert 0 < record["latency_ms"]["p50"] <= record["latency_ms"]["p99"]
+    text = capsys.readouterr().out
     if hasattr(os, "sched_getaffinity"):  # by default every thread on the last CPU
         last = max(os.sched_getaffinity(0))
         assert record["cpus"] == [last] and f", CPU {last}\n" in text
+
+
+@pytest.mark.parametrize("flags", [["--fd"], ["--buses", "2"]], ids=["fd", "two-buses"])
+def test_skin_demo_fd_and_several_buses(tmp_path: Path, flags: list[str]) -> None:
+    out = tmp_path / "demo.json"
+    assert _in_thread(["demo", "--patches", "2", "--seconds", "1.0", *flags,
+                       "--json", str(out)]) == 0
+    record = json.loads(out.read_text())
+    assert record["samples"] > 0 and record["fd"] == ("--fd" in flags)
+    assert record["buses"] == (2 if "--buses" in flags else 1)
+    for name, load in record["bus_loads_pct"].items():
+        planned = record["plan"]["buses"][name]
+        assert planned["best"] <= load <= planned["worst"], name
+    assert record["wire_ms"]["p50"] <= record["latency_ms"]["p50"]
+
+
+def test_skin_demo_refuses_traffic_the_bus_cannot_carry(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    assert _in_thread(["demo", "--patches", "8", "--seconds", "0.5"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("skin: error: --patches: 8 patches x 100 Hz (xyz)") and \
+        "124-151 % load" in err and "cannot fit; use --fd, --buses 2" in err
 
 
 def test_skin_demo_refuses_a_cpu_it_cannot_use(capsys: pytest.CaptureFixture[str]) -> None:
