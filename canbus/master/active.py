@@ -149,6 +149,7 @@ class ActiveMaster:
                 map_fd(force)
             if patch.config.force_cob_ids is not None:
                 _set_tpdo_cob_ids(force, patch.config.force_cob_ids)
+            force.on_tare = functools.partial(self.host.tare, patch.node_id)
             force.start()
 
     def _submit(self, job: Callable[[int], None], node_id: int) -> Future[None] | None:

@@ -160,10 +160,11 @@ def open_bus(bus: BusConfig) -> can.BusABC:
     """Open ``bus`` with python-can; a :class:`~skin.errors.BusError` naming it if that fails."""
     if bus.interface is None and not can.util.load_config().get("interface"):
         raise BusError(f"bus {bus.name!r}: no interface: give one (-i IFACE, or interface = "
-                       "... in the config's [bus] table, or python-can's configuration)")
+                       "... in the config's bus table, or python-can's configuration)")
+    what = f"the bus {bus.described}" if bus.name == DEFAULT_BUS else \
+        f"bus {bus.name!r} ({bus.described})"
     try:
         return can.Bus(**bus.kwargs())
     except (can.CanError, OSError, ValueError, TypeError, ImportError, NotImplementedError) \
             as err:
-        raise BusError(f"bus {bus.name!r} ({bus.described}): cannot open it: "
-                       f"{type(err).__name__}: {err}") from err
+        raise BusError(f"cannot open {what}: {type(err).__name__}: {err}") from err

@@ -10,6 +10,7 @@ and canopen's own listener keeps seeing every frame, as it did.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import can
@@ -32,7 +33,8 @@ class BusLink:
                  heartbeat_ms: int, on_boot: Callable[[int], None],
                  on_lost: Callable[[int], None], on_return: Callable[[int, int], None],
                  on_change: Callable[[int, int], None] | None,
-                 on_any_boot: Callable[[BusLink, int], None]) -> None:
+                 on_any_boot: Callable[[BusLink, int], None],
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.config = config
         self.name = config.name
         if isinstance(bus, canopen.Network):
@@ -46,7 +48,7 @@ class BusLink:
             self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
         self.monitor = HeartbeatMonitor(self.network, heartbeat_ms, on_boot=on_boot,
                                         on_lost=on_lost, on_return=on_return,
-                                        on_change=on_change)
+                                        on_change=on_change, clock=clock)
         self.boots = BootListener(self.network, lambda node_id: on_any_boot(self, node_id))
         self.dataplane: DataPlane | None = None
         self.sync: SyncProducer | SyncFollower | None = None

@@ -5,7 +5,9 @@
 Objects: 0x2000 forces, 27 INTEGER16 in mN (taxel*3 + axis + 1; Fx, Fy, Fz); 0x2001 the
 source patch's node-ID; 0x2004 per-taxel status (the ``decoder.reasons`` code, 0 OK);
 0x2005 valid taxels, UNSIGNED16 (bit k = taxel k valid, bit 15 = sample complete); 0x2006
-the counter byte of the SYNC the sample answers (0: none). A component that is invalid
+the counter byte of the SYNC the sample answers (0: none); 0x2007 tare: writing 1 by SDO
+re-zeroes the source patch at its last sample (aborted with 0x08000022 while the patch is
+loaded or not decoded, 0x06090030 for any other value). A component that is invalid
 or does not fit INTEGER16 is sent as 0x8000 (-32768, "no value"), never clipped, and its
 taxel's valid bit is cleared.
 
@@ -20,12 +22,14 @@ while OPERATIONAL (:attr:`transmitting`).
 from __future__ import annotations
 
 import functools
+import logging
 import weakref
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from canopen.sdo.exceptions import SdoAbortedError
 from numpy.typing import ArrayLike, NDArray
 
 from canbus.device.local_device import TPDO_COUNT, LocalDevice
@@ -40,9 +44,16 @@ from canbus.pdo_codec import (
     read_defaults,
     read_layouts,
 )
-from skin.errors import BusError, ConfigError
+from skin.errors import BusError, ConfigError, SkinError
 
-FORCES, SOURCE, STATUS, VALID, ANSWERED = 0x2000, 0x2001, 0x2004, 0x2005, 0x2006
+FORCES, SOURCE, STATUS, VALID, ANSWERED, TARE = 0x2000, 0x2001, 0x2004, 0x2005, 0x2006, 0x2007
+TARE_COMMAND = 1
+"""Written to 0x2007 by any master: re-zero the source patch at its last sample."""
+DEVICE_STATE = 0x0800_0022
+"""SDO abort: the data cannot be stored because of the present device state (CiA 301)."""
+INVALID_VALUE = 0x0609_0030
+logger = logging.getLogger(__name__)
+
 NO_VALUE = -0x8000
 """INTEGER16 0x8000: the component has no value (invalid taxel or beyond +-32.767 N)."""
 COMPLETE = 1 << 15
@@ -194,8 +205,12 @@ class ForceNode(LocalDevice):
             raise ConfigError("heartbeat_ms", f"must be in 0..65535, got {heartbeat_ms}")
         self.source_patch = source_patch
         self.heartbeat_ms = heartbeat_ms
+        self.on_tare: Callable[[], None] | None = None
+        """Called when a master writes 1 to 0x2007 (on the SDO server's thread); an
+        exception refuses the write: :class:`SkinError` with abort 0x08000022."""
         self._clear_application()
         super().__init__(node_id, "skin-forces")
+        self.store.validators.append(self._tare)
 
     @property
     def codec(self) -> PdoCodec:
@@ -257,6 +272,20 @@ class ForceNode(LocalDevice):
         if index == ANSWERED:
             return self._answered
         return None
+
+    def _tare(self, index: int, subindex: int, value: Any) -> None:
+        if index != TARE:
+            return
+        if value != TARE_COMMAND:
+            raise SdoAbortedError(INVALID_VALUE)
+        if self.on_tare is None:
+            raise SdoAbortedError(DEVICE_STATE)
+        try:
+            self.on_tare()
+        except SkinError as err:
+            logger.warning("force node %d: tare of patch %d refused: %s", self.node_id,
+                           self.source_patch, err)
+            raise SdoAbortedError(DEVICE_STATE) from err
 
     def clear_sample(self) -> None:
         """Forget the last sample: every force reads 0x8000 again, no taxel valid."""

@@ -33,6 +33,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import time
 from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
@@ -87,12 +88,14 @@ class HostManager:
     are not shut down on stop). ``on_unknown`` is called with an
     :class:`~canbus.master.discovery.UnknownNode` for every node the host does not manage;
     the host never writes to such a node. ``listen_only`` (default: ``config.listen_only``):
-    decode what another master runs and send nothing.
+    decode what another master runs and send nothing. ``clock`` times the heartbeats
+    (a recording's own clock when one is decoded offline: ``canbus.master.offline``).
     """
 
     def __init__(self, bus: Buses, config: HostConfig, *,
                  on_unknown: Callable[[UnknownNode], None] | None = None,
-                 listen_only: bool | None = None) -> None:
+                 listen_only: bool | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         config = config.check()
         if listen_only is not None:
             config = replace(config, listen_only=listen_only)
@@ -113,7 +116,7 @@ class HostManager:
                 config.bus(name), given, heartbeat_ms=config.heartbeat_ms,
                 on_boot=self._on_patch_boot, on_lost=self._on_lost, on_return=self._on_return,
                 on_change=self._on_change if self.listen_only else None,
-                on_any_boot=self._on_any_boot)
+                on_any_boot=self._on_any_boot, clock=clock)
         self.patches: dict[int, PatchRecord] = {}
         for patch in config.patches:
             node = canopen.RemoteNode(patch.node_id, load_od("skin-patch", patch.node_id))

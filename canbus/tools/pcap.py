@@ -6,7 +6,8 @@ the payload length, the CAN FD flags (BRS 0x01, ESI 0x02, FDF 0x04), two reserve
 and the data padded to 8 (CAN_MTU = 16 bytes) or 64 (CANFD_MTU = 72 bytes). Writing the
 full MTU is what a SocketCAN capture produces; Wireshark 4.0 tells CAN FD from classic
 CAN by that record length. The writer uses microsecond timestamps (the classic pcap
-magic); the reader takes both byte orders and nanosecond files. pcapng is not read.
+magic); the reader takes both byte orders and nanosecond files. pcapng files have a
+reader of their own (``canbus.tools.pcapng``), which ``Recording`` picks by content.
 
 :class:`PcapWriter` and :class:`PcapReader` are python-can message writer and reader
 classes, so they plug into anything that takes a ``can.Listener`` or iterates messages.
@@ -114,7 +115,8 @@ class PcapReader(BinaryIOMessageReader):
             raise RecordingError(self.source, None, "not a pcap file: empty or cut short")
         magic = struct.unpack("<I", head[:4])[0]
         if magic == _PCAPNG:
-            raise RecordingError(self.source, None, "pcapng is not read; convert it with "
+            raise RecordingError(self.source, None, "a pcapng file: read it with "
+                                 "canbus.tools.pcapng.PcapngReader, or convert it with "
                                  "`editcap -F pcap IN OUT`")
         order = next((o for o in "<>" if struct.unpack(f"{o}I", head[:4])[0]
                       in (_MAGIC_US, _MAGIC_NS)), None)

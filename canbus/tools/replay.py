@@ -13,7 +13,8 @@ replayed:
   every .log line is a ``candump -L`` frame; every .asc frame line yields a frame; an
   .asc ends with ``End TriggerBlock``;
 - .blf: the file is as long as its header says; parse and zlib errors;
-- .pcap: see ``canbus.tools.pcap``.
+- .pcap: see ``canbus.tools.pcap``; a pcapng file (dumpcap's default, also under a .pcap
+  name): see ``canbus.tools.pcapng``.
 
 A .log cut exactly at the end of a line is indistinguishable from a shorter recording.
 
@@ -46,6 +47,7 @@ import can
 from can.io.blf import BLFParseError
 
 from canbus.tools.pcap import FD_LENGTHS, PcapReader
+from canbus.tools.pcapng import SECTION_HEADER, PcapngReader
 from skin.errors import ConfigError, RecordingError
 
 __all__ = ["READERS", "Recording", "RecordingError", "ReplayResult", "Replayer",
@@ -53,7 +55,7 @@ __all__ = ["READERS", "Recording", "RecordingError", "ReplayResult", "Replayer",
 
 READERS: dict[str, Callable[..., can.io.generic.MessageReader]] = {
     ".log": can.CanutilsLogReader, ".asc": can.ASCReader, ".blf": can.BLFReader,
-    ".pcap": PcapReader,
+    ".pcap": PcapReader, ".pcapng": PcapngReader,
 }
 _LOG_LINE = re.compile(
     r"\(\d+\.\d+\) \S+ (?:[0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})#"
@@ -142,6 +144,8 @@ class Recording:
             if self.suffix in (".log", ".asc"):
                 self._lines = _Lines(self.path, self.suffix, lambda: self.frames)
                 self._reader = READERS[self.suffix](cast(TextIO, self._lines))
+            elif self.suffix == ".pcap" and _is_pcapng(self.path):  # dumpcap's default format
+                self._reader = PcapngReader(source)
             else:
                 self._reader = READERS[self.suffix](source)
         except RecordingError:
@@ -184,6 +188,15 @@ class Recording:
             if actual < expected:
                 raise RecordingError(source, self.frames + 1, f"the file ends here, at {actual}"
                                      f" of the {expected} bytes its header promises (truncated)")
+
+
+def _is_pcapng(path: Path) -> bool:
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(4)
+    except OSError:
+        return False
+    return len(head) == 4 and struct.unpack("<I", head)[0] == SECTION_HEADER
 
 
 def _problem(msg: can.Message) -> str | None:

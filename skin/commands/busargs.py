@@ -4,15 +4,16 @@ from __future__ import annotations
 
 import argparse
 
+DEFAULT_CHANNELS = {"virtual": "skin", "timed": "skin", "udp_multicast": "239.74.163.2"}
+"""The channel every command uses when none is given, so that they meet on the same bus
+without ``-c`` (udp_multicast: python-can's IPv4 default group)."""
+
 
 def default_channel(args: argparse.Namespace) -> None:
-    """A channel when none was given: ``skin`` on virtual, python-can's default group on
-    udp_multicast, so that every command meets on the same bus without ``-c``."""
-    from can.interfaces.udp_multicast import UdpMulticastBus
-
-    if not hasattr(args, "channel"):
-        args.channel = ("skin" if args.interface == "virtual"
-                        else UdpMulticastBus.DEFAULT_GROUP_IPv4)
+    """Set ``args.channel`` to :data:`DEFAULT_CHANNELS`' when none was given; other
+    interfaces keep python-can's own default (its configuration, or the driver's)."""
+    if not hasattr(args, "channel") and getattr(args, "interface", None) in DEFAULT_CHANNELS:
+        args.channel = DEFAULT_CHANNELS[args.interface]
 
 
 def add_rcvbuf_argument(parser: argparse.ArgumentParser) -> None:

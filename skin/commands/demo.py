@@ -288,6 +288,8 @@ def _summary(args: argparse.Namespace, scene: Scene, plan: Plan, opened: list[_B
     s50, s99, smax = percentiles(sample, [50, 99, 100])
     w50, w99 = percentiles(wire, [50, 99])
     measured = [x for x in loads if x is not None]
+    rates = [(len(b.clock.syncs) - 1) / (b.clock.syncs[-1] - b.clock.syncs[0])
+             for b in opened if len(b.clock.syncs) > 1 and b.clock.syncs[-1] > b.clock.syncs[0]]
     return {
         "bus": args.bus, "bitrate": args.bitrate if args.bus == "timed" else None,
         "data_bitrate": args.data_bitrate if args.fd else None, "fd": args.fd,
@@ -296,6 +298,7 @@ def _summary(args: argparse.Namespace, scene: Scene, plan: Plan, opened: list[_B
         "samples": stats["samples"], "complete_samples": stats["complete_samples"],
         "incomplete_samples": stats["incomplete_samples"], "dropped_frames": dropped,
         "samples_per_s": round(stats["samples"] / seconds, 1),
+        "sync_hz": round(min(rates), 2) if rates else None,
         "bus_load_pct": max(measured) if measured else None,
         "bus_loads_pct": {b.name: load for b, load in zip(opened, loads, strict=True)},
         "plan": {"load_pct": {"best": round(plan.load_best_pct, 2),

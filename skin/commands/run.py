@@ -1,10 +1,12 @@
 """``skin run CONFIG.toml``: the host manager on any python-can bus until stopped.
 
-The config is read and checked before the bus is opened, so a bad config fails at once
-with one line naming the field. Bus flags are python-can's own (``-i``, ``-c``, ``-b``,
-...; without them, python-can's configuration file or environment). While running,
-every change of a patch's state and every unknown node is printed on a line; Ctrl-C
-(or ``--seconds``) stops the host and prints a summary.
+The config is read and checked before a bus is opened, so a bad config fails at once
+with one line naming the field. The buses are the config's (``[bus]``, or several
+``[[buses]]``); python-can's bus flags (``-i``, ``-c``, ``-b``, ``--fd`` ...) go over the
+one bus of a config (:mod:`skin.commands.hostbus`); with no bus anywhere, one line says so.
+While running, every change of a patch's state and every unknown node is printed on a
+line, and ``--status-every S`` prints a health line every S seconds; Ctrl-C, SIGTERM or
+SIGHUP (or ``--seconds``) stops the host and prints a summary.
 
 ``--listen-only`` (or ``host.listen_only = true``): decode what another master runs, or a
 recording ``skin replay`` sends, and transmit nothing. ``--cpu 3`` runs every thread of
@@ -31,62 +33,103 @@ if TYPE_CHECKING:
 POLL_S = 0.1
 
 
-def _open_bus(args: argparse.Namespace) -> can.BusABC:
-    import can.cli
-
-    from skin.errors import BusError
-
-    try:
-        return can.cli.create_bus_from_namespace(args)
-    except argparse.ArgumentError as err:
-        cause = err.__cause__ or err
-        raise BusError(f"cannot open the bus: {type(cause).__name__}: {cause}") from err
-
-
 def _report_unknown(node: UnknownNode) -> None:
     print(f"node {node.node_id}: {node.reason}; left alone", flush=True)
 
 
-def _follow(host: HostManager, seconds: float | None) -> None:
-    """Print each patch's state when it changes, until ``seconds`` or Ctrl-C."""
-    deadline = None if seconds is None else time.monotonic() + seconds
+def _follow(host: HostManager, seconds: float | None, status_every: float | None) -> None:
+    """Print each patch's state when it changes, and a status line every ``status_every``
+    seconds, until ``seconds`` or Ctrl-C."""
+    started = time.monotonic()
+    deadline = None if seconds is None else started + seconds
     shown: dict[int, str] = {}
     tick = threading.Event()
+    status = _Status(host)
+    next_status = None if status_every is None else started + status_every
     while deadline is None or time.monotonic() < deadline:
         for node_id, health in sorted(host.health().items()):
             if shown.get(node_id) != health.state:
                 shown[node_id] = health.state
                 detail = f" ({health.error})" if health.error else ""
                 print(f"patch {node_id}: {health.state}{detail}", flush=True)
-        left = POLL_S if deadline is None else min(POLL_S, deadline - time.monotonic())
+        now = time.monotonic()
+        if next_status is not None and status_every is not None and now >= next_status:
+            print(status.line(), flush=True)
+            next_status += status_every
+        left = POLL_S if deadline is None else min(POLL_S, deadline - now)
         tick.wait(max(0.0, left))
+
+
+class _Status:
+    """A health line: patches operational, sample rate, incomplete share, bus load."""
+
+    def __init__(self, host: HostManager) -> None:
+        self.host = host
+        self.last = (time.monotonic(), 0, 0)
+        self.wires = {name: _wire(link.bus) for name, link in host.links.items()}
+
+    def line(self) -> str:
+        host = self.host
+        health = host.health()
+        operational = sum(h.state == "operational" for h in health.values())
+        stats = host.stats()
+        now = time.monotonic()
+        then, samples, incomplete = self.last
+        span = max(now - then, 1e-9)
+        new = stats["samples"] - samples
+        share = 100.0 * (stats["incomplete_samples"] - incomplete) / new if new else 0.0
+        self.last = (now, stats["samples"], stats["incomplete_samples"])
+        loads = []
+        for name, link in host.links.items():
+            wire, before = _wire(link.bus), self.wires.get(name)
+            if wire is not None and before is not None:
+                loads.append(f"{name} {wire.load_since(before):.0f} %")
+            self.wires[name] = wire
+        load = f", bus load {', '.join(loads)}" if loads else ""
+        return (f"{time.strftime('%H:%M:%S')} status: {operational}/{len(health)} patches "
+                f"operational, {new / span:.0f} samples/s, {share:.1f} % incomplete"
+                f"{load}")
+
+
+def _wire(bus: can.BusABC) -> Any:
+    stats = getattr(bus, "wire_stats", None)
+    return stats() if callable(stats) else None
 
 
 def _run(args: argparse.Namespace) -> int:
     from canbus.master.hostconfig import load_host_config
     from skin.commands.cpu import pinned
+    from skin.commands.hostbus import resolve
+    from skin.errors import ConfigError
 
-    config = load_host_config(args.config)
+    if args.status_every is not None and not args.status_every > 0:
+        raise ConfigError("--status-every", f"must be > 0 s, got {args.status_every}")
+    config = resolve(load_host_config(args.config), args)
     with pinned(args.cpu):  # before the bus and the host start their threads
         return _run_host(args, config)
 
 
 def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
+    from contextlib import ExitStack
+
     from canbus.master.host import HostManager
     from canbus.tools.recorder import enlarge_receive_buffer
     from skin.atomic import atomic_write
+    from skin.commands.hostbus import describe, open_all
 
-    bus = _open_bus(args)
-    if args.rcvbuf:
-        enlarge_receive_buffer(bus, args.rcvbuf)
     started = time.monotonic()
-    try:
-        host = HostManager(bus, config, on_unknown=_report_unknown,
+    with ExitStack() as stack:
+        buses = open_all(config, stack)
+        if args.rcvbuf:
+            for bus in buses.values():
+                enlarge_receive_buffer(bus, args.rcvbuf)
+        host = HostManager(buses, config, on_unknown=_report_unknown,
                            listen_only=True if args.listen_only else None)
         gc.collect()  # the object dictionaries are long-lived: keep the collector off them
         gc.freeze()
+        stack.callback(gc.unfreeze)
         n = len(config.patches)
-        patches = f"{n} patch{'es' if n > 1 else ''} on {bus.channel_info}"
+        patches = f"{n} patch{'es' if n > 1 else ''} on {describe(config)}"
         if host.listen_only:
             print(f"host (listen-only): {patches}, following the SYNCs on the bus, "
                   "decoding; nothing is sent; Ctrl-C stops", flush=True)
@@ -95,15 +138,14 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
             print(f"host: {patches}, SYNC every {config.sync_period_ms:g} ms, forces "
                   f"published as nodes {forces}; Ctrl-C stops", flush=True)
         with host:
+            _hint_if_nobody_answered(host, config)
             try:
-                _follow(host, args.seconds)
+                _follow(host, args.seconds, args.status_every)
             except KeyboardInterrupt:
                 print("stopping", flush=True)
         stats = host.stats()
         health = host.health()
-    finally:
-        gc.unfreeze()
-        bus.shutdown()
+        buses_stats = host.bus_stats()
     elapsed = time.monotonic() - started
     verb = "decoded" if host.listen_only else "published"
     print(f"{verb} {stats['samples']} samples ({stats['complete_samples']} complete, "
@@ -113,13 +155,25 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     if args.json:
         record: dict[str, Any] = {
             "config": config.source, "listen_only": host.listen_only,
-            "seconds": round(elapsed, 3), "stats": stats,
+            "seconds": round(elapsed, 3), "stats": stats, "buses": buses_stats,
             "patches": {str(n): dataclasses.asdict(h) for n, h in health.items()},
             "unknown_nodes": sorted(host.unknown_nodes),
         }
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
     return 0
+
+
+def _hint_if_nobody_answered(host: HostManager, config: HostConfig) -> None:
+    """One line when no configured patch answered the scan: the bus, and what to check."""
+    if host.listen_only or not config.scan:
+        return
+    if all(h.state == "absent" for h in host.health().values()):
+        from skin.commands.hostbus import describe
+
+        print(f"no patch answered on {describe(config)} within {config.scan_ms} ms: check "
+              "that the patches are powered and on this bus (interface, channel, bit rate); "
+              "they are configured when they boot", flush=True)
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -137,6 +191,8 @@ def add_subparser(subparsers: Any) -> None:
                              "transmit nothing: no scan, SDO, NMT, SYNC or force node "
                              "(default: host.listen_only of the config)")
     parser.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
+    parser.add_argument("--status-every", type=float, default=None, metavar="S",
+                        help="print a health line every S seconds")
     add_cpu_argument(parser, default="all")
     add_rcvbuf_argument(parser)
     can.cli.add_bus_arguments(parser)

@@ -124,7 +124,8 @@ def test_skin_run_names_a_bus_it_cannot_open(tmp_path: Path,
     config.write_text("[[patches]]\nnode_id = 1\n", encoding="utf-8")
     assert main(["run", str(config), "-i", "socketcan", "-c", "no-such-can9"]) == 1
     err = capsys.readouterr().err
-    assert err.startswith("skin: error: cannot open the bus: ") and err.count("\n") == 1
+    assert err.startswith("skin: error: cannot open the bus socketcan:no-such-can9: ")
+    assert err.count("\n") == 1
 
 
 def test_skin_demo_reports_every_figure(tmp_path: Path,
@@ -142,8 +143,9 @@ def test_skin_demo_reports_every_figure(tmp_path: Path,
     assert record["samples_per_s"] > 0
     assert 0 < record["wire_ms"]["p50"] <= record["latency_ms"]["p50"] <= \
         record["latency_ms"]["p99"] <= record["latency_ms"]["max"]
-    plan = record["plan"]["load_pct"]
-    assert plan["best"] <= record["bus_load_pct"] <= plan["worst"]  # the planner counts truly
+    # The planner counts what crosses the wire; at the SYNC rate the machine kept up with.
+    plan, kept = record["plan"]["load_pct"], record["sync_hz"] / record["rate_hz"]
+    assert 0.9 * plan["best"] * kept <= record["bus_load_pct"] <= plan["worst"]
     assert 0 < record["rmse_N"] < 0.2  # the indenter, 3-axis, exact inverse: crosstalk only
     text = capsys.readouterr().out
     assert "skin demo: 2 patches (indenter, xyz, analytic) at 100 Hz, timed CAN" in text
@@ -174,9 +176,10 @@ def test_skin_demo_fd_and_several_buses(tmp_path: Path, flags: list[str]) -> Non
     record = json.loads(out.read_text())
     assert record["samples"] > 0 and record["fd"] == ("--fd" in flags)
     assert record["buses"] == (2 if "--buses" in flags else 1)
+    kept = record["sync_hz"] / record["rate_hz"]
     for name, load in record["bus_loads_pct"].items():
         planned = record["plan"]["buses"][name]
-        assert planned["best"] <= load <= planned["worst"], name
+        assert 0.9 * planned["best"] * kept <= load <= planned["worst"], name
     assert record["wire_ms"]["p50"] <= record["latency_ms"]["p50"]
 
 

@@ -251,3 +251,56 @@ def test_wireshark_types_every_frame_of_the_host_run(host_run: HostRun) -> None:
             assert int(node, 0) == where.node, (number, where, node)
         seen.add(where.service)
     assert seen == set(WIRESHARK_TYPES)
+
+
+def test_skin_decode_gives_what_a_listen_only_host_publishes_for_a_replay(
+        host_run: HostRun, tmp_path: Path) -> None:
+    """Offline, on the recording's clock: the same samples, value for value, as a listen-only
+    host fed the replay, and the same every time (pcap and log alike)."""
+    from canbus.master.offline import decode_recording
+
+    replayed: list[ForceFrame] = []
+    with can.Bus(interface="virtual", channel="decode-replay") as bus, \
+            can.Bus(interface="virtual", channel="decode-replay") as player:
+        host = HostManager(bus, host_run.config, listen_only=True)
+        host.on_forces(replayed.append)
+        host.start()
+        try:
+            result = Replayer(player, host_run.folder / "host.log", realtime=False).run()
+            _until(lambda: _seen(host) == result.frames_sent, "the replayed frames")
+        finally:
+            host.stop()
+    offline = decode_recording(host_run.folder / "host.log", host_run.config)
+    _assert_same_forces(offline, replayed)
+    again = decode_recording(host_run.folder / "host.pcap", host_run.config)
+    _assert_same_forces(again, offline)
+    out = tmp_path / "forces.npz"
+    assert main(["decode", str(host_run.folder / "host.pcap"), "--config",
+                 str(_write_config(tmp_path)), "-o", str(out)]) == 0
+    saved = np.load(out)
+    assert saved["force_N"].shape == (len(offline), 9, 3)
+    np.testing.assert_array_equal(saved["force_N"], np.array([f.force_N for f in offline]))
+    assert saved["complete"].tolist() == [f.complete for f in offline]
+
+
+def _write_config(folder: Path) -> Path:
+    path = folder / "host.toml"
+    path.write_text("[host]\nsync_period_ms = 40.0\nheartbeat_ms = 100\n[[patches]]\n"
+                    "node_id = 1\n[[patches]]\nnode_id = 2\n", encoding="utf-8")
+    return path
+
+
+def test_skin_decode_writes_csv_and_refuses_an_unknown_output(
+        host_run: HostRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = _write_config(tmp_path)
+    out = tmp_path / "forces.csv"
+    assert main(["decode", str(host_run.folder / "host.log"), "--config", str(config),
+                 "-o", str(out)]) == 0
+    lines = out.read_text().splitlines()
+    assert lines[0].startswith("cycle,sync_counter,time_s,patch,force_node,taxel,fx_N")
+    assert (len(lines) - 1) % 9 == 0 and "MISSING" not in lines[1]
+    assert "decoded " in capsys.readouterr().out
+    assert main(["decode", str(host_run.folder / "host.log"), "--config", str(config),
+                 "-o", str(tmp_path / "forces.txt")]) == 1
+    assert "-o: unknown output format '.txt'" in capsys.readouterr().err
+    assert not (tmp_path / "forces.txt").exists()
