@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import scipy.optimize
 
 from decoder.lm import LMOptions, train_lm
@@ -36,10 +37,14 @@ def test_structured_normal_equations_equal_dense_jacobian() -> None:
     np.testing.assert_allclose(J[:, k], numeric.ravel(), atol=1e-8)
 
 
-def test_paper_network_reaches_goal_on_1000_samples(synth) -> None:  # type: ignore[no-untyped-def]
-    r, f = synth(1000, seed=5)
-    state, result = fit_mlp(r.reshape(1000, 9), f[..., 2], hidden=10,
-                            options=LMOptions(goal_mse=1e-4), val_fraction=0.15, seed=0)
+@pytest.mark.parametrize(("noise", "units"), [(False, "N"), (True, "scaled")])
+def test_paper_network_reaches_goal_on_1000_samples(synth, noise: bool, units: str) -> None:  # type: ignore[no-untyped-def]
+    """The paper's goal in newtons on its noise-free protocol; the looser goal on scaled
+    outputs (issue 3's) even with read noise."""
+    r, f = synth(1000, seed=5, noise=noise)
+    state, result, _ = fit_mlp(r.reshape(1000, 9), f[..., 2], hidden=10,
+                               options=LMOptions(goal_mse=1e-4), val_fraction=0.15, seed=0,
+                               goal_units=units)
     assert result.success and result.message == "performance goal met"
     assert result.mse <= 1e-4 and result.nit < 200
     assert np.all(np.isfinite(FoldedMLP(Layout(9, 10, 9), state)(r.reshape(1000, 9))))
