@@ -69,7 +69,7 @@ class DeconvDecoder(BaseDecoder):
     domain_: Domain | None
 
     def __init__(self, *, constants: SensorConstants = DEFAULT_CONSTANTS,
-                 r0_ohm: ArrayLike | None = None, alpha: float = 1e-3,
+                 r0_ohm: ArrayLike | None = None, alpha: float = 1e-2,
                  range_margin: float = 0.1) -> None:
         super().__init__(constants=constants, r0_ohm=r0_ohm)
         if not (isinstance(alpha, float | int) and 0.0 < alpha < 1e6):
@@ -89,12 +89,17 @@ class DeconvDecoder(BaseDecoder):
         comps = [2] if pillars == 1 else [0, 1, 2]
         a = np.concatenate([effective[keep][..., c] for c in comps])
         b = np.concatenate([force[keep][..., c] for c in comps])
-        self.unmix_ = fit_unmix(a, b, self.alpha)
+        self.unmix_info_ = fit_unmix(a, b, self.alpha)
+        self.unmix_ = self.unmix_info_.matrix
         self.pillars_ = pillars
         x = features(effective[keep], pillars)
         y = features(self._unmix(x if pillars == 1 else effective[keep]), pillars)
         self.domain_ = Domain(Box.fit(x, self.range_margin), Box.fit(y, self.range_margin))
         return self
+
+    def meta(self) -> dict[str, Any]:
+        info = self.__dict__.get("unmix_info_")
+        return super().meta() if info is None else {"crosstalk": info.to_meta()}
 
     @classmethod
     def _upgrade(cls, params: dict[str, Any], state: dict[str, Any], version: int) -> None:

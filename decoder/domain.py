@@ -34,12 +34,13 @@ from skin.errors import ModelFileError
 F64 = NDArray[np.float64]
 Mask = NDArray[np.bool_]
 
-DENSITY_FACTOR = 1.5
-"""A sample is inside the ellipsoid up to 1.5x the farthest training sample's distance: the
-largest of 1000 training distances is itself only a sample of the tail."""
-BAND_FACTOR = 1.5
-BAND_FLOOR = 0.01
-"""A band is at least 1 % of its outputs' span wide, so a decoder that fitted its training
+DENSITY_FACTOR = 1.1
+"""A sample is inside the ellipsoid up to 1.1x the farthest training sample's distance. A new
+sample from the training distribution lies beyond the farthest of n training samples with
+probability 1/(n + 1); the 10 % make that rarer still."""
+BAND_FACTOR = 1.2
+BAND_FLOOR = 0.001
+"""A band is at least 0.1 % of its outputs' span wide, so a decoder that fitted its training
 data exactly still tolerates rounding."""
 RIDGE = 1e-6
 """Added to the standardised covariance's diagonal: directions with less than about 0.1 % of

@@ -13,6 +13,12 @@ residual's training domain:
   force component.
 
 Outside, hybrid is its physics part: it falls back instead of adding a guess.
+And the residual of each output (a taxel's force component) is used at all only
+if it earns its place: if on the validation rows it removes at least
+``RESIDUAL_GAIN`` of the physics part's mean square error for that output. On
+``paper-noisy`` deconv's Fz is already at the noise floor, and a network would
+only learn the noise; in 3-axis mode the network does learn that the shear of a
+pure press is zero, and keeps that.
 The physics part was chosen so that this fallback is worth having: deconv's
 crosstalk inverse is linear and transfers between load distributions, where
 the plain analytic inverse is off by the whole crosstalk (tens of percent).
@@ -44,6 +50,8 @@ from decoder.unmix import fit_unmix
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.errors import DecodeError, ModelFileError
 
+RESIDUAL_GAIN = 0.1
+
 
 class HybridDecoder(MLPDecoderBase):
     """deconv's physics plus an MLP-learned residual that is used only inside its domain."""
@@ -51,15 +59,16 @@ class HybridDecoder(MLPDecoderBase):
     name = "hybrid"
     _params = ("constants", "r0_ohm", "hidden", "goal_mse", "goal_units", "max_epochs",
                "val_fraction", "seed", "alpha", "range_margin")
-    _state = (*MLPDecoderBase._state, "unmix_", "domain_", "residual_domain_")
+    _state = (*MLPDecoderBase._state, "unmix_", "domain_", "residual_domain_", "use_residual_")
     unmix_: F64
+    use_residual_: NDArray[np.bool_]
     domain_: Domain | None
     residual_domain_: Domain | None
 
     def __init__(self, *, constants: SensorConstants = DEFAULT_CONSTANTS,
                  r0_ohm: ArrayLike | None = None, hidden: int | str = 12,
                  goal_mse: float = 1e-4, goal_units: str = "N", max_epochs: int = 300,
-                 val_fraction: float = 0.15, seed: int = 0, alpha: float = 1e-3,
+                 val_fraction: float = 0.15, seed: int = 0, alpha: float = 1e-2,
                  range_margin: float = 0.1) -> None:
         super().__init__(constants=constants, r0_ohm=r0_ohm, hidden=hidden, goal_mse=goal_mse,
                          goal_units=goal_units, max_epochs=max_epochs,
@@ -79,16 +88,34 @@ class HybridDecoder(MLPDecoderBase):
         if not np.any(keep):
             raise DecodeError("no training sample has all nine taxels valid")
         effective, force = effective[keep], force[keep]
-        self.unmix_ = fit_unmix(*unmix_rows(effective, force, pillars), self.alpha)
+        self.unmix_info_ = fit_unmix(*unmix_rows(effective, force, pillars), self.alpha)
+        self.unmix_ = self.unmix_info_.matrix
         physics = features(apply_unmix(self.unmix_, effective), pillars)
         self.domain_ = Domain(Box.fit(features(effective, pillars), self.range_margin),
                               Box.fit(physics, self.range_margin))
-        self._fit_scaled(physics, targets(force, pillars) - physics, pillars, progress)
+        wanted = targets(force, pillars) - physics
+        val = self._fit_scaled(physics, wanted, pillars, progress)
         residual = self._net(physics)
         self.residual_domain_ = Domain(Box.fit(physics, self.range_margin),
                                        Box.fit(residual, self.range_margin),
                                        Ellipsoid.fit(physics))
+        rows = val if val.size else np.arange(physics.shape[0])
+        self.val_mse_physics_ = np.mean(wanted[rows] ** 2, axis=0)
+        self.val_mse_hybrid_ = np.mean((wanted[rows] - residual[rows]) ** 2, axis=0)
+        self.use_residual_ = self.val_mse_hybrid_ < (1.0 - RESIDUAL_GAIN) * self.val_mse_physics_
+        self._any_residual = bool(self.use_residual_.any())
         return self
+
+    def meta(self) -> dict[str, Any]:
+        meta = super().meta()
+        if "unmix_info_" in self.__dict__:
+            meta["crosstalk"] = self.unmix_info_.to_meta()
+        if "val_mse_physics_" in self.__dict__:
+            meta["residual"] = {"used": self.use_residual_,
+                                "val_mse_physics_N2": self.val_mse_physics_,
+                                "val_mse_with_residual_N2": self.val_mse_hybrid_,
+                                "required_gain": RESIDUAL_GAIN}
+        return meta
 
     @classmethod
     def _upgrade(cls, params: dict[str, Any], state: dict[str, Any], version: int) -> None:
@@ -99,6 +126,9 @@ class HybridDecoder(MLPDecoderBase):
         state.setdefault("unmix_", np.eye(9))
         state.setdefault("domain_", None)
         state.setdefault("residual_domain_", None)
+        pillars = state.get("pillars_")
+        if pillars in (1, 3) and not isinstance(pillars, bool):
+            state.setdefault("use_residual_", np.ones(9 * pillars, dtype=bool))
 
     def _state_value(self, key: str) -> Any:
         value = getattr(self, key)
@@ -113,12 +143,20 @@ class HybridDecoder(MLPDecoderBase):
             if value is not None:
                 setattr(self, key, Domain.from_state(value, f"state.{key}", layout.n_in,
                                                      layout.n_out))
+        used = self.use_residual_
+        if not (isinstance(used, np.ndarray) and used.dtype == bool
+                and used.shape == (layout.n_out,)):
+            got = used.shape if isinstance(used, np.ndarray) else type(used).__name__
+            raise ModelFileError(f"state.use_residual_: expected bool array of shape "
+                                 f"({layout.n_out},), got {got}")
         density = None if self.residual_domain_ is None else self.residual_domain_.density
         if self.residual_domain_ is not None and density is None:
             raise ModelFileError("state.residual_domain_: missing 'density'")
 
     def _corrected(self, physics: F64) -> F64:
         """Physics rows ((O,) or (n, O)) plus the residual wherever it is in its domain."""
+        if not self._any_residual:
+            return physics
         domain = self.residual_domain_
         if domain is None:
             residual = self._net(np.minimum(np.maximum(physics, self.x_lo_), self.x_hi_))
@@ -128,9 +166,13 @@ class HybridDecoder(MLPDecoderBase):
             use = (domain.outputs.inside(residual)
                    & domain.inputs.inside(physics).all(axis=-1, keepdims=True)
                    & domain.density.inside(physics)[..., None])
-            residual = np.where(use, residual, 0.0)
+            residual = np.where(use & self.use_residual_, residual, 0.0)
         out: F64 = physics + residual
         return out
+
+    def _prepare(self) -> None:
+        super()._prepare()
+        self._any_residual = bool(np.any(self.__dict__.get("use_residual_", True)))
 
     def _physics(self, effective: F64) -> F64:
         return sample_rows(features(apply_unmix(self.unmix_, effective), self.pillars_))

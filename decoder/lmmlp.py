@@ -48,7 +48,7 @@ from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.constants import TAXELS_PER_PATCH as T
 from skin.errors import ModelFileError
 
-UNMIX_ALPHA = 1e-3
+UNMIX_ALPHA = 1e-2
 """Tikhonov weight of the physics reference's crosstalk inverse (deconv's default)."""
 
 
@@ -103,7 +103,8 @@ class LMMLPDecoder(MLPDecoderBase):
         x = r[keep].reshape(-1, T * pillars)
         y = targets(force[keep], pillars)
         self._fit_scaled(x, y, pillars, progress)
-        self.unmix_ = fit_unmix(*unmix_rows(effective[keep], force[keep], pillars), UNMIX_ALPHA)
+        self.unmix_ = fit_unmix(*unmix_rows(effective[keep], force[keep], pillars),
+                                UNMIX_ALPHA).matrix
         physics = features(apply_unmix(self.unmix_, effective[keep]), pillars)
         predicted = self._net(x)
         outputs = Box.fit(np.concatenate((y, predicted)), self.range_margin)

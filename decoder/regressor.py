@@ -46,6 +46,7 @@ def split_indices(
 class Problem:
     """Scaled training and validation data, the scalings, and the error weight per output."""
 
+    val_rows: NDArray[np.intp]
     x_lo: F64
     x_hi: F64
     y_lo: F64
@@ -69,15 +70,26 @@ def make_problem(x: F64, y: F64, *, val_fraction: float, rng: np.random.Generato
     xs, ys = mapminmax(x, x_lo, x_hi), mapminmax(y, y_lo, y_hi)
     train, val = split_indices(x.shape[0], val_fraction, rng)
     weight = 1.0 / mapminmax_gain(y_lo, y_hi) if goal_units == "N" else None
-    return Problem(x_lo, x_hi, y_lo, y_hi, (xs[train], ys[train]), (xs[val], ys[val]), weight)
+    return Problem(val, x_lo, x_hi, y_lo, y_hi, (xs[train], ys[train]), (xs[val], ys[val]),
+                   weight)
+
+
+@dataclass(frozen=True)
+class MLPFit:
+    """A trained network: its state arrays (``theta_`` of the chosen size), how training ended,
+    how ``hidden="auto"`` chose (None for a fixed size), and which rows were validation."""
+
+    state: dict[str, F64]
+    result: TrainResult
+    choice: HiddenChoice | None
+    val_rows: NDArray[np.intp]
 
 
 def fit_mlp(
     x: F64, y: F64, *, hidden: int | str, options: LMOptions, val_fraction: float, seed: int,
     progress: Progress | None = None, goal_units: str = "N",
-) -> tuple[dict[str, F64], TrainResult, HiddenChoice | None]:
-    """Train on raw (n, I) inputs and (n, O) targets; returns the state arrays (with the
-    weights ``theta_`` of the chosen size), the result, and how ``"auto"`` chose."""
+) -> MLPFit:
+    """Train on raw (n, I) inputs and (n, O) targets."""
     rng = np.random.default_rng(seed)
     if hidden == "auto":
         width = max(START, eq21_candidates(x.shape[1], y.shape[1])[-1])
@@ -93,10 +105,10 @@ def fit_mlp(
 
     if hidden != "auto":
         theta, result = train(layout, theta)
-        return problem.state(theta), result, None
+        return MLPFit(problem.state(theta), result, None, problem.val_rows)
     layout, theta, result, choice = choose_hidden(layout, theta, train, problem.train[0],
                                                   problem.weight, options)
-    return problem.state(theta), result, choice
+    return MLPFit(problem.state(theta), result, choice, problem.val_rows)
 
 
 def sample_rows(a: F64) -> F64:
@@ -181,16 +193,19 @@ class MLPDecoderBase(BaseDecoder):
         n = TAXELS_PER_PATCH * int(self.pillars_)
         return Layout(n, int(self.hidden_), n)
 
-    def _fit_scaled(self, x: F64, y: F64, pillars: int, progress: Progress | None) -> None:
+    def _fit_scaled(self, x: F64, y: F64, pillars: int,
+                    progress: Progress | None) -> NDArray[np.intp]:
+        """Train on raw rows; returns the validation rows."""
         options = LMOptions(goal_mse=self.goal_mse, max_epochs=self.max_epochs)
-        state, self.train_result_, self.hidden_choice_ = fit_mlp(
-            x, y, hidden=self.hidden, options=options, val_fraction=self.val_fraction,
-            seed=self.seed, progress=progress, goal_units=self.goal_units)
-        for key, value in state.items():
+        fit = fit_mlp(x, y, hidden=self.hidden, options=options, val_fraction=self.val_fraction,
+                      seed=self.seed, progress=progress, goal_units=self.goal_units)
+        self.train_result_, self.hidden_choice_ = fit.result, fit.choice
+        for key, value in fit.state.items():
             setattr(self, key, value)
         self.pillars_ = pillars
         self.hidden_ = (self.theta_.size - y.shape[1]) // (x.shape[1] + 1 + y.shape[1])
         self._prepare()
+        return fit.val_rows
 
     @property
     def train_result(self) -> TrainResult | None:

@@ -42,9 +42,9 @@ def test_paper_network_reaches_goal_on_1000_samples(synth, noise: bool, units: s
     """The paper's goal in newtons on its noise-free protocol; the looser goal on scaled
     outputs (issue 3's) even with read noise."""
     r, f = synth(1000, seed=5, noise=noise)
-    state, result, _ = fit_mlp(r.reshape(1000, 9), f[..., 2], hidden=10,
-                               options=LMOptions(goal_mse=1e-4), val_fraction=0.15, seed=0,
-                               goal_units=units)
+    fit = fit_mlp(r.reshape(1000, 9), f[..., 2], hidden=10, options=LMOptions(goal_mse=1e-4),
+                  val_fraction=0.15, seed=0, goal_units=units)
+    state, result = fit.state, fit.result
     assert result.success and result.message == "performance goal met"
     assert result.mse <= 1e-4 and result.nit < 200
     assert np.all(np.isfinite(FoldedMLP(Layout(9, 10, 9), state)(r.reshape(1000, 9))))
