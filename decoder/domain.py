@@ -62,10 +62,17 @@ def _expect(value: Any, field: str, shape: tuple[int, ...]) -> F64:
 
 @dataclass(frozen=True)
 class Box:
-    """Per-feature bounds (k,), margins included."""
+    """Per-feature bounds (k,), margins included.
+
+    A value is inside when |x - mid| <= half, one formula for the mask and the quick test,
+    so that they agree to the last bit; NaN is outside and infinities never overflow."""
 
     lo: F64
     hi: F64
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_mid", 0.5 * self.lo + 0.5 * self.hi)
+        object.__setattr__(self, "_half", 0.5 * self.hi - 0.5 * self.lo)
 
     @classmethod
     def fit(cls, x: F64, margin: float) -> Box:
@@ -75,12 +82,12 @@ class Box:
 
     def inside(self, x: F64) -> Mask:
         """Elementwise: (n, k) or (k,) -> same shape; NaN is outside."""
-        inside: Mask = np.asarray((x >= self.lo) & (x <= self.hi))
+        inside: Mask = np.abs(x - self._mid) <= self._half  # type: ignore[attr-defined]
         return inside
 
     def all_inside(self, x: F64) -> bool:
-        """Whether every value is inside (False for any NaN), without building a mask."""
-        return bool(np.all(x >= self.lo)) and bool(np.all(x <= self.hi))
+        """Whether every value is inside (False for any NaN)."""
+        return bool(self.inside(x).all())
 
     def clamp(self, x: F64) -> F64:
         clamped: F64 = np.minimum(np.maximum(x, self.lo), self.hi)
@@ -108,6 +115,9 @@ class Ellipsoid:
     whiten: F64
     limit: float
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_limit2", self.limit * self.limit)
+
     @classmethod
     def fit(cls, x: F64) -> Ellipsoid:
         mean = x.mean(axis=0)
@@ -126,13 +136,19 @@ class Ellipsoid:
 
     def distance(self, x: F64) -> F64:
         """(n, k) -> (n,) or (k,) -> () Mahalanobis distances; NaN stays NaN."""
+        return np.sqrt(self._squared(x))
+
+    def _squared(self, x: F64) -> F64:
         z = (x - self.mean) @ self.whiten
-        d: F64 = np.sqrt(np.einsum("...i,...i->...", z, z))
-        return d
+        if z.ndim == 1:
+            return np.asarray(np.dot(z, z))
+        squared: F64 = np.einsum("ij,ij->i", z, z)
+        return squared
 
     def inside(self, x: F64) -> Mask:
-        with np.errstate(over="ignore", invalid="ignore"):
-            inside: Mask = np.asarray(self.distance(x) <= self.limit)
+        """(n, k) -> (n,), or (k,) -> (); NaN is outside. ``x`` must be finite and of the
+        training data's order of magnitude (the decoders check their box first)."""
+        inside: Mask = np.asarray(self._squared(x) <= self._limit2)  # type: ignore[attr-defined]
         return inside
 
     def to_state(self) -> dict[str, Any]:
@@ -163,11 +179,11 @@ class Band:
         return cls(BAND_FACTOR * largest + BAND_FLOOR * np.max(span))
 
     def inside(self, values: F64) -> Mask:
-        inside: Mask = np.asarray(np.abs(values) <= self.bound)
+        inside: Mask = np.abs(values) <= self.bound
         return inside
 
     def all_inside(self, values: F64) -> bool:
-        return bool(np.all(np.abs(values) <= self.bound))
+        return bool(self.inside(values).all())
 
     def to_state(self) -> F64:
         return self.bound

@@ -51,6 +51,8 @@ from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.errors import DecodeError, ModelFileError
 
 RESIDUAL_GAIN = 0.1
+RESIDUAL_FLOOR_N2 = 1e-12
+"""Below this held-out MSE (1 µN RMS) the physics part is exact and there is nothing to learn."""
 
 
 class HybridDecoder(MLPDecoderBase):
@@ -102,7 +104,8 @@ class HybridDecoder(MLPDecoderBase):
         rows = val if val.size else np.arange(physics.shape[0])
         self.val_mse_physics_ = np.mean(wanted[rows] ** 2, axis=0)
         self.val_mse_hybrid_ = np.mean((wanted[rows] - residual[rows]) ** 2, axis=0)
-        self.use_residual_ = self.val_mse_hybrid_ < (1.0 - RESIDUAL_GAIN) * self.val_mse_physics_
+        self.use_residual_ = ((self.val_mse_hybrid_ < (1.0 - RESIDUAL_GAIN) * self.val_mse_physics_)
+                              & (self.val_mse_physics_ > RESIDUAL_FLOOR_N2))
         self._any_residual = bool(self.use_residual_.any())
         return self
 

@@ -155,7 +155,7 @@ class LMMLPDecoder(MLPDecoderBase):
         domain = self.domain_
         if not domain.inputs.all_inside(x):
             return None
-        if domain.density is not None and not bool(np.all(domain.density.inside(x))):
+        if domain.density is not None and not domain.density.inside(x).all():
             return None
         y = self._net(x)
         if not domain.outputs.all_inside(y):

@@ -125,7 +125,8 @@ def fit_unmix(effective: F64, force: F64, alpha: float) -> Unmix:
     mse_kernel = _mse(effective[val] @ prior.T - force[val])
     mse_full = _mse(effective[val] @ full.T - force[val])
     prior, params = kernel_inverse(effective, force)
-    if mse_full < (1.0 - FULL_GAIN) * mse_kernel:
+    resolvable = mse_kernel > 1e-12 * _mse(force)  # else both are exact to rounding
+    if resolvable and mse_full < (1.0 - FULL_GAIN) * mse_kernel:
         return Unmix(fit_full(effective, force, alpha, prior), "full", params, mse_kernel,
                      mse_full)
     return Unmix(np.ascontiguousarray(prior), "kernel", params, mse_kernel, mse_full)
