@@ -38,6 +38,7 @@ class Eq9Decoder(BaseDecoder):
     """E·S·(1 − √(R'/R0)) per pillar: the paper's small-strain reading."""
 
     name = "eq9"
+    _limits_cache: tuple[tuple[int, object, object], tuple[F64, float, float, float]]
 
     def fit(self, resistance_ohm: ArrayLike, force_N: ArrayLike, *,
             progress: Progress | None = None) -> Self:
@@ -45,20 +46,34 @@ class Eq9Decoder(BaseDecoder):
         return self
 
     def _limits(self, pillars: int) -> tuple[F64, float, float, float]:
-        """1/R0 (broadcastable), and the lowest and highest ratio R'/R0 and reading allowed."""
-        strain = self.constants.max_strain
-        lowest, highest = (1.0 - strain) ** 2, (1.0 + strain) ** 2
-        return 1.0 / self.r0_for(pillars), lowest, highest, saturation_ohm(self.constants)
+        """1/R0 (broadcastable), and the lowest and highest ratio R'/R0 and reading allowed;
+        computed once per pillar count, constants and R0."""
+        key = (pillars, self.constants, self.r0_ohm)
+        cached = self.__dict__.get("_limits_cache")
+        if cached is None or cached[0][1] is not key[1] or cached[0][2] is not key[2] \
+                or cached[0][0] != pillars:
+            strain = self.constants.max_strain
+            limits = (1.0 / self.r0_for(pillars), (1.0 - strain) ** 2, (1.0 + strain) ** 2,
+                      saturation_ohm(self.constants))
+            cached = (key, limits)
+            self._limits_cache = cached
+        return cached[1]
 
     def _forces(self, ratio: F64) -> F64:
         """Ratios (n, 9, P) -> forces (n, 9, 3)."""
-        pillars = ratio.shape[-1]
-        q = ratio - 1.0
-        strain = q / (1.0 + np.sqrt(ratio))
+        strain = ratio - 1.0
+        strain /= 1.0 + np.sqrt(ratio)
+        strain *= self._gain[: ratio.shape[-1]]
         force = np.zeros((ratio.shape[0], T, 3))
-        stiffness = self.constants.axial_stiffness_N
-        force[..., COMPONENT[:pillars]] = (stiffness * SIGNS_ZXY[:pillars]) * strain
+        for pillar in range(ratio.shape[-1]):
+            force[..., COMPONENT[pillar]] = strain[..., pillar]
         return force
+
+    @property
+    def _gain(self) -> F64:
+        """E·S with the paper's sign, per pillar (z, x, y)."""
+        gain: F64 = self.constants.axial_stiffness_N * SIGNS_ZXY
+        return gain
 
     def _decode_fast(self, r: F64) -> F64 | None:
         if r.shape[0] == 0:
