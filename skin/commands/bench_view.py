@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from skin.errors import ConfigError
@@ -114,10 +115,16 @@ def plot(result: dict[str, Any], path: str) -> None:
     speed = {d["name"]: d["decode_samples_per_s"] for d in result["decoders"]}
     noisy = next(p for p in result["scenes"] if p["scene"] == "paper-noisy")
     fig, ax = plt.subplots(figsize=(7, 4.5))
+    placed: list[tuple[float, float]] = []
     for d in noisy["decoders"]:
         x, y = speed[d["name"]], d["ave_rel_err_floored_pct"]
         ax.scatter(x, y, s=40)
-        ax.annotate(d["name"], (x, y), textcoords="offset points", xytext=(5, 5))
+        # A point next to one already labelled (deconv and hybrid) gets its label below.
+        near = any(abs(math.log(x / px)) < 0.1 and abs(math.log(y / py)) < 0.2
+                   for px, py in placed)
+        placed.append((x, y))
+        ax.annotate(d["name"], (x, y), textcoords="offset points",
+                    xytext=(5, -14 if near else 6))
     ax.axhline(noisy["oracle"]["ave_rel_err_floored_pct"], ls="--", c="grey", label="oracle")
     ax.set_xscale("log")
     ax.set_yscale("log")
