@@ -7,7 +7,7 @@ and 0.05-ohm quantisation.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -60,6 +60,18 @@ def read_forces(force: F64, *, pillars: int = 1, seed: int = 0, strength: float 
         lsb = DEFAULT_CONSTANTS.resistance_lsb_ohm
         r = np.round(r / lsb) * lsb
     return r, force
+
+
+@pytest.fixture(scope="session", autouse=True)
+def one_blas_thread() -> Iterator[None]:
+    """As `skin train` and `skin bench` run LM: BLAS on one thread (SciPy imported first, so
+    its own OpenBLAS is limited too). On a busy 2-core machine two BLAS threads per process
+    make each LM epoch up to 10x slower."""
+    import scipy.linalg  # noqa: F401
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1, user_api="blas"):
+        yield
 
 
 @pytest.fixture(scope="session")
