@@ -20,8 +20,8 @@ from typing import Any, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from decoder.domain import Box, Domain, per_taxel
-from decoder.physics import solve, taxel_reasons, to_force
+from decoder.domain import Box, Domain, check_margin, domain_reasons, per_taxel
+from decoder.physics import features, solve, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
     BaseDecoder,
@@ -30,32 +30,9 @@ from decoder.protocol import (
     fold_force,
     fold_resistance,
 )
-from decoder.reasons import Reason
-from decoder.unmix import fit_unmix
+from decoder.unmix import apply_unmix, fit_unmix, unmix_rows
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
-from skin.constants import TAXELS_PER_PATCH as T
 from skin.errors import DecodeError, ModelFileError
-
-
-def features(force: F64, pillars: int) -> F64:
-    """Per-taxel outputs as rows: Fz (n, 9) in z-only mode, (n, 27) taxel-major in 3-axis."""
-    if pillars == 1:
-        fz: F64 = force[..., 2] if force.ndim == 3 else force
-        return fz.reshape(fz.shape[0], T)
-    return force.reshape(force.shape[0], 3 * T)
-
-
-def check_margin(range_margin: float) -> float:
-    if isinstance(range_margin, bool) or not (isinstance(range_margin, float | int)
-                                               and 0.0 <= range_margin <= 10.0):
-        raise DecodeError(f"range_margin must be in [0, 10], got {range_margin!r}")
-    return float(range_margin)
-
-
-def domain_reasons(reason: NDArray[np.uint8], outside: NDArray[np.bool_]) -> NDArray[np.uint8]:
-    """EXTRAPOLATED where a taxel that decoded is ``outside`` its domain, in place."""
-    reason[outside & (reason == 0)] = Reason.EXTRAPOLATED
-    return reason
 
 
 class DeconvDecoder(BaseDecoder):
@@ -86,10 +63,8 @@ class DeconvDecoder(BaseDecoder):
         keep = np.all(reason == 0, axis=1)
         if not np.any(keep):
             raise DecodeError("no calibration sample has all nine taxels valid")
-        comps = [2] if pillars == 1 else [0, 1, 2]
-        a = np.concatenate([effective[keep][..., c] for c in comps])
-        b = np.concatenate([force[keep][..., c] for c in comps])
-        self.unmix_info_ = fit_unmix(a, b, self.alpha)
+        self.unmix_info_ = fit_unmix(*unmix_rows(effective[keep], force[keep], pillars),
+                                     self.alpha)
         self.unmix_ = self.unmix_info_.matrix
         self.pillars_ = pillars
         x = features(effective[keep], pillars)
@@ -106,10 +81,6 @@ class DeconvDecoder(BaseDecoder):
         params.setdefault("range_margin", 0.1)
         state.setdefault("domain_", None)  # version 1 kept no domain: nothing is flagged
 
-    def _state_value(self, key: str) -> Any:
-        value = getattr(self, key)
-        return value.to_state() if isinstance(value, Domain) else value
-
     def _check_state(self) -> None:
         expect_array(self.unmix_, "unmix_", (9, 9))
         if self.pillars_ not in (1, 3) or isinstance(self.pillars_, bool):
@@ -120,10 +91,7 @@ class DeconvDecoder(BaseDecoder):
 
     def _unmix(self, effective: F64) -> F64:
         """W applied per sample and component: Fz (n, 9) or forces (n, 9, 3) -> forces."""
-        if effective.ndim == 2:
-            return to_force(effective @ self.unmix_.T, 1)
-        force: F64 = np.matmul(self.unmix_, effective)
-        return force
+        return to_force(apply_unmix(self.unmix_, effective), self.pillars_)
 
     def _decode_fast(self, r: F64) -> F64 | None:
         effective = self.inverse(self.pillars_).fast(r)

@@ -28,8 +28,9 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
+from decoder.reasons import Reason
 from skin.constants import TAXELS_PER_PATCH
-from skin.errors import ModelFileError
+from skin.errors import DecodeError, ModelFileError
 
 F64 = NDArray[np.float64]
 Mask = NDArray[np.bool_]
@@ -45,6 +46,20 @@ data exactly still tolerates rounding."""
 RIDGE = 1e-6
 """Added to the standardised covariance's diagonal: directions with less than about 0.1 % of
 a feature's spread are taken as never visited."""
+
+
+def check_margin(range_margin: float) -> float:
+    """A decoder's ``range_margin`` parameter, checked."""
+    if isinstance(range_margin, bool) or not (isinstance(range_margin, float | int)
+                                               and 0.0 <= range_margin <= 10.0):
+        raise DecodeError(f"range_margin must be in [0, 10], got {range_margin!r}")
+    return float(range_margin)
+
+
+def domain_reasons(reason: NDArray[np.uint8], outside: Mask) -> NDArray[np.uint8]:
+    """EXTRAPOLATED, in place, where a taxel that decoded is ``outside`` its domain (n, 9)."""
+    reason[outside & (reason == 0)] = Reason.EXTRAPOLATED
+    return reason
 
 
 def per_taxel(mask: Mask) -> Mask:

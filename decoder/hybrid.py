@@ -34,10 +34,8 @@ from typing import Any, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from decoder.deconv import check_margin, domain_reasons, features
-from decoder.domain import Box, Domain, Ellipsoid, per_taxel
-from decoder.lmmlp import apply_unmix, targets, unmix_rows
-from decoder.physics import solve, taxel_reasons, to_force
+from decoder.domain import Box, Domain, Ellipsoid, check_margin, domain_reasons, per_taxel
+from decoder.physics import features, solve, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
     Progress,
@@ -46,7 +44,7 @@ from decoder.protocol import (
     fold_resistance,
 )
 from decoder.regressor import MLPDecoderBase, sample_rows
-from decoder.unmix import fit_unmix
+from decoder.unmix import apply_unmix, fit_unmix, unmix_rows
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.errors import DecodeError, ModelFileError
 
@@ -95,7 +93,7 @@ class HybridDecoder(MLPDecoderBase):
         physics = features(apply_unmix(self.unmix_, effective), pillars)
         self.domain_ = Domain(Box.fit(features(effective, pillars), self.range_margin),
                               Box.fit(physics, self.range_margin))
-        wanted = targets(force, pillars) - physics
+        wanted = features(force, pillars) - physics
         val = self._fit_scaled(physics, wanted, pillars, progress)
         residual = self._net(physics)
         self.residual_domain_ = Domain(Box.fit(physics, self.range_margin),
@@ -132,10 +130,6 @@ class HybridDecoder(MLPDecoderBase):
         pillars = state.get("pillars_")
         if pillars in (1, 3) and not isinstance(pillars, bool):
             state.setdefault("use_residual_", np.ones(9 * pillars, dtype=bool))
-
-    def _state_value(self, key: str) -> Any:
-        value = getattr(self, key)
-        return value.to_state() if isinstance(value, Domain) else value
 
     def _check_state(self) -> None:
         super()._check_state()

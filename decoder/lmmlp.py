@@ -32,9 +32,8 @@ from typing import Any, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from decoder.deconv import check_margin, domain_reasons, features
-from decoder.domain import Band, Box, Domain, Ellipsoid, per_taxel
-from decoder.physics import solve, taxel_reasons, to_force
+from decoder.domain import Band, Box, Domain, Ellipsoid, check_margin, domain_reasons, per_taxel
+from decoder.physics import features, solve, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
     Progress,
@@ -43,34 +42,13 @@ from decoder.protocol import (
     fold_resistance,
 )
 from decoder.regressor import MLPDecoderBase, sample_rows
-from decoder.unmix import fit_unmix
+from decoder.unmix import apply_unmix, fit_unmix, unmix_rows
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.constants import TAXELS_PER_PATCH as T
 from skin.errors import ModelFileError
 
 UNMIX_ALPHA = 1e-2
 """Tikhonov weight of the physics reference's crosstalk inverse (deconv's default)."""
-
-
-def targets(force: F64, pillars: int) -> F64:
-    """Training targets (n, 9) Fz in z-only mode, (n, 27) all components in 3-axis mode."""
-    return force[..., 2].copy() if pillars == 1 else force.reshape(force.shape[0], 3 * T)
-
-
-def unmix_rows(effective: F64, force: F64, pillars: int) -> tuple[F64, F64]:
-    """Per-component rows (m, 9) of analytic and true forces for :func:`fit_unmix`."""
-    comps = [2] if pillars == 1 else [0, 1, 2]
-    return (np.concatenate([effective[..., c] for c in comps]),
-            np.concatenate([force[..., c] for c in comps]))
-
-
-def apply_unmix(unmix: F64, effective: F64) -> F64:
-    """W per sample and component: Fz (n, 9) -> (n, 9), forces (n, 9, 3) -> (n, 9, 3)."""
-    if effective.ndim == 2:
-        fz: F64 = effective @ unmix.T
-        return fz
-    force: F64 = np.matmul(unmix, effective)
-    return force
 
 
 class LMMLPDecoder(MLPDecoderBase):
@@ -101,7 +79,7 @@ class LMMLPDecoder(MLPDecoderBase):
         effective, reason = solve(self.inverse(pillars), r, self.constants)
         keep = np.all(reason == 0, axis=1)
         x = r[keep].reshape(-1, T * pillars)
-        y = targets(force[keep], pillars)
+        y = features(force[keep], pillars)
         self._fit_scaled(x, y, pillars, progress)
         self.unmix_ = fit_unmix(*unmix_rows(effective[keep], force[keep], pillars),
                                 UNMIX_ALPHA).matrix
@@ -126,10 +104,6 @@ class LMMLPDecoder(MLPDecoderBase):
                 widen_x, widen_y = margin * (x_hi - x_lo), margin * np.max(y_hi - y_lo)
                 state["domain_"] = {"inputs": {"lo": x_lo - widen_x, "hi": x_hi + widen_x},
                                     "outputs": {"lo": y_lo - widen_y, "hi": y_hi + widen_y}}
-
-    def _state_value(self, key: str) -> Any:
-        value = getattr(self, key)
-        return value.to_state() if isinstance(value, Domain) else value
 
     def _check_state(self) -> None:
         super()._check_state()

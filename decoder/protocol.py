@@ -210,8 +210,11 @@ class BaseDecoder:
         write_model(path, self.name, params, state, self.meta())
 
     def _state_value(self, key: str) -> Any:
-        """A learned attribute as the model file holds it (subclasses encode objects)."""
-        return getattr(self, key)
+        """A learned attribute as the model file holds it: objects with ``to_state()`` (a
+        training domain) as what that returns."""
+        value = getattr(self, key)
+        to_state = getattr(value, "to_state", None)
+        return value if to_state is None else to_state()
 
     def meta(self) -> dict[str, Any]:
         """What the model file's ``meta`` holds: how training went (empty if nothing to say).

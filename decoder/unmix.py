@@ -147,3 +147,20 @@ def fit_full(effective: F64, force: F64, alpha: float, prior: F64) -> F64:
     except np.linalg.LinAlgError as err:
         raise DecodeError("the calibration data give no usable crosstalk inverse") from err
     return np.ascontiguousarray(wt.T)
+
+
+def unmix_rows(effective: F64, force: F64, pillars: int) -> tuple[F64, F64]:
+    """Per-component rows (m, 9) of analytic and true forces (n, 9, 3) for :func:`fit_unmix`:
+    Fz alone in z-only mode, Fx, Fy and Fz stacked in 3-axis mode (one W for all three)."""
+    comps = [2] if pillars == 1 else [0, 1, 2]
+    return (np.concatenate([effective[..., c] for c in comps]),
+            np.concatenate([force[..., c] for c in comps]))
+
+
+def apply_unmix(unmix: F64, effective: F64) -> F64:
+    """W per sample and component: Fz (n, 9) -> (n, 9), forces (n, 9, 3) -> (n, 9, 3)."""
+    if effective.ndim == 2:
+        fz: F64 = effective @ unmix.T
+        return fz
+    force: F64 = np.matmul(unmix, effective)
+    return force
