@@ -2,23 +2,26 @@
 
 The rubber spreads force to neighbours, F_eff = M F per component. Given the
 analytic forces F_eff and the true forces F of a calibration set, W ≈ M⁻¹ is
-fit by least squares with Tikhonov regularisation towards the identity::
-
-    W = argmin ||F_eff W' - F||² + lam ||W - I||²,  lam = alpha · trace(F_effᵀ F_eff) / 9
-
-so a near-singular crosstalk (or too little data) gives a stable, finite W.
+fit by :func:`decoder.unmix.fit_unmix`: a three-number kernel, then the full
+9x9 matrix by least squares regularised towards the kernel's inverse, so too
+little data or a near-singular crosstalk still give a stable, finite W.
 Invalid taxels enter the deconvolution as 0 N; their neighbours still decode.
+
+The training domain is the box of the calibration set's analytic forces and of
+its decoded forces (:class:`decoder.domain.Box`, widened by ``range_margin``
+of the largest span): a taxel whose analytic force or decoded force leaves it
+is EXTRAPOLATED.
 """
 
 from __future__ import annotations
 
-from typing import Self
+from typing import Any, Self
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from decoder.physics import solve, taxel_reasons, to_force
+from decoder.domain import Box, Domain, check_margin, domain_reasons, per_taxel
+from decoder.physics import features, solve, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
     BaseDecoder,
@@ -27,67 +30,88 @@ from decoder.protocol import (
     fold_force,
     fold_resistance,
 )
+from decoder.unmix import apply_unmix, fit_unmix, unmix_rows
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.errors import DecodeError, ModelFileError
-
-
-def fit_tikhonov(a: F64, b: F64, alpha: float) -> F64:
-    """W (9, 9) with b ≈ a @ W.T, regularised towards the identity."""
-    gram = a.T @ a
-    lam = alpha * max(float(np.trace(gram)) / a.shape[1], 1e-300)
-    rhs = a.T @ b + lam * np.eye(a.shape[1])
-    gram.flat[:: gram.shape[0] + 1] += lam
-    wt = scipy.linalg.cho_solve(scipy.linalg.cho_factor(gram), rhs)
-    return np.ascontiguousarray(wt.T)
 
 
 class DeconvDecoder(BaseDecoder):
     """Analytic per-taxel inverse followed by a calibrated 9x9 crosstalk inverse."""
 
     name = "deconv"
-    _params = ("constants", "r0_ohm", "alpha")
-    _state = ("pillars_", "unmix_")
+    _params = ("constants", "r0_ohm", "alpha", "range_margin")
+    _state = ("pillars_", "unmix_", "domain_")
     pillars_: int
     unmix_: F64
+    domain_: Domain | None
 
     def __init__(self, *, constants: SensorConstants = DEFAULT_CONSTANTS,
-                 r0_ohm: ArrayLike | None = None, alpha: float = 1e-6) -> None:
+                 r0_ohm: ArrayLike | None = None, alpha: float = 1e-2,
+                 range_margin: float = 0.1) -> None:
         super().__init__(constants=constants, r0_ohm=r0_ohm)
         if not (isinstance(alpha, float | int) and 0.0 < alpha < 1e6):
             raise DecodeError(f"alpha must be in (0, 1e6), got {alpha!r}")
         self.alpha = float(alpha)
+        self.range_margin = check_margin(range_margin)
 
     def fit(self, resistance_ohm: ArrayLike, force_N: ArrayLike, *,
             progress: Progress | None = None) -> Self:
         r, _ = fold_resistance(resistance_ohm)
         force = fold_force(force_N, r.shape[0])
-        effective, reason = solve(self.inverse(r.shape[-1]), r, self.constants)
+        pillars = r.shape[-1]
+        effective, reason = solve(self.inverse(pillars), r, self.constants)
         keep = np.all(reason == 0, axis=1)
         if not np.any(keep):
             raise DecodeError("no calibration sample has all nine taxels valid")
-        comps = [2] if r.shape[-1] == 1 else [0, 1, 2]
-        a = np.concatenate([effective[keep][..., c] for c in comps])
-        b = np.concatenate([force[keep][..., c] for c in comps])
-        self.unmix_ = fit_tikhonov(a, b, self.alpha)
-        self.pillars_ = r.shape[-1]
+        self.unmix_info_ = fit_unmix(*unmix_rows(effective[keep], force[keep], pillars),
+                                     self.alpha)
+        self.unmix_ = self.unmix_info_.matrix
+        self.pillars_ = pillars
+        x = features(effective[keep], pillars)
+        y = features(self._unmix(x if pillars == 1 else effective[keep]), pillars)
+        self.domain_ = Domain(Box.fit(x, self.range_margin), Box.fit(y, self.range_margin))
         return self
+
+    def meta(self) -> dict[str, Any]:
+        info = self.__dict__.get("unmix_info_")
+        return super().meta() if info is None else {"crosstalk": info.to_meta()}
+
+    @classmethod
+    def _upgrade(cls, params: dict[str, Any], state: dict[str, Any], version: int) -> None:
+        params.setdefault("range_margin", 0.1)
+        state.setdefault("domain_", None)  # version 1 kept no domain: nothing is flagged
 
     def _check_state(self) -> None:
         expect_array(self.unmix_, "unmix_", (9, 9))
         if self.pillars_ not in (1, 3) or isinstance(self.pillars_, bool):
             raise ModelFileError(f"state.pillars_: must be 1 or 3, got {self.pillars_!r}")
+        if self.domain_ is not None:
+            size = 9 * self.pillars_
+            self.domain_ = Domain.from_state(self.domain_, "state.domain_", size, size)
 
     def _unmix(self, effective: F64) -> F64:
         """W applied per sample and component: Fz (n, 9) or forces (n, 9, 3) -> forces."""
-        if effective.ndim == 2:
-            return to_force(effective @ self.unmix_.T, 1)
-        force: F64 = np.matmul(self.unmix_, effective)
-        return force
+        return to_force(apply_unmix(self.unmix_, effective), self.pillars_)
 
     def _decode_fast(self, r: F64) -> F64 | None:
         effective = self.inverse(self.pillars_).fast(r)
-        return None if effective is None else self._unmix(effective)
+        if effective is None:
+            return None
+        force = self._unmix(effective)
+        domain = self.domain_
+        if domain is not None and not (
+                domain.inputs.all_inside(features(effective, self.pillars_))
+                and domain.outputs.all_inside(features(force, self.pillars_))):
+            return None
+        return force
 
     def _decode_full(self, r: F64) -> tuple[F64, NDArray[np.uint8]]:
         effective, ok = self.inverse(self.pillars_).full(r)  # 0 N where not ok
-        return self._unmix(effective), taxel_reasons(r, ok, self.constants)
+        force = self._unmix(effective)
+        reason = taxel_reasons(r, ok, self.constants)
+        domain = self.domain_
+        if domain is not None:
+            outside = ~(domain.inputs.inside(features(effective, self.pillars_))
+                        & domain.outputs.inside(features(force, self.pillars_)))
+            domain_reasons(reason, per_taxel(outside))
+        return force, reason

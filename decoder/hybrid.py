@@ -1,65 +1,199 @@
-"""The ``hybrid`` decoder: physics features into a small LM-trained MLP that learns the residual.
+"""The ``hybrid`` decoder: physics first, then a small LM-trained MLP that learns the residual.
 
-Features are the analytic decoder's forces (9 Fz in z-only mode, 27 components
-in 3-axis mode); the network learns true minus analytic (crosstalk, model
-error) and its output is added back. Features are clamped to the training
-range before the network, so outside it the physics still extrapolates and
-the learned correction does not.
+The physics part is ``deconv``'s: the exact inverse, then the crosstalk inverse
+calibrated on the training data (:func:`decoder.unmix.fit_unmix`). Its forces
+(9 Fz in z-only mode, 27 components in 3-axis mode) are the network's features,
+and the network learns true minus physics (what the exact model and a linear
+crosstalk do not explain). Its output is added back only where it is inside the
+residual's training domain:
+
+- the sample's features inside their training box and ellipsoid
+  (:mod:`decoder.domain`), else no residual for the whole sample;
+- each residual inside the range of the training residuals, else none for that
+  force component.
+
+Outside, hybrid is its physics part: it falls back instead of adding a guess.
+And the residual of each output (a taxel's force component) is used at all only
+if it earns its place: if on the validation rows it removes at least
+``RESIDUAL_GAIN`` of the physics part's mean square error for that output. On
+``paper-noisy`` deconv's Fz is already at the noise floor, and a network would
+only learn the noise; in 3-axis mode the network does learn that the shear of a
+pure press is zero, and keeps that.
+The physics part was chosen so that this fallback is worth having: deconv's
+crosstalk inverse is linear and transfers between load distributions, where
+the plain analytic inverse is off by the whole crosstalk (tens of percent).
+
+Taxels are flagged as ``deconv`` flags them: EXTRAPOLATED when the analytic
+force or the physics force leaves the training box.
 """
 
 from __future__ import annotations
 
-from typing import Self
+from typing import Any, Self
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from decoder.lmmlp import targets
-from decoder.physics import solve, taxel_reasons, to_force
+from decoder.domain import Box, Domain, Ellipsoid, check_margin, domain_reasons, per_taxel
+from decoder.physics import features, solve, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
     Progress,
+    expect_array,
     fold_force,
     fold_resistance,
 )
 from decoder.regressor import MLPDecoderBase, sample_rows
+from decoder.unmix import apply_unmix, fit_unmix, unmix_rows
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
+from skin.errors import DecodeError, ModelFileError
+
+RESIDUAL_GAIN = 0.1
+RESIDUAL_FLOOR_N2 = 1e-12
+"""Below this held-out MSE (1 µN RMS) the physics part is exact and there is nothing to learn."""
 
 
 class HybridDecoder(MLPDecoderBase):
-    """Analytic forces plus an MLP-learned residual."""
+    """deconv's physics plus an MLP-learned residual that is used only inside its domain."""
 
     name = "hybrid"
-    _params = ("constants", "r0_ohm", "hidden", "goal_mse", "max_epochs", "val_fraction", "seed")
+    _params = ("constants", "r0_ohm", "hidden", "goal_mse", "goal_units", "max_epochs",
+               "val_fraction", "seed", "alpha", "range_margin")
+    _state = (*MLPDecoderBase._state, "unmix_", "domain_", "residual_domain_", "use_residual_")
+    unmix_: F64
+    use_residual_: NDArray[np.bool_]
+    domain_: Domain | None
+    residual_domain_: Domain | None
 
     def __init__(self, *, constants: SensorConstants = DEFAULT_CONSTANTS,
-                 r0_ohm: ArrayLike | None = None, hidden: int = 12, goal_mse: float = 1e-4,
-                 max_epochs: int = 300, val_fraction: float = 0.15, seed: int = 0) -> None:
+                 r0_ohm: ArrayLike | None = None, hidden: int | str = 12,
+                 goal_mse: float = 1e-4, goal_units: str = "N", max_epochs: int = 300,
+                 val_fraction: float = 0.15, seed: int = 0, alpha: float = 1e-2,
+                 range_margin: float = 0.1) -> None:
         super().__init__(constants=constants, r0_ohm=r0_ohm, hidden=hidden, goal_mse=goal_mse,
-                         max_epochs=max_epochs, val_fraction=val_fraction, seed=seed)
+                         goal_units=goal_units, max_epochs=max_epochs,
+                         val_fraction=val_fraction, seed=seed)
+        if not (isinstance(alpha, float | int) and 0.0 < alpha < 1e6):
+            raise DecodeError(f"alpha must be in (0, 1e6), got {alpha!r}")
+        self.alpha = float(alpha)
+        self.range_margin = check_margin(range_margin)
 
     def fit(self, resistance_ohm: ArrayLike, force_N: ArrayLike, *,
             progress: Progress | None = None) -> Self:
         r, _ = fold_resistance(resistance_ohm)
         force = fold_force(force_N, r.shape[0])
         pillars = r.shape[-1]
-        physics, reason = solve(self.inverse(pillars), r, self.constants)
+        effective, reason = solve(self.inverse(pillars), r, self.constants)
         keep = np.all(reason == 0, axis=1)
-        x = targets(physics[keep], pillars)
-        self._fit_scaled(x, targets(force[keep], pillars) - x, pillars, progress)
+        if not np.any(keep):
+            raise DecodeError("no training sample has all nine taxels valid")
+        effective, force = effective[keep], force[keep]
+        self.unmix_info_ = fit_unmix(*unmix_rows(effective, force, pillars), self.alpha)
+        self.unmix_ = self.unmix_info_.matrix
+        physics = features(apply_unmix(self.unmix_, effective), pillars)
+        self.domain_ = Domain(Box.fit(features(effective, pillars), self.range_margin),
+                              Box.fit(physics, self.range_margin))
+        wanted = features(force, pillars) - physics
+        val = self._fit_scaled(physics, wanted, pillars, progress)
+        residual = self._net(physics)
+        self.residual_domain_ = Domain(Box.fit(physics, self.range_margin),
+                                       Box.fit(residual, self.range_margin),
+                                       Ellipsoid.fit(physics))
+        rows = val if val.size else np.arange(physics.shape[0])
+        self.val_mse_physics_ = np.mean(wanted[rows] ** 2, axis=0)
+        self.val_mse_hybrid_ = np.mean((wanted[rows] - residual[rows]) ** 2, axis=0)
+        self.use_residual_ = ((self.val_mse_hybrid_ < (1.0 - RESIDUAL_GAIN) * self.val_mse_physics_)
+                              & (self.val_mse_physics_ > RESIDUAL_FLOOR_N2))
+        self._any_residual = bool(self.use_residual_.any())
         return self
 
-    def _predict(self, physics: F64) -> F64:
-        """Analytic outputs (Fz (n, 9) or forces (n, 9, 3)) -> corrected forces (n, 9, 3)."""
-        x = sample_rows(physics)
-        y = self._net(np.minimum(np.maximum(x, self.x_lo_), self.x_hi_))
-        y += x
-        return to_force(y, self.pillars_)
+    def meta(self) -> dict[str, Any]:
+        meta = super().meta()
+        if "unmix_info_" in self.__dict__:
+            meta["crosstalk"] = self.unmix_info_.to_meta()
+        if "val_mse_physics_" in self.__dict__:
+            meta["residual"] = {"used": self.use_residual_,
+                                "val_mse_physics_N2": self.val_mse_physics_,
+                                "val_mse_with_residual_N2": self.val_mse_hybrid_,
+                                "required_gain": RESIDUAL_GAIN}
+        return meta
+
+    @classmethod
+    def _upgrade(cls, params: dict[str, Any], state: dict[str, Any], version: int) -> None:
+        # Version 1: analytic forces in, residual over them, features clamped to their range.
+        super()._upgrade(params, state, version)
+        params.setdefault("alpha", 1e-3)
+        params.setdefault("range_margin", 0.1)
+        state.setdefault("unmix_", np.eye(9))
+        state.setdefault("domain_", None)
+        state.setdefault("residual_domain_", None)
+        pillars = state.get("pillars_")
+        if pillars in (1, 3) and not isinstance(pillars, bool):
+            state.setdefault("use_residual_", np.ones(9 * pillars, dtype=bool))
+
+    def _check_state(self) -> None:
+        super()._check_state()
+        expect_array(self.unmix_, "unmix_", (9, 9))
+        layout = self._layout()
+        for key in ("domain_", "residual_domain_"):
+            value = getattr(self, key)
+            if value is not None:
+                setattr(self, key, Domain.from_state(value, f"state.{key}", layout.n_in,
+                                                     layout.n_out))
+        used = self.use_residual_
+        if not (isinstance(used, np.ndarray) and used.dtype == bool
+                and used.shape == (layout.n_out,)):
+            got = used.shape if isinstance(used, np.ndarray) else type(used).__name__
+            raise ModelFileError(f"state.use_residual_: expected bool array of shape "
+                                 f"({layout.n_out},), got {got}")
+        density = None if self.residual_domain_ is None else self.residual_domain_.density
+        if self.residual_domain_ is not None and density is None:
+            raise ModelFileError("state.residual_domain_: missing 'density'")
+
+    def _corrected(self, physics: F64) -> F64:
+        """Physics rows ((O,) or (n, O)) plus the residual wherever it is in its domain."""
+        if not self._any_residual:
+            return physics
+        domain = self.residual_domain_
+        if domain is None:
+            residual = self._net(np.minimum(np.maximum(physics, self.x_lo_), self.x_hi_))
+        else:
+            residual = self._net(physics)
+            assert domain.density is not None
+            use = (domain.outputs.inside(residual)
+                   & domain.inputs.inside(physics).all(axis=-1, keepdims=True)
+                   & domain.density.inside(physics)[..., None])
+            residual = np.where(use & self.use_residual_, residual, 0.0)
+        out: F64 = physics + residual
+        return out
+
+    def _prepare(self) -> None:
+        super()._prepare()
+        self._any_residual = bool(np.any(self.__dict__.get("use_residual_", True)))
+
+    def _physics(self, effective: F64) -> F64:
+        return sample_rows(features(apply_unmix(self.unmix_, effective), self.pillars_))
 
     def _decode_fast(self, r: F64) -> F64 | None:
-        physics = self.inverse(self.pillars_).fast(r)
-        return None if physics is None else self._predict(physics)
+        effective = self.inverse(self.pillars_).fast(r)
+        if effective is None:
+            return None
+        physics = self._physics(effective)
+        domain = self.domain_
+        if domain is not None and not (
+                domain.inputs.all_inside(sample_rows(features(effective, self.pillars_)))
+                and domain.outputs.all_inside(physics)):
+            return None
+        return to_force(self._corrected(physics), self.pillars_)
 
     def _decode_full(self, r: F64) -> tuple[F64, NDArray[np.uint8]]:
-        physics, ok = self.inverse(self.pillars_).full(r)  # 0 N where not ok
-        return self._predict(physics), taxel_reasons(r, ok, self.constants)
+        effective, ok = self.inverse(self.pillars_).full(r)  # 0 N where not ok
+        physics = self._physics(effective)
+        reason = taxel_reasons(r, ok, self.constants)
+        domain = self.domain_
+        if domain is not None:
+            n = r.shape[0]
+            outside = ~(domain.inputs.inside(features(effective, self.pillars_))
+                        & domain.outputs.inside(physics.reshape(n, -1)))
+            domain_reasons(reason, per_taxel(outside))
+        return to_force(self._corrected(physics), self.pillars_), reason

@@ -5,7 +5,13 @@ dX = -(JᵀJ + mu·I)⁻¹ Jᵀe by Cholesky; mu starts at 1e-3, is multiplied b
 that does; training stops at the goal MSE, when mu exceeds 1e10, when the
 gradient vanishes, after ``max_fail`` consecutive validation rises (returning
 the weights of the best validation epoch, as MATLAB does), or at
-``max_epochs``. The MSE is measured on the scaled ([-1, 1]) outputs.
+``max_epochs``.
+
+The network works on scaled ([-1, 1]) outputs; the MSE that the goal, the
+validation checks and the result report is of ``weight ⊙ error`` per output.
+With ``weight`` the outputs' half-spans it is the MSE in the targets' own
+units, as MATLAB's default performance function measures it; without, the MSE
+on the scaled outputs.
 """
 
 from __future__ import annotations
@@ -53,12 +59,16 @@ class LMOptions:
     min_grad: float = 1e-7
 
 
-def _mse(layout: Layout, theta: F64, x: F64, t: F64) -> float:
+def _mean_square(e: F64, weight: F64 | None) -> float:
+    r = e if weight is None else e * weight
+    return float(np.mean(r * r))
+
+
+def _mse(layout: Layout, theta: F64, x: F64, t: F64, weight: F64 | None) -> float:
     if x.shape[0] == 0:
         return float("nan")
     with np.errstate(over="ignore", invalid="ignore"):
-        e = predict(layout, theta, x) - t
-        value = float(np.mean(e * e))
+        value = _mean_square(predict(layout, theta, x) - t, weight)
     return value if np.isfinite(value) else float("inf")
 
 
@@ -81,8 +91,12 @@ def train_lm(
     val: tuple[F64, F64],
     options: LMOptions = LMOptions(),
     progress: Progress | None = None,
+    weight: F64 | None = None,
 ) -> tuple[F64, TrainResult]:
-    """Train from ``theta`` on scaled (inputs, targets); returns the weights and a TrainResult."""
+    """Train from ``theta`` on scaled (inputs, targets); returns the weights and a TrainResult.
+
+    ``weight`` (O,) multiplies each output's error before it is squared (see above).
+    """
     start = time.perf_counter()
     x, t = train
     xv, tv = val
@@ -92,15 +106,15 @@ def train_lm(
     with np.errstate(over="ignore", invalid="ignore"):
         fw = forward(layout, theta, x)
         e = fw.y - t
-        mse = float(np.mean(e * e))
-    best_theta, best_val, best_epoch = theta.copy(), _mse(layout, theta, xv, tv), 0
+        mse = _mean_square(e, weight)
+    best_theta, best_val, best_epoch = theta.copy(), _mse(layout, theta, xv, tv, weight), 0
     fails = 0
     epoch = 0
     while True:
         if not np.isfinite(mse):
             message = "training MSE is not finite at the starting point"
             break
-        jtj, g = normal_equations(layout, theta, fw, e)
+        jtj, g = normal_equations(layout, theta, fw, e, weight)
         grad = 2.0 * float(np.linalg.norm(g)) / e.size
         if mse <= options.goal_mse:
             message = "performance goal met"
@@ -126,14 +140,14 @@ def train_lm(
                 with np.errstate(over="ignore", invalid="ignore"):
                     fw_trial = forward(layout, trial, x)
                     e_trial = fw_trial.y - t
-                    mse_trial = float(np.mean(e_trial * e_trial))
+                    mse_trial = _mean_square(e_trial, weight)
                 if np.isfinite(mse_trial) and mse_trial < mse:
                     theta, fw, e, mse = trial, fw_trial, e_trial, mse_trial
                     mu = max(mu * options.mu_dec, MU_FLOOR)
                     break
             mu *= options.mu_inc
         if xv.shape[0]:
-            val_mse = _mse(layout, theta, xv, tv)
+            val_mse = _mse(layout, theta, xv, tv, weight)
             nfev += 1
             if val_mse < best_val:
                 best_theta, best_val, best_epoch, fails = theta.copy(), val_mse, epoch, 0
@@ -143,16 +157,16 @@ def train_lm(
             progress(epoch, mse, mu)
     if xv.shape[0] == 0:
         best_theta, best_epoch = theta, epoch
-    elif message.startswith("validation stop") or _mse(layout, theta, xv, tv) > best_val:
+    elif message.startswith("validation stop") or _mse(layout, theta, xv, tv, weight) > best_val:
         theta = best_theta
     else:
         best_epoch = epoch
-    final_mse = _mse(layout, theta, x, t)
+    final_mse = _mse(layout, theta, x, t, weight)
     success = message.startswith(("performance goal", "validation stop", "minimum gradient"))
     result = TrainResult(
         success=success, message=message, nit=epoch, nfev=nfev, mse=final_mse, mu=mu,
         elapsed_s=time.perf_counter() - start,
-        val_mse=_mse(layout, theta, xv, tv) if xv.shape[0] else float("nan"),
+        val_mse=_mse(layout, theta, xv, tv, weight) if xv.shape[0] else float("nan"),
         best_epoch=best_epoch,
     )
     return theta, result

@@ -1,86 +1,161 @@
 """The ``lm-mlp`` decoder: the paper's network, resistances in, forces out.
 
 z-only: 9 resistances -> 9 normal forces; 3-axis: 27 -> 27 (Fx, Fy, Fz per taxel).
-A taxel with a faulty pillar, or a reading outside the calibrated range (the
-training range widened by ``range_margin`` of its span), is masked; its inputs
-are replaced by the middle of the training range so the other taxels still
-decode.
+``hidden`` is a number of nodes or ``"auto"`` (the paper's Eq. 21 and pruning,
+:mod:`decoder.hidden`); the goal MSE is in newtons unless ``goal_units="scaled"``.
+
+The network knows where it was trained (:mod:`decoder.domain`), and a taxel is
+EXTRAPOLATED when:
+
+- one of its readings is outside the training readings' box (its reading is then
+  clamped to the box so that the other taxels still decode);
+- the whole sample is outside the training readings' ellipsoid (a load pattern
+  the network never saw: every taxel of the sample);
+- its force is outside the box of the training forces and of what the network
+  answered on the training readings;
+- its force departs from the physics reading (the exact inverse and the
+  crosstalk inverse fitted on the same data, as ``deconv``) by more than it ever
+  did in training (:class:`decoder.domain.Band`). This catches what the input
+  checks cannot: a pattern inside the training readings' spread on which the
+  network is nevertheless wrong. It is checked only when every taxel of the
+  sample has a physics reading.
+
+A taxel with a faulty pillar, or one the physics cannot decode, keeps its
+electrical reason or OUT_OF_RANGE; its readings are replaced by the middle of the
+training range so the other taxels still decode.
 """
 
 from __future__ import annotations
 
-from typing import Self
+from typing import Any, Self
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from decoder.physics import to_force
+from decoder.domain import Band, Box, Domain, Ellipsoid, check_margin, domain_reasons, per_taxel
+from decoder.physics import features, solve, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
     Progress,
+    expect_array,
     fold_force,
     fold_resistance,
 )
-from decoder.reasons import Reason, classify_resistance, worst_reason
 from decoder.regressor import MLPDecoderBase, sample_rows
+from decoder.unmix import apply_unmix, fit_unmix, unmix_rows
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.constants import TAXELS_PER_PATCH as T
-from skin.errors import DecodeError
+from skin.errors import ModelFileError
 
-
-def targets(force: F64, pillars: int) -> F64:
-    """Training targets (n, 9) Fz in z-only mode, (n, 27) all components in 3-axis mode."""
-    return force[..., 2].copy() if pillars == 1 else force.reshape(force.shape[0], 3 * T)
+UNMIX_ALPHA = 1e-2
+"""Tikhonov weight of the physics reference's crosstalk inverse (deconv's default)."""
 
 
 class LMMLPDecoder(MLPDecoderBase):
     """Resistances -> one tanh hidden layer -> forces, trained by Levenberg-Marquardt."""
 
     name = "lm-mlp"
-    _params = ("constants", "r0_ohm", "hidden", "goal_mse", "max_epochs", "val_fraction",
-               "seed", "range_margin")
+    _params = ("constants", "r0_ohm", "hidden", "goal_mse", "goal_units", "max_epochs",
+               "val_fraction", "seed", "range_margin")
+    _state = (*MLPDecoderBase._state, "unmix_", "domain_")
+    unmix_: F64 | None
+    domain_: Domain
 
-    def __init__(self, *, hidden: int = 10, goal_mse: float = 1e-4, max_epochs: int = 1000,
-                 val_fraction: float = 0.15, seed: int = 0, range_margin: float = 0.1,
+    def __init__(self, *, hidden: int | str = 10, goal_mse: float = 1e-4,
+                 goal_units: str = "N", max_epochs: int = 1000, val_fraction: float = 0.15,
+                 seed: int = 0, range_margin: float = 0.1,
                  constants: SensorConstants = DEFAULT_CONSTANTS,
                  r0_ohm: ArrayLike | None = None) -> None:
         super().__init__(constants=constants, r0_ohm=r0_ohm, hidden=hidden, goal_mse=goal_mse,
-                         max_epochs=max_epochs, val_fraction=val_fraction, seed=seed)
-        if not range_margin >= 0.0:
-            raise DecodeError(f"range_margin must be >= 0, got {range_margin!r}")
-        self.range_margin = range_margin
+                         goal_units=goal_units, max_epochs=max_epochs,
+                         val_fraction=val_fraction, seed=seed)
+        self.range_margin = check_margin(range_margin)
 
     def fit(self, resistance_ohm: ArrayLike, force_N: ArrayLike, *,
             progress: Progress | None = None) -> Self:
         r, _ = fold_resistance(resistance_ohm)
         force = fold_force(force_N, r.shape[0])
         pillars = r.shape[-1]
-        x = r.reshape(r.shape[0], -1)
-        codes = worst_reason(classify_resistance(r, self.constants))
-        keep = np.all(codes == 0, axis=1)
-        self._fit_scaled(x[keep], targets(force[keep], pillars), pillars, progress)
+        effective, reason = solve(self.inverse(pillars), r, self.constants)
+        keep = np.all(reason == 0, axis=1)
+        x = r[keep].reshape(-1, T * pillars)
+        y = features(force[keep], pillars)
+        self._fit_scaled(x, y, pillars, progress)
+        self.unmix_ = fit_unmix(*unmix_rows(effective[keep], force[keep], pillars),
+                                UNMIX_ALPHA).matrix
+        physics = features(apply_unmix(self.unmix_, effective[keep]), pillars)
+        predicted = self._net(x)
+        outputs = Box.fit(np.concatenate((y, predicted)), self.range_margin)
+        self.domain_ = Domain(Box.fit(x, self.range_margin), outputs,
+                              Ellipsoid.fit(x), Band.fit(predicted - physics,
+                                                         y.max(axis=0) - y.min(axis=0)))
         return self
+
+    @classmethod
+    def _upgrade(cls, params: dict[str, Any], state: dict[str, Any], version: int) -> None:
+        super()._upgrade(params, state, version)
+        margin = params.setdefault("range_margin", 0.1)
+        state.setdefault("unmix_", None)
+        if "domain_" not in state and {"x_lo_", "x_hi_", "y_lo_", "y_hi_"} <= set(state):
+            x_lo, x_hi, y_lo, y_hi = (state[k] for k in ("x_lo_", "x_hi_", "y_lo_", "y_hi_"))
+            if all(isinstance(a, np.ndarray) for a in (x_lo, x_hi, y_lo, y_hi)):
+                # Version 1 masked readings beyond each one's own range widened by the
+                # margin; keep exactly that, and check the forces against their range too.
+                widen_x, widen_y = margin * (x_hi - x_lo), margin * np.max(y_hi - y_lo)
+                state["domain_"] = {"inputs": {"lo": x_lo - widen_x, "hi": x_hi + widen_x},
+                                    "outputs": {"lo": y_lo - widen_y, "hi": y_hi + widen_y}}
+
+    def _check_state(self) -> None:
+        super()._check_state()
+        layout = self._layout()
+        if self.unmix_ is not None:
+            expect_array(self.unmix_, "unmix_", (9, 9))
+        self.domain_ = Domain.from_state(self.domain_, "state.domain_", layout.n_in,
+                                         layout.n_out)
+        if self.domain_.band is not None and self.unmix_ is None:
+            raise ModelFileError("state.domain_.band: needs state.unmix_")
 
     def _prepare(self) -> None:
         super()._prepare()
-        margin = self.range_margin * (self.x_hi_ - self.x_lo_)
-        self._lo, self._hi = self.x_lo_ - margin, self.x_hi_ + margin
         self._mid = 0.5 * (self.x_lo_ + self.x_hi_)
+
+    def _physics(self, effective: F64) -> F64:
+        """Analytic forces (Fz (n, 9) or (n, 9, 3)) -> the physics reading as feature rows."""
+        assert self.unmix_ is not None
+        return sample_rows(features(apply_unmix(self.unmix_, effective), self.pillars_))
 
     def _decode_fast(self, r: F64) -> F64 | None:
         x = sample_rows(r)
-        if not ((x >= self._lo) & (x <= self._hi)).all():
+        domain = self.domain_
+        if not domain.inputs.all_inside(x):
             return None
-        return to_force(self._net(x), self.pillars_)
+        if domain.density is not None and not domain.density.inside(x).all():
+            return None
+        y = self._net(x)
+        if not domain.outputs.all_inside(y):
+            return None
+        effective = self.inverse(self.pillars_).fast(r)
+        if effective is None:
+            return None
+        if domain.band is not None and not domain.band.all_inside(y - self._physics(effective)):
+            return None
+        return to_force(y, self.pillars_)
 
     def _decode_full(self, r: F64) -> tuple[F64, NDArray[np.uint8]]:
-        x = sample_rows(r)
-        reason = self._reasons(r, (x >= self._lo) & (x <= self._hi))
-        bad = np.repeat(reason != 0, self.pillars_, axis=1).reshape(x.shape)
-        x = np.where(bad, self._mid, x)
-        return to_force(self._net(x), self.pillars_), reason
-
-    def _reasons(self, r: F64, ok: NDArray[np.bool_]) -> NDArray[np.uint8]:
-        in_range = ok.reshape(r.shape).all(axis=-1)
-        code = worst_reason(classify_resistance(r, self.constants))
-        return np.where((code == 0) & ~in_range, np.uint8(Reason.OUT_OF_RANGE), code)
+        n, pillars = r.shape[0], self.pillars_
+        x = r.reshape(n, T * pillars)
+        domain = self.domain_
+        effective, ok = self.inverse(pillars).full(r)
+        reason = taxel_reasons(r, ok, self.constants)
+        faulty = np.repeat(reason != 0, pillars, axis=1)
+        domain_reasons(reason, per_taxel(~domain.inputs.inside(x)))
+        x = domain.inputs.clamp(np.where(faulty, self._mid, x))
+        if domain.density is not None:
+            domain_reasons(reason, ~domain.density.inside(x)[:, None])
+        y = self._net(sample_rows(x)).reshape(n, -1)  # one sample as a vector, as on the fast path
+        domain_reasons(reason, per_taxel(~domain.outputs.inside(y)))
+        if domain.band is not None and self.unmix_ is not None:
+            whole = np.asarray(ok.all(axis=1))
+            off = ~domain.band.inside(y - features(apply_unmix(self.unmix_, effective), pillars))
+            domain_reasons(reason, per_taxel(off) & whole[:, None])
+        return to_force(y, pillars), reason

@@ -34,6 +34,7 @@ class ErrorReport:
     rmse_centre_N: float
     compared: int
     masked: int
+    floored: int = 0  # components compared in the floored figures
 
     def to_dict(self) -> dict[str, float | int]:
         return asdict(self)
@@ -51,6 +52,8 @@ def ave_rel_err(true: ArrayLike, pred: ArrayLike) -> float:
     """Eq. 22 in %: mean |(F' - F) / F| over components with F != 0."""
     t, p = np.asarray(true, np.float64).ravel(), np.asarray(pred, np.float64).ravel()
     keep = t != 0.0
+    if not keep.any():
+        return float("nan")
     return float(100.0 * np.mean(np.abs((p[keep] - t[keep]) / t[keep])))
 
 
@@ -85,4 +88,5 @@ def evaluate(
         rmse_centre_N=_rmse((p - t)[centre]),
         compared=int(tv.size),
         masked=int(np.count_nonzero(~ok)),
+        floored=int(np.count_nonzero(floored)),
     )

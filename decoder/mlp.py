@@ -13,6 +13,12 @@ instead of the (samples·O × params) Jacobian itself:
 
 ``jacobian`` builds the dense J (used to check the structure and by the SciPy
 reference); the trainer never does.
+
+Errors may be weighted per output, r = w ⊙ e: trainlm measures its goal on the
+un-normalised targets, so with mapminmax outputs each output's error is its
+scaled error times that output's half-span (w = span/2). The weighted problem
+is the same structure with W2 replaced by diag(w²)·W2 in the hidden-output
+coupling and I_O by diag(w²).
 """
 
 from __future__ import annotations
@@ -50,18 +56,18 @@ def minmax_range(x: F64) -> tuple[F64, F64]:
     return x.min(axis=0), x.max(axis=0)
 
 
-def _gain(lo: F64, hi: F64) -> F64:
+def mapminmax_gain(lo: F64, hi: F64) -> F64:
     span = hi - lo
     return np.where(span > 0, 2.0 / np.where(span > 0, span, 1.0), 1.0)
 
 
 def mapminmax(x: F64, lo: F64, hi: F64) -> F64:
     """Map each column from [lo, hi] to [-1, 1] (MATLAB mapminmax; constant columns gain 1)."""
-    return (x - lo) * _gain(lo, hi) - 1.0
+    return (x - lo) * mapminmax_gain(lo, hi) - 1.0
 
 
 def mapminmax_reverse(y: F64, lo: F64, hi: F64) -> F64:
-    return (y + 1.0) / _gain(lo, hi) + lo
+    return (y + 1.0) / mapminmax_gain(lo, hi) + lo
 
 
 def nguyen_widrow(layout: Layout, rng: np.random.Generator) -> F64:
@@ -108,29 +114,36 @@ def predict(layout: Layout, theta: F64, x: F64) -> F64:
     return out
 
 
-def normal_equations(layout: Layout, theta: F64, fw: Forward, e: F64) -> tuple[F64, F64]:
-    """JᵀJ (params × params) and Jᵀe for residuals e = y - target, shape (n, O)."""
+def normal_equations(
+    layout: Layout, theta: F64, fw: Forward, e: F64, weight: F64 | None = None
+) -> tuple[F64, F64]:
+    """JᵀJ (params × params) and Jᵀr for residuals r = weight ⊙ (y - target), e = y - target
+    of shape (n, O), ``weight`` (O,) or None for ones; J is the Jacobian of r."""
     H, I, O = layout.n_hidden, layout.n_in + 1, layout.n_out  # noqa: E741
     _, A2 = layout.unpack(theta)
     W2 = A2[:, :H]
+    w2 = None if weight is None else weight * weight
+    W2w = W2 if w2 is None else W2 * w2[:, None]
     d = 1.0 - fw.h1[:, :H] ** 2
     P = (d[:, :, None] * fw.x1[:, None, :]).reshape(-1, H * I)
     nh = H * I
     jtj = np.empty((layout.n_params, layout.n_params))
-    C = np.repeat(np.repeat(W2.T @ W2, I, axis=0), I, axis=1)
+    C = np.repeat(np.repeat(W2.T @ W2w, I, axis=0), I, axis=1)
     jtj[:nh, :nh] = (P.T @ P) * C
     Q = (P.T @ fw.h1).reshape(H, I, 1, H + 1)
-    cross = (W2.T[:, None, :, None] * Q).reshape(nh, O * (H + 1))
+    cross = (W2w.T[:, None, :, None] * Q).reshape(nh, O * (H + 1))
     jtj[:nh, nh:] = cross
     jtj[nh:, :nh] = cross.T
-    jtj[nh:, nh:] = np.kron(np.eye(O), fw.h1.T @ fw.h1)
-    g_hidden = ((e @ W2) * d).T @ fw.x1
-    g_out = e.T @ fw.h1
+    jtj[nh:, nh:] = np.kron(np.eye(O) if w2 is None else np.diag(w2), fw.h1.T @ fw.h1)
+    ew = e if w2 is None else e * w2
+    g_hidden = ((ew @ W2) * d).T @ fw.x1
+    g_out = ew.T @ fw.h1
     return jtj, np.concatenate((g_hidden.ravel(), g_out.ravel()))
 
 
-def jacobian(layout: Layout, theta: F64, x: F64) -> F64:
-    """Dense ∂y/∂theta of shape (n·O, params), rows ordered (sample, output)."""
+def jacobian(layout: Layout, theta: F64, x: F64, weight: F64 | None = None) -> F64:
+    """Dense ∂r/∂theta of shape (n·O, params), rows ordered (sample, output), for
+    r = weight ⊙ y (weight (O,), None for ones)."""
     H, I, O = layout.n_hidden, layout.n_in + 1, layout.n_out  # noqa: E741
     _, A2 = layout.unpack(theta)
     fw = forward(layout, theta, x)
@@ -142,4 +155,6 @@ def jacobian(layout: Layout, theta: F64, x: F64) -> F64:
     for t in range(O):
         start = H * I + t * (H + 1)
         J[:, t, start : start + H + 1] = fw.h1
+    if weight is not None:
+        J *= weight[None, :, None]
     return J.reshape(n * O, layout.n_params)

@@ -2,20 +2,25 @@
 
 Layout::
 
-    {"schema": "canskin.decoder", "version": 1, "name": str,
-     "params": {str: value}, "state": {str: value}}
+    {"schema": "canskin.decoder", "version": 2, "name": str,
+     "params": {str: value}, "state": {str: value}, "meta": {str: value}}
 
 where a value is None, bool, int, float, str, a map of values (depth-limited)
 or an array ``{"dtype": "<f8", "shape": [...], "data": bytes}``. Reading
 validates every field and refuses anything else with a ModelFileError that
 names the field: a corrupt, truncated or hostile file never becomes a model.
+
+``meta`` (version 2) is what training reports and decoding does not need: how
+the hidden nodes were chosen, the validation curve, where training stopped.
+Version 1 files (no ``meta``, no training domain) are still read; each decoder
+class says how its version-1 state is upgraded (``BaseDecoder._upgrade``).
 """
 
 from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import msgpack
@@ -25,7 +30,8 @@ from skin.atomic import atomic_write
 from skin.errors import ModelFileError
 
 SCHEMA = "canskin.decoder"
-VERSION = 1
+VERSION = 2
+READABLE_VERSIONS = (1, 2)
 MAX_FILE_BYTES = 64 * 1024 * 1024
 MAX_ARRAY_ELEMENTS = 4_000_000
 MAX_DIMS = 4
@@ -34,7 +40,8 @@ ARRAY_KEYS = frozenset({"dtype", "shape", "data"})
 DTYPES: dict[str, np.dtype[Any]] = {
     name: np.dtype(name) for name in ("<f8", "<i8", "|u1", "|b1")
 }
-TOP_KEYS = frozenset({"schema", "version", "name", "params", "state"})
+TOP_KEYS = {1: frozenset({"schema", "version", "name", "params", "state"}),
+            2: frozenset({"schema", "version", "name", "params", "state", "meta"})}
 
 
 @dataclass(frozen=True)
@@ -44,6 +51,8 @@ class ModelContent:
     name: str
     params: dict[str, Any]
     state: dict[str, Any]
+    version: int = VERSION
+    meta: dict[str, Any] = field(default_factory=dict)
 
 
 def encode_array(array: np.ndarray) -> dict[str, Any]:
@@ -66,11 +75,12 @@ def _encode(value: Any) -> Any:
 
 
 def write_model(
-    path: str | os.PathLike[str], name: str, params: dict[str, Any], state: dict[str, Any]
+    path: str | os.PathLike[str], name: str, params: dict[str, Any], state: dict[str, Any],
+    meta: dict[str, Any] | None = None,
 ) -> None:
     """Write a model file atomically (complete or absent)."""
     doc = {"schema": SCHEMA, "version": VERSION, "name": name,
-           "params": _encode(params), "state": _encode(state)}
+           "params": _encode(params), "state": _encode(state), "meta": _encode(meta or {})}
     payload = msgpack.packb(doc, use_bin_type=True)
     with atomic_write(path) as handle:
         handle.write(payload)
@@ -137,23 +147,26 @@ def unpack_model(payload: bytes) -> ModelContent:
         raise ModelFileError(f"file: not a valid msgpack document ({err})") from err
     if not isinstance(doc, dict):
         raise ModelFileError("file: top level must be a map")
-    missing = sorted(TOP_KEYS - set(doc))
-    extra = sorted(set(doc) - TOP_KEYS)
+    if doc.get("schema") != SCHEMA:
+        raise ModelFileError(f"schema: expected {SCHEMA!r}, got {doc.get('schema')!r}")
+    version = doc.get("version")
+    if isinstance(version, bool) or version not in READABLE_VERSIONS:
+        readable = " and ".join(str(v) for v in READABLE_VERSIONS)
+        raise ModelFileError(f"version: this canskin reads versions {readable}, got {version!r}")
+    keys = TOP_KEYS[version]
+    missing = sorted(keys - set(doc))
+    extra = sorted(set(doc) - keys)
     if missing or extra:
         what = f"missing {missing[0]!r}" if missing else f"unknown key {extra[0]!r}"
         raise ModelFileError(f"file: {what}")
-    if doc["schema"] != SCHEMA:
-        raise ModelFileError(f"schema: expected {SCHEMA!r}, got {doc['schema']!r}")
-    if doc["version"] != VERSION or isinstance(doc["version"], bool):
-        raise ModelFileError(f"version: this canskin reads version {VERSION}, "
-                             f"got {doc['version']!r}")
     if not isinstance(doc["name"], str) or not doc["name"]:
         raise ModelFileError("name: must be a non-empty string")
-    for key in ("params", "state"):
-        if not isinstance(doc[key], dict):
+    for key in ("params", "state", "meta"):
+        if key in doc and not isinstance(doc[key], dict):
             raise ModelFileError(f"{key}: must be a map")
     return ModelContent(name=doc["name"], params=_decode(doc["params"], "params", 1),
-                        state=_decode(doc["state"], "state", 1))
+                        state=_decode(doc["state"], "state", 1), version=version,
+                        meta=_decode(doc.get("meta", {}), "meta", 1))
 
 
 def read_model(path: str | os.PathLike[str]) -> ModelContent:

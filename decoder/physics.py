@@ -62,6 +62,15 @@ def to_force(y: F64, pillars: int) -> F64:
     return force
 
 
+def features(force: F64, pillars: int) -> F64:
+    """Per-taxel outputs as rows, taxel-major: Fz (n, 9) in z-only mode (from Fz (n, 9) or
+    forces (n, 9, 3)), all components (n, 27) in 3-axis mode. The inverse of :func:`to_force`."""
+    if pillars == 1:
+        fz: F64 = force[..., 2] if force.ndim == 3 else force
+        return fz.reshape(fz.shape[0], T)
+    return force.reshape(force.shape[0], 3 * T)
+
+
 def solve(
     inverse: Inverse, r: F64, constants: SensorConstants
 ) -> tuple[F64, NDArray[np.uint8]]:

@@ -10,7 +10,7 @@ from typing import Any, ClassVar, Protocol, Self, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from decoder.modelfile import read_model, write_model
+from decoder.modelfile import VERSION, read_model, write_model
 from decoder.physics import Inverse, make_inverse
 from decoder.reasons import reason_name
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
@@ -132,6 +132,7 @@ class BaseDecoder:
     name: ClassVar[str] = ""
     _params: ClassVar[tuple[str, ...]] = ("constants", "r0_ohm")
     _state: ClassVar[tuple[str, ...]] = ()
+    _loaded_meta: dict[str, Any]
 
     def __init__(self, *, constants: SensorConstants = DEFAULT_CONSTANTS,
                  r0_ohm: ArrayLike | None = None) -> None:
@@ -205,18 +206,41 @@ class BaseDecoder:
         self._require_fitted()
         params = self.get_params()
         params["constants"] = self.constants.to_dict()
-        state = {s: getattr(self, s) for s in self._state}
-        write_model(path, self.name, params, state)
+        state = {s: self._state_value(s) for s in self._state}
+        write_model(path, self.name, params, state, self.meta())
+
+    def _state_value(self, key: str) -> Any:
+        """A learned attribute as the model file holds it: objects with ``to_state()`` (a
+        training domain) as what that returns."""
+        value = getattr(self, key)
+        to_state = getattr(value, "to_state", None)
+        return value if to_state is None else to_state()
+
+    def meta(self) -> dict[str, Any]:
+        """What the model file's ``meta`` holds: how training went (empty if nothing to say).
+
+        After :meth:`load` it is the file's own ``meta``."""
+        loaded: dict[str, Any] = self.__dict__.get("_loaded_meta", {})
+        return loaded
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Self:
         content = read_model(path)
         if content.name != cls.name:
             raise ModelFileError(f"name: file holds a {content.name!r} model, not {cls.name!r}")
-        return cls.from_content(content.params, content.state, os.fspath(path))
+        return cls.from_content(content.params, content.state, os.fspath(path),
+                                version=content.version, meta=content.meta)
 
     @classmethod
-    def from_content(cls, params: dict[str, Any], state: dict[str, Any], where: str) -> Self:
+    def _upgrade(cls, params: dict[str, Any], state: dict[str, Any], version: int) -> None:
+        """Bring an older file's params and state to the current layout, in place."""
+
+    @classmethod
+    def from_content(cls, params: dict[str, Any], state: dict[str, Any], where: str, *,
+                     version: int = VERSION, meta: dict[str, Any] | None = None) -> Self:
+        params, state = dict(params), dict(state)
+        if version < VERSION and set(state) != set(cls._state):
+            cls._upgrade(params, state, version)
         if set(params) != set(cls._params):
             raise ModelFileError(f"{where}: params: expected keys {sorted(cls._params)}, "
                                  f"got {sorted(params)}")
@@ -237,6 +261,7 @@ class BaseDecoder:
             model._check_state()
         except ModelFileError as err:
             raise ModelFileError(f"{where}: {err}") from err
+        model._loaded_meta = dict(meta or {})
         return model
 
     def _check_state(self) -> None:

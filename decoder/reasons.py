@@ -22,6 +22,7 @@ class Reason(enum.IntEnum):
     OUT_OF_RANGE = 6  # physically possible reading outside the decoder's valid/calibrated range
     MISSING = 7  # PDO not received in the cycle (lost, late, duplicated or malformed)
     FAULTY = 8  # reported faulty by the node (EMCY / taxel status): masked by the host
+    EXTRAPOLATED = 9  # a trained decoder's input or output is outside its training domain
 
 
 def reason_name(code: int) -> str:

@@ -25,6 +25,7 @@ BUILTIN_DECODERS: dict[str, str] = {
     "deconv": "decoder.deconv:DeconvDecoder",
     "lm-mlp": "decoder.lmmlp:LMMLPDecoder",
     "hybrid": "decoder.hybrid:HybridDecoder",
+    "eq9": "decoder.eq9:Eq9Decoder",
 }
 
 
@@ -66,5 +67,6 @@ def load_decoder(path: str | os.PathLike[str]) -> Decoder:
     except ConfigError as err:
         raise ModelFileError(f"{os.fspath(path)}: name: {err.problem}") from err
     if issubclass(cls, BaseDecoder):
-        return cls.from_content(content.params, content.state, os.fspath(path))
+        return cls.from_content(content.params, content.state, os.fspath(path),
+                                version=content.version, meta=content.meta)
     return cls.load(path)

@@ -9,38 +9,90 @@ from typing import Any
 from skin.errors import ConfigError
 
 
+def hidden_nodes(text: str) -> int | str:
+    """``--hidden``: a number of hidden nodes, or ``auto`` (the paper's Eq. 21 and pruning)."""
+    if text == "auto":
+        return text
+    try:
+        value = int(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected a number of nodes or 'auto', got {text!r}") \
+            from err
+    if not 1 <= value <= 1000:
+        raise argparse.ArgumentTypeError(f"must be in 1..1000 or 'auto', got {value}")
+    return value
+
+
 def add_subparser(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "train", help="fit a decoder on a dataset and save the model",
         description="Fit DECODER (see `skin bench` for the list) on a dataset written by "
-                    "`skin sim dataset` and save it as a msgpack model file.")
-    parser.add_argument("decoder", help="decoder name, e.g. analytic, deconv, lm-mlp, hybrid")
+                    "`skin sim dataset` and save it as a msgpack model file. The model keeps "
+                    "its training domain: a taxel outside it decodes as EXTRAPOLATED.")
+    parser.add_argument("decoder", help="decoder name, e.g. analytic, deconv, lm-mlp, hybrid, "
+                                        "eq9")
     parser.add_argument("--data", required=True, metavar="FILE.npz", help="training dataset")
-    parser.add_argument("--hidden", type=int, help="hidden nodes (lm-mlp, hybrid)")
+    parser.add_argument("--hidden", type=hidden_nodes, metavar="N|auto",
+                        help="hidden nodes (lm-mlp, hybrid); 'auto' chooses them the paper's "
+                             "way: Eq. 21's candidates, then pruning from a wide layer")
+    parser.add_argument("--goal-units", choices=("N", "scaled"),
+                        help="where the goal MSE is measured (lm-mlp, hybrid): on the forces "
+                             "in newtons (default, as MATLAB's trainlm) or on the scaled "
+                             "outputs")
     parser.add_argument("--seed", type=int, help="random seed of the weights and the split")
     parser.add_argument("-o", "--output", required=True, metavar="MODEL.msgpack")
     parser.set_defaults(func=run)
 
 
+def _report(decoder: Any) -> list[str]:
+    """What training says beyond the time: where it stopped, how the size was chosen."""
+    lines = []
+    result = getattr(decoder, "train_result", None)
+    if result is not None:
+        units = "N²" if getattr(decoder, "goal_units", "N") == "N" else "scaled outputs"
+        lines.append(f"stopped: {result.message} after {result.nit} epochs; training MSE "
+                     f"{result.mse:.3e}, validation MSE {result.val_mse:.3e} ({units}; goal "
+                     f"{decoder.goal_mse:g})")
+    choice = getattr(decoder, "hidden_choice", None)
+    if choice is not None:
+        lines += choice.describe()
+    meta = decoder.meta() if hasattr(decoder, "meta") else {}
+    crosstalk = meta.get("crosstalk")
+    if crosstalk is not None:
+        lines.append(f"crosstalk inverse: {crosstalk['model']} (kernel side "
+                     f"{crosstalk['kernel_side']:.4f}, diagonal {crosstalk['kernel_diagonal']:.4f}"
+                     f"; held-out MSE kernel {crosstalk['val_mse_kernel_N2']:.3e}, full "
+                     f"{crosstalk['val_mse_full_N2']:.3e} N²)")
+    residual = meta.get("residual")
+    if residual is not None:
+        used = int(residual["used"].sum())
+        lines.append(f"residual network used on {used} of {residual['used'].size} outputs "
+                     f"(those where it cut the held-out MSE by "
+                     f"{100 * residual['required_gain']:.0f} % or more)")
+    return lines
+
+
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-    from threadpoolctl import threadpool_limits
 
     from decoder.registry import create_decoder
+    from skin.commands.bench import limit_blas_threads
     from skin.dataset import read_dataset
 
-    # LM's matrices are a few hundred wide: BLAS threads cost more than they give.
-    threadpool_limits(1, user_api="blas")
+    limit_blas_threads()
     dataset = read_dataset(args.data)
-    params = {k: v for k, v in (("hidden", args.hidden), ("seed", args.seed)) if v is not None}
+    given = (("hidden", args.hidden), ("seed", args.seed), ("goal_units", args.goal_units))
+    params = {k: v for k, v in given if v is not None}
     try:
         decoder = create_decoder(args.decoder, **params)
     except TypeError as err:
-        raise ConfigError("--hidden/--seed", f"decoder {args.decoder!r} takes no such "
-                          f"parameter ({err})") from err
+        flags = "/".join(f"--{k.replace('_', '-')}" for k in params)
+        raise ConfigError(flags, f"decoder {args.decoder!r} takes no such parameter "
+                                 f"({err})") from err
     console = Console(stderr=True)
-    epochs = int(getattr(decoder, "max_epochs", 0))
+    auto = getattr(decoder, "hidden", None) == "auto"
+    epochs = 0 if auto else int(getattr(decoder, "max_epochs", 0))
     columns = (TextColumn("[bold]{task.description}"), BarColumn(),
                TextColumn("epoch {task.completed:.0f}  {task.fields[status]}"),
                TimeElapsedColumn())
@@ -54,10 +106,8 @@ def run(args: argparse.Namespace) -> int:
         decoder.fit(dataset.resistance_ohm, dataset.force_N, progress=progress)
     elapsed = time.perf_counter() - start
     decoder.save(args.output)
-    result = getattr(decoder, "train_result", None)
     print(f"trained {args.decoder} on {dataset.resistance_ohm.shape[0]} samples "
           f"in {elapsed:.3f} s -> {args.output}")
-    if result is not None:
-        print(f"stopped: {result.message} after {result.nit} epochs; training MSE "
-              f"{result.mse:.3e} (scaled outputs), validation MSE {result.val_mse:.3e}")
+    for line in _report(decoder):
+        print(line)
     return 0

@@ -7,7 +7,7 @@ and 0.05-ohm quantisation.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -33,13 +33,23 @@ def crosstalk_matrix(strength: float) -> F64:
 
 
 def make_data(n: int, *, pillars: int = 1, seed: int = 0, strength: float = 0.05,
-              noise: bool = True, fz_max: float = 5.0) -> tuple[F64, F64]:
-    """(resistance (n, 9, P), force (n, 9, 3)) like the paper scene (P=1) or with shear (P=3)."""
+              noise: bool = True, fz_max: float = 5.0, fz_min: float = 0.0,
+              same: bool = False) -> tuple[F64, F64]:
+    """(resistance (n, 9, P), force (n, 9, 3)) like the paper scene (P=1) or with shear (P=3).
+
+    ``same``: every taxel of a sample carries the same Fz (a one-dimensional load pattern)."""
     rng = np.random.default_rng(seed)
     force = np.zeros((n, 9, 3))
-    force[..., 2] = rng.uniform(0.0, fz_max, (n, 9))
+    force[..., 2] = rng.uniform(fz_min, fz_max, (n, 1) if same else (n, 9))
     if pillars == 3:
         force[..., :2] = rng.uniform(-1.0, 1.0, (n, 9, 2))
+    return read_forces(force, pillars=pillars, seed=seed, strength=strength, noise=noise)
+
+
+def read_forces(force: F64, *, pillars: int = 1, seed: int = 0, strength: float = 0.05,
+                noise: bool = True) -> tuple[F64, F64]:
+    """What a patch reads under ``force`` (n, 9, 3): crosstalk, the exact model, noise."""
+    rng = np.random.default_rng(seed + 1000)
     effective = np.einsum("kj,njc->nkc", crosstalk_matrix(strength), force)
     if pillars == 1:
         effective[..., :2] = 0.0
@@ -50,6 +60,18 @@ def make_data(n: int, *, pillars: int = 1, seed: int = 0, strength: float = 0.05
         lsb = DEFAULT_CONSTANTS.resistance_lsb_ohm
         r = np.round(r / lsb) * lsb
     return r, force
+
+
+@pytest.fixture(scope="session", autouse=True)
+def one_blas_thread() -> Iterator[None]:
+    """As `skin train` and `skin bench` run LM: BLAS on one thread (SciPy imported first, so
+    its own OpenBLAS is limited too). On a busy 2-core machine two BLAS threads per process
+    make each LM epoch up to 10x slower."""
+    import scipy.linalg  # noqa: F401
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1, user_api="blas"):
+        yield
 
 
 @pytest.fixture(scope="session")

@@ -19,7 +19,7 @@ from threadpoolctl import threadpool_limits
 from decoder.protocol import BaseDecoder
 from decoder.registry import create_decoder
 
-NAMES = ("analytic", "deconv", "lm-mlp", "hybrid")
+NAMES = ("analytic", "deconv", "lm-mlp", "hybrid", "eq9")
 FEW_EPOCHS = {"lm-mlp": {"max_epochs": 5}, "hybrid": {"max_epochs": 5}}  # sizes as in bench
 
 

@@ -32,7 +32,7 @@ out of range), the rest are ohm."""
 APART = np.array([0.65, 1.43, 1.43])
 """A taxel's (z, x, y) ratios, each within the strain limit, whose lengths cannot meet."""
 QUICK = {"lm-mlp": {"hidden": 6, "max_epochs": 3}, "hybrid": {"hidden": 4, "max_epochs": 3}}
-NAMES = ("analytic", "deconv", "lm-mlp", "hybrid")
+NAMES = ("analytic", "deconv", "lm-mlp", "hybrid", "eq9")
 
 
 @pytest.fixture(scope="module")

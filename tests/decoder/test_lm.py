@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import scipy.optimize
 
 from decoder.lm import LMOptions, train_lm
@@ -36,10 +37,43 @@ def test_structured_normal_equations_equal_dense_jacobian() -> None:
     np.testing.assert_allclose(J[:, k], numeric.ravel(), atol=1e-8)
 
 
-def test_paper_network_reaches_goal_on_1000_samples(synth) -> None:  # type: ignore[no-untyped-def]
-    r, f = synth(1000, seed=5)
-    state, result = fit_mlp(r.reshape(1000, 9), f[..., 2], hidden=10,
-                            options=LMOptions(goal_mse=1e-4), val_fraction=0.15, seed=0)
+def test_weighted_normal_equations_equal_the_weighted_dense_jacobian() -> None:
+    """Errors weighted per output (the goal in newtons): JᵀJ and Jᵀr of r = w ⊙ e."""
+    x, y = _problem(40)
+    layout = Layout(4, 3, 2)
+    theta = nguyen_widrow(layout, np.random.default_rng(5))
+    w = np.array([2.5, 0.3])
+    fw = forward(layout, theta, x)
+    e = fw.y - y
+    jtj, g = structured(layout, theta, fw, e, w)
+    J = jacobian(layout, theta, x, w)
+    np.testing.assert_allclose(jtj, J.T @ J, atol=1e-10)
+    np.testing.assert_allclose(g, J.T @ (e * w).ravel(), atol=1e-10)
+
+
+def test_the_goal_in_newtons_is_the_mse_of_the_forces(synth) -> None:  # type: ignore[no-untyped-def]
+    """goal_units="N": the MSE training reports is that of the forces in N (MATLAB's default
+    performance function on un-normalised targets), not of the scaled outputs."""
+    r, f = synth(300, seed=8, noise=False)
+    x, y = r.reshape(300, 9), f[..., 2]
+    for units in ("N", "scaled"):
+        fit = fit_mlp(x, y, hidden=10, options=LMOptions(goal_mse=1e-4, max_epochs=20),
+                      val_fraction=0.15, seed=0, goal_units=units)
+        train = np.setdiff1d(np.arange(300), fit.val_rows)
+        e = FoldedMLP(Layout(9, 10, 9), fit.state)(x[train]) - y[train]
+        if units == "scaled":
+            e = e * 2.0 / (fit.state["y_hi_"] - fit.state["y_lo_"])
+        np.testing.assert_allclose(fit.result.mse, np.mean(e * e), rtol=1e-9)
+
+
+@pytest.mark.parametrize(("noise", "units"), [(False, "N"), (True, "scaled")])
+def test_paper_network_reaches_goal_on_1000_samples(synth, noise: bool, units: str) -> None:  # type: ignore[no-untyped-def]
+    """The paper's goal in newtons on its noise-free protocol; the looser goal on scaled
+    outputs (issue 3's) even with read noise."""
+    r, f = synth(1000, seed=5, noise=noise)
+    fit = fit_mlp(r.reshape(1000, 9), f[..., 2], hidden=10, options=LMOptions(goal_mse=1e-4),
+                  val_fraction=0.15, seed=0, goal_units=units)
+    state, result = fit.state, fit.result
     assert result.success and result.message == "performance goal met"
     assert result.mse <= 1e-4 and result.nit < 200
     assert np.all(np.isfinite(FoldedMLP(Layout(9, 10, 9), state)(r.reshape(1000, 9))))

@@ -1,15 +1,19 @@
-"""Model files: round trip, and every corrupt or hostile file refused with a named field."""
+"""Model files: round trip (with the training domain and the metadata), version-1 files, and
+every corrupt or hostile file refused with a named field."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
+import msgpack
 import numpy as np
 import pytest
 
 from decoder.deconv import DeconvDecoder
 from decoder.modelfile import read_model, write_model
-from decoder.registry import load_decoder
+from decoder.reasons import Reason
+from decoder.registry import create_decoder, load_decoder
 from skin.errors import ModelFileError
 
 FILES = Path(__file__).resolve().parents[1] / "files"
@@ -64,3 +68,101 @@ def test_failed_write_leaves_no_file(tmp_path: Path) -> None:
     with pytest.raises(TypeError):
         write_model(tmp_path / "m.msgpack", "x", {"bad": np.zeros(2, np.complex128)}, {})
     assert not list(tmp_path.iterdir())
+
+
+def _doc(path: Path) -> dict[str, Any]:
+    doc: dict[str, Any] = msgpack.unpackb(path.read_bytes(), raw=False)
+    return doc
+
+
+def _put(path: Path, doc: dict[str, Any]) -> Path:
+    path.write_bytes(msgpack.packb(doc, use_bin_type=True))
+    return path
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory: pytest.TempPathFactory, synth: Any) -> dict[str, Path]:
+    """deconv, lm-mlp and hybrid trained on loads up to 3 N, saved."""
+    r, f = synth(300, seed=71, fz_max=3.0)
+    folder = tmp_path_factory.mktemp("models")
+    out = {}
+    for name, params in (("deconv", {}), ("lm-mlp", {"max_epochs": 30}),
+                         ("hybrid", {"max_epochs": 30})):
+        path = folder / f"{name}.msgpack"
+        create_decoder(name, **params).fit(r, f).save(path)
+        out[name] = path
+    return out
+
+
+@pytest.mark.parametrize("name", ["deconv", "lm-mlp", "hybrid"])
+def test_the_training_domain_and_metadata_round_trip(saved: dict[str, Path], synth: Any,
+                                                     name: str) -> None:
+    doc = _doc(saved[name])
+    assert doc["version"] == 2 and "domain_" in doc["state"] and isinstance(doc["meta"], dict)
+    loaded = load_decoder(saved[name])
+    r, _ = synth(60, seed=72, fz_max=5.0)  # some taxels beyond the 3 N of training
+    out = loaded.decode(r)
+    assert (out.reason == Reason.EXTRAPOLATED).any() and out.valid.any()
+    again = load_decoder(_put(saved[name].with_suffix(".copy"), doc))
+    np.testing.assert_array_equal(again.decode(r).reason, out.reason)
+    meta = loaded.meta()  # type: ignore[attr-defined]
+    assert meta and set(meta) == set(again.meta())  # type: ignore[attr-defined]
+    assert "crosstalk" in meta or "training" in meta
+
+
+def _as_version_1(doc: dict[str, Any], params: tuple[str, ...], state: tuple[str, ...]) -> None:
+    doc["version"] = 1
+    del doc["meta"]
+    for key in params:
+        del doc["params"][key]
+    for key in state:
+        del doc["state"][key]
+
+
+@pytest.mark.parametrize(("name", "params", "state"), [
+    ("deconv", ("range_margin",), ("domain_",)),
+    ("lm-mlp", ("goal_units",), ("hidden_", "unmix_", "domain_")),
+    ("hybrid", ("goal_units", "alpha", "range_margin"),
+     ("hidden_", "unmix_", "domain_", "residual_domain_", "use_residual_")),
+])
+def test_version_1_files_still_load(saved: dict[str, Path], synth: Any, tmp_path: Path,
+                                    name: str, params: tuple[str, ...],
+                                    state: tuple[str, ...]) -> None:
+    doc = _doc(saved[name])
+    _as_version_1(doc, params, state)
+    old = load_decoder(_put(tmp_path / "v1.msgpack", doc))
+    r, _ = synth(20, seed=73, fz_max=3.0)
+    out = old.decode(r)
+    assert out.valid.all() and np.all(np.isfinite(out.force_N))
+    assert old.meta() == {}  # type: ignore[attr-defined]
+
+
+BROKEN = [
+    ("lo > hi", lambda d: d["state"]["domain_"]["inputs"].__setitem__(
+        "lo", d["state"]["domain_"]["inputs"]["hi"] | {"data": b"\x7f" * 8 * 9}),
+     "state.domain_.inputs"),
+    ("no outputs", lambda d: d["state"]["domain_"].pop("outputs"), "state.domain_"),
+    ("density limit", lambda d: d["state"]["domain_"]["density"].__setitem__("limit", -1.0),
+     "state.domain_.density.limit"),
+    ("whiten shape", lambda d: d["state"]["domain_"]["density"].__setitem__(
+        "whiten", d["state"]["domain_"]["inputs"]["lo"]), "state.domain_.density.whiten"),
+    ("hidden_", lambda d: d["state"].__setitem__("hidden_", 3), "state.hidden_"),
+    ("meta", lambda d: d.__setitem__("meta", 5), "meta"),
+    ("extra key", lambda d: d.__setitem__("notes", {}), "unknown key"),
+]
+
+
+@pytest.mark.parametrize(("what", "damage", "field"), BROKEN, ids=[b[0] for b in BROKEN])
+def test_corrupt_new_fields_are_refused_naming_them(saved: dict[str, Path], tmp_path: Path,
+                                                    what: str, damage: Any, field: str) -> None:
+    doc = _doc(saved["lm-mlp"])
+    damage(doc)
+    with pytest.raises(ModelFileError, match=field.replace(".", r"\.")):
+        load_decoder(_put(tmp_path / "bad.msgpack", doc))
+
+
+def test_hybrids_residual_switches_are_checked(saved: dict[str, Path], tmp_path: Path) -> None:
+    doc = _doc(saved["hybrid"])
+    doc["state"]["use_residual_"] = True
+    with pytest.raises(ModelFileError, match=r"state\.use_residual_"):
+        load_decoder(_put(tmp_path / "bad.msgpack", doc))

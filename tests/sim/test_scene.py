@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from sim import Simulator, load_scene, scene_from_dict, shipped_scenes
+from skin.constants import DEFAULT_CONSTANTS
 from skin.errors import ConfigError
+from skin.tripod import resistance_from_force
 
 FILES = Path(__file__).parents[1] / "files"
 BASE: dict[str, Any] = {
@@ -32,7 +34,8 @@ def with_change(path: tuple[Any, ...], value: Any) -> dict[str, Any]:
 
 def test_shipped_scenes_load_and_run() -> None:
     names = shipped_scenes()
-    for required in ("paper", "indenter", "slide", "grasp", "idle", "passive", "hard", "skin64"):
+    for required in ("paper", "paper-noisy", "indenter", "slide", "grasp", "idle", "passive",
+                     "hard", "skin64"):
         assert required in names
     for name in names:
         scene = load_scene(name)
@@ -40,14 +43,28 @@ def test_shipped_scenes_load_and_run() -> None:
         assert frame.resistance_ohm.shape == (3, len(scene.patches), 9, scene.pillars)
 
 
-def test_paper_scene_is_the_design() -> None:
+def test_paper_scene_is_the_papers_protocol() -> None:
+    """One patch, z-only, independent Fz ~ U[0, 5] N, crosstalk and nothing else: the
+    paper's samples came from a finite-element model, without read noise."""
     scene = load_scene("paper")
     assert scene.mode == "z" and scene.node_ids == (1,)
-    assert scene.listed_effects() == ["elastic_crosstalk", "noise"]
+    assert scene.listed_effects() == ["elastic_crosstalk"]
     (load,) = scene.loads
     assert load.kind == "uniform_random"
     assert (load.params.fz_min_N, load.params.fz_max_N, load.params.shear_max_N) == (0, 5, 0)
-    assert scene.effects["noise"].sigma_rel == 0.0005
+    frame = Simulator(scene).run(200)
+    exact = resistance_from_force(scene.crosstalk_matrix() @ frame.force_N)
+    np.testing.assert_allclose(frame.resistance_ohm, exact[..., :1], rtol=1e-12)
+
+
+def test_paper_noisy_is_paper_with_read_noise_and_the_adc() -> None:
+    paper, noisy = load_scene("paper").to_dict(), load_scene("paper-noisy").to_dict()
+    assert noisy["effects"] == {**paper["effects"], "noise": {"sigma_rel": 0.0005}}
+    assert (noisy["patches"], noisy["loads"]) == (paper["patches"], paper["loads"])
+    frame = Simulator(load_scene("paper-noisy")).run(50)
+    lsb = DEFAULT_CONSTANTS.resistance_lsb_ohm
+    np.testing.assert_allclose(frame.resistance_ohm / lsb, np.rint(frame.resistance_ohm / lsb),
+                               atol=1e-9)
 
 
 def test_to_dict_round_trips() -> None:

@@ -22,16 +22,20 @@ def scene(patches: int, loaded: list[int], effects: dict[str, Any], mode: str = 
     })
 
 
-@pytest.mark.parametrize("name", ["hard", "grasp", "passive", "paper"])
+@pytest.mark.parametrize("name", ["hard", "grasp", "passive", "paper-noisy", "paper"])
 def test_run_in_parts_equals_run_at_once(name: str) -> None:
+    """Exactly, through the ADC; without it (``paper``) to a few ulp, because the tripod's
+    Newton solve iterates a batch until its slowest sample converges."""
     s = load_scene(name)
     whole = Simulator(s).run(250)
     sim = Simulator(s)
     parts = [sim.run(k) for k in (1, 99, 0, 150)]
     for key in ("time_s", "resistance_ohm", "force_N"):
-        np.testing.assert_array_equal(
-            getattr(whole, key), np.concatenate([getattr(p, key) for p in parts])
-        )
+        joined = np.concatenate([getattr(p, key) for p in parts])
+        if key == "resistance_ohm" and "noise" not in s.effects:
+            np.testing.assert_allclose(getattr(whole, key), joined, rtol=4e-16, atol=0)
+        else:
+            np.testing.assert_array_equal(getattr(whole, key), joined)
 
 
 def test_step_is_run_one() -> None:

@@ -1,0 +1,246 @@
+"""A trained decoder's training domain, and whether a new sample lies inside it.
+
+Three checks, each fitted on the training data and kept in the model file:
+
+- ``Box``: per-feature ranges. Each feature may go beyond its training range by
+  ``margin`` times the largest span among the box's features, so a feature that
+  never moved in training (the shear of a press-only set, say) gets the same
+  tolerance as the others instead of none.
+- ``Ellipsoid``: the Mahalanobis distance of a whole sample from the training
+  samples' mean under their covariance. The features are standardised and the
+  covariance gets a ridge of ``RIDGE``, so a direction the training data never
+  moved in (a load pattern it never saw) is far away. A sample is inside when its
+  distance is at most ``DENSITY_FACTOR`` times the largest training distance.
+- ``Band``: per-output bound on the size of a learned quantity (an MLP's
+  departure from the physics reading, hybrid's residual): ``BAND_FACTOR`` times
+  its largest training value, plus ``BAND_FLOOR`` times the outputs' span.
+
+Features are laid out taxel-major, so feature ``f`` of a (n, 9·k) array belongs
+to taxel ``f // k``: :func:`per_taxel` turns a feature mask into a taxel mask.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+
+from decoder.reasons import Reason
+from skin.constants import TAXELS_PER_PATCH
+from skin.errors import DecodeError, ModelFileError
+
+F64 = NDArray[np.float64]
+Mask = NDArray[np.bool_]
+
+DENSITY_FACTOR = 1.1
+"""A sample is inside the ellipsoid up to 1.1x the farthest training sample's distance. A new
+sample from the training distribution lies beyond the farthest of n training samples with
+probability 1/(n + 1); the 10 % make that rarer still."""
+BAND_FACTOR = 1.2
+BAND_FLOOR = 0.001
+"""A band is at least 0.1 % of its outputs' span wide, so a decoder that fitted its training
+data exactly still tolerates rounding."""
+RIDGE = 1e-6
+"""Added to the standardised covariance's diagonal: directions with less than about 0.1 % of
+a feature's spread are taken as never visited."""
+
+
+def check_margin(range_margin: float) -> float:
+    """A decoder's ``range_margin`` parameter, checked."""
+    if isinstance(range_margin, bool) or not (isinstance(range_margin, float | int)
+                                               and 0.0 <= range_margin <= 10.0):
+        raise DecodeError(f"range_margin must be in [0, 10], got {range_margin!r}")
+    return float(range_margin)
+
+
+def domain_reasons(reason: NDArray[np.uint8], outside: Mask) -> NDArray[np.uint8]:
+    """EXTRAPOLATED, in place, where a taxel that decoded is ``outside`` its domain (n, 9)."""
+    reason[outside & (reason == 0)] = Reason.EXTRAPOLATED
+    return reason
+
+
+def per_taxel(mask: Mask) -> Mask:
+    """(n, 9·k) feature mask -> (n, 9) taxel mask: a taxel is marked if any of its features is."""
+    per = mask.shape[1] // TAXELS_PER_PATCH
+    return np.asarray(mask.reshape(mask.shape[0], TAXELS_PER_PATCH, per).any(axis=2))
+
+
+def _expect(value: Any, field: str, shape: tuple[int, ...]) -> F64:
+    if not isinstance(value, np.ndarray) or value.dtype != np.float64 or value.shape != shape:
+        got = value.shape if isinstance(value, np.ndarray) else type(value).__name__
+        raise ModelFileError(f"{field}: expected float64 array of shape {shape}, got {got}")
+    return value
+
+
+@dataclass(frozen=True)
+class Box:
+    """Per-feature bounds (k,), margins included.
+
+    A value is inside when |x - mid| <= half, one formula for the mask and the quick test,
+    so that they agree to the last bit; NaN is outside and infinities never overflow."""
+
+    lo: F64
+    hi: F64
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_mid", 0.5 * self.lo + 0.5 * self.hi)
+        object.__setattr__(self, "_half", 0.5 * self.hi - 0.5 * self.lo)
+
+    @classmethod
+    def fit(cls, x: F64, margin: float) -> Box:
+        lo, hi = x.min(axis=0), x.max(axis=0)
+        widen = margin * float(np.max(hi - lo))
+        return cls(lo - widen, hi + widen)
+
+    def inside(self, x: F64) -> Mask:
+        """Elementwise: (n, k) or (k,) -> same shape; NaN is outside."""
+        inside: Mask = np.abs(x - self._mid) <= self._half  # type: ignore[attr-defined]
+        return inside
+
+    def all_inside(self, x: F64) -> bool:
+        """Whether every value is inside (False for any NaN)."""
+        return bool(self.inside(x).all())
+
+    def clamp(self, x: F64) -> F64:
+        clamped: F64 = np.minimum(np.maximum(x, self.lo), self.hi)
+        return clamped
+
+    def to_state(self) -> dict[str, F64]:
+        return {"lo": self.lo, "hi": self.hi}
+
+    @classmethod
+    def from_state(cls, state: Any, field: str, size: int) -> Box:
+        if not isinstance(state, dict) or set(state) != {"lo", "hi"}:
+            raise ModelFileError(f"{field}: expected a map with keys ['hi', 'lo']")
+        lo = _expect(state["lo"], f"{field}.lo", (size,))
+        hi = _expect(state["hi"], f"{field}.hi", (size,))
+        if np.any(lo > hi):
+            raise ModelFileError(f"{field}: a range has lo > hi")
+        return cls(lo, hi)
+
+
+@dataclass(frozen=True)
+class Ellipsoid:
+    """Inside when |(x - mean) @ whiten| <= limit; ``whiten`` (k, k) is upper triangular."""
+
+    mean: F64
+    whiten: F64
+    limit: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_limit2", self.limit * self.limit)
+
+    @classmethod
+    def fit(cls, x: F64) -> Ellipsoid:
+        mean = x.mean(axis=0)
+        centred = x - mean
+        scale = centred.std(axis=0)
+        scale = np.maximum(scale, 1e-12 * max(float(scale.max()), 1e-300))
+        z = centred / scale
+        cov = z.T @ z / max(x.shape[0] - 1, 1)
+        cov.flat[:: cov.shape[0] + 1] += RIDGE
+        upper = scipy.linalg.cholesky(cov, lower=False)  # cov = Uᵀ U
+        # (x - mean) / scale @ U⁻¹ has identity covariance.
+        whiten = scipy.linalg.solve_triangular(upper, np.eye(cov.shape[0]), lower=False)
+        whiten = whiten / scale[:, None]
+        distance = np.sqrt(np.sum((centred @ whiten) ** 2, axis=1))
+        return cls(mean, np.ascontiguousarray(whiten), DENSITY_FACTOR * float(distance.max()))
+
+    def distance(self, x: F64) -> F64:
+        """(n, k) -> (n,) or (k,) -> () Mahalanobis distances; NaN stays NaN."""
+        return np.sqrt(self._squared(x))
+
+    def _squared(self, x: F64) -> F64:
+        z = (x - self.mean) @ self.whiten
+        if z.ndim == 1:
+            return np.asarray(np.dot(z, z))
+        squared: F64 = np.einsum("ij,ij->i", z, z)
+        return squared
+
+    def inside(self, x: F64) -> Mask:
+        """(n, k) -> (n,), or (k,) -> (); NaN is outside. ``x`` must be finite and of the
+        training data's order of magnitude (the decoders check their box first)."""
+        inside: Mask = np.asarray(self._squared(x) <= self._limit2)  # type: ignore[attr-defined]
+        return inside
+
+    def to_state(self) -> dict[str, Any]:
+        return {"mean": self.mean, "whiten": self.whiten, "limit": self.limit}
+
+    @classmethod
+    def from_state(cls, state: Any, field: str, size: int) -> Ellipsoid:
+        if not isinstance(state, dict) or set(state) != {"mean", "whiten", "limit"}:
+            raise ModelFileError(f"{field}: expected a map with keys ['limit', 'mean', 'whiten']")
+        mean = _expect(state["mean"], f"{field}.mean", (size,))
+        whiten = _expect(state["whiten"], f"{field}.whiten", (size, size))
+        limit = state["limit"]
+        if isinstance(limit, bool) or not isinstance(limit, float | int) or not limit > 0:
+            raise ModelFileError(f"{field}.limit: must be a positive number, got {limit!r}")
+        return cls(mean, whiten, float(limit))
+
+
+@dataclass(frozen=True)
+class Band:
+    """Per-output bound (k,) on the magnitude of a learned quantity."""
+
+    bound: F64
+
+    @classmethod
+    def fit(cls, values: F64, span: F64) -> Band:
+        """``values`` (n, k) seen in training; ``span`` (k,) the outputs' training span."""
+        largest = np.abs(values).max(axis=0) if values.shape[0] else np.zeros(values.shape[1])
+        return cls(BAND_FACTOR * largest + BAND_FLOOR * np.max(span))
+
+    def inside(self, values: F64) -> Mask:
+        inside: Mask = np.abs(values) <= self.bound
+        return inside
+
+    def all_inside(self, values: F64) -> bool:
+        return bool(self.inside(values).all())
+
+    def to_state(self) -> F64:
+        return self.bound
+
+    @classmethod
+    def from_state(cls, state: Any, field: str, size: int) -> Band:
+        bound = _expect(state, field, (size,))
+        if np.any(bound < 0):
+            raise ModelFileError(f"{field}: must be >= 0")
+        return cls(bound)
+
+
+@dataclass(frozen=True)
+class Domain:
+    """What a decoder saw in training: its inputs' and outputs' boxes, and optionally the
+    inputs' ellipsoid and a band on a learned quantity."""
+
+    inputs: Box
+    outputs: Box
+    density: Ellipsoid | None = None
+    band: Band | None = None
+
+    def to_state(self) -> dict[str, Any]:
+        state: dict[str, Any] = {"inputs": self.inputs.to_state(),
+                                 "outputs": self.outputs.to_state()}
+        if self.density is not None:
+            state["density"] = self.density.to_state()
+        if self.band is not None:
+            state["band"] = self.band.to_state()
+        return state
+
+    @classmethod
+    def from_state(cls, state: Any, field: str, n_in: int, n_out: int) -> Domain:
+        keys = {"inputs", "outputs", "density", "band"}
+        if not isinstance(state, dict) or not {"inputs", "outputs"} <= set(state) <= keys:
+            raise ModelFileError(f"{field}: expected a map with keys 'inputs', 'outputs' "
+                                 f"and optionally 'density', 'band'")
+        density = state.get("density")
+        band = state.get("band")
+        return cls(
+            Box.from_state(state["inputs"], f"{field}.inputs", n_in),
+            Box.from_state(state["outputs"], f"{field}.outputs", n_out),
+            None if density is None else Ellipsoid.from_state(density, f"{field}.density", n_in),
+            None if band is None else Band.from_state(band, f"{field}.band", n_out),
+        )
