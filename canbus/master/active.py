@@ -10,8 +10,8 @@ one TPDO), and SYNC starts on every patch bus, unless the config says ``sync =
 "external"``: then the host follows the SYNC another master produces. A configured patch
 that is absent at start, or boots later, is configured when its boot-up (or first
 heartbeat) arrives; one whose heartbeat stops is marked lost (:mod:`canbus.master.liveness`),
-its channel leaves the data plane and its force node publishes one all-invalid sample,
-so no consumer keeps stale forces.
+its channel goes offline and its force node publishes an all-invalid sample every
+cycle until it is back, so no consumer keeps stale forces and every cycle counts.
 """
 
 # canopen 2.4 ships py.typed but leaves SdoClient methods unannotated.
@@ -25,19 +25,21 @@ from concurrent.futures import Future, ThreadPoolExecutor, wait
 from typing import TYPE_CHECKING
 
 import can
-import numpy as np
 from canopen.sdo.exceptions import SdoError
 
 from canbus.master.buslink import BusLink
 from canbus.master.cobids import force_cob_ids, node_cob_ids
 from canbus.master.discovery import Identity, UnknownNode, read_identity, scan, sdo_client
 from canbus.master.forcenode import ForceNode, map_fd
-from canbus.master.patch_setup import setup_patch, warn_if_unlike_config
+from canbus.master.patch_setup import (
+    PatchSetup,
+    configured_info,
+    plan_setup,
+    setup_patch,
+    warn_if_unlike_config,
+)
 from canbus.master.records import PatchRecord
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM
-from canbus.txmessage import TxMessage
-from decoder.reasons import Reason
-from skin.constants import TAXELS_PER_PATCH
 from skin.errors import BusError, SkinError
 
 if TYPE_CHECKING:
@@ -61,6 +63,11 @@ class ActiveMaster:
         host.executor = ThreadPoolExecutor(max_workers=min(8, len(host.patches)),
                                            thread_name_prefix="patch-setup")
         self.scanning = host.config.scan
+
+    def planned(self, patch: PatchRecord) -> PatchSetup:
+        """The set-up the host will make for a patch, before it answers."""
+        return plan_setup(patch.node_id, patch.node.object_dictionary, patch.config.mode,
+                          configured_info(patch.config), fd=patch.link.fd)
 
     def subscribe(self) -> None:
         for patch in self.host.patches.values():
@@ -261,21 +268,6 @@ class ActiveMaster:
             host.take_offline(patch, "lost")
         logger.warning("patch %d lost (no heartbeat for %.0f ms)", patch.node_id,
                        patch.link.monitor.lost_after_s * 1000)
-        self._withdraw(patch)
-
-    def _withdraw(self, patch: PatchRecord) -> None:
-        """Publish one all-invalid sample: the last forces of a lost patch are void."""
-        force = patch.force_node
-        if not force.transmitting:
-            return
-        reason = np.full(TAXELS_PER_PATCH, Reason.MISSING, dtype=np.uint8)
-        for cob_id, payload in force.frames(np.zeros((TAXELS_PER_PATCH, 3)),
-                                            np.zeros(TAXELS_PER_PATCH, bool), False,
-                                            reason=reason):
-            try:
-                patch.force_link.bus.send(TxMessage.frame(cob_id, payload))
-            except can.CanError as err:
-                logger.warning("force node %d: withdrawal not sent: %s", force.node_id, err)
 
 
 def _describe(identity: Identity) -> str:

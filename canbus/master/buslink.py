@@ -34,7 +34,7 @@ class BusLink:
                  on_lost: Callable[[int], None], on_return: Callable[[int, int], None],
                  on_change: Callable[[int, int], None] | None,
                  on_any_boot: Callable[[BusLink, int], None],
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] | None = None) -> None:
         self.config = config
         self.name = config.name
         if isinstance(bus, canopen.Network):
@@ -48,7 +48,9 @@ class BusLink:
             self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
         self.monitor = HeartbeatMonitor(self.network, heartbeat_ms, on_boot=on_boot,
                                         on_lost=on_lost, on_return=on_return,
-                                        on_change=on_change, clock=clock)
+                                        on_change=on_change,
+                                        clock=clock or time.monotonic,
+                                        self_checking=clock is None)
         self.boots = BootListener(self.network, lambda node_id: on_any_boot(self, node_id))
         self.dataplane: DataPlane | None = None
         self.sync: SyncProducer | SyncFollower | None = None

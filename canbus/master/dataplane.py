@@ -150,6 +150,7 @@ class _Slot:
         pdos = len(codec.layouts)
         self.channel = channel
         self.active = True
+        self.online = True
         self.stride = codec.width + codec.width % 2  # bytes per PDO in ``raw``: even, so
         self.raw = bytearray(self.stride * pdos)  # that codes read as UNSIGNED16 words
         self.zeros = bytes(self.stride * pdos)
@@ -259,8 +260,9 @@ class DataPlane(can.Listener):
 
     # -- channels ---------------------------------------------------------------------------
 
-    def add_channel(self, channel: PatchChannel) -> None:
-        """Add a patch, or replace it (its frames of the current cycle are forgotten)."""
+    def add_channel(self, channel: PatchChannel, *, online: bool = True) -> None:
+        """Add a patch, or replace it (its frames of the current cycle are forgotten);
+        ``online=False``: see :meth:`set_online`."""
         if channel.pillars not in (1, 3):
             raise ConfigError("channel.pillars", f"must be 1 or 3, got {channel.pillars}")
         if not (math.isfinite(channel.lsb_ohm) and channel.lsb_ohm > 0):
@@ -272,6 +274,7 @@ class DataPlane(can.Listener):
         shape = (tuple(layout.entries for layout in channel.codec.layouts), channel.pillars)
         with self._lock:
             slot = _Slot(channel, self._shapes.setdefault(shape, len(self._shapes)))
+            slot.online = online
             others = [s.channel for n, s in self._slots.items() if n != channel.node_id]
             _check_identifiers(channel, others)
             old = self._slots.pop(channel.node_id, None)
@@ -279,6 +282,18 @@ class DataPlane(can.Listener):
                 old.active = False
             self._slots[channel.node_id] = slot
             self._rebuild_table()
+
+    def set_online(self, node_id: int, online: bool) -> None:
+        """Decode a patch's PDOs (``True``) or not: an offline patch (lost, configuring,
+        stopped) still gets one sample per SYNC, every taxel ``MISSING``, and its frames
+        count as unknown."""
+        with self._lock:
+            slot = self._slots.get(node_id)
+            if slot is None:
+                raise ConfigError("node_id", f"no channel for patch {node_id}")
+            if slot.online != online:
+                slot.online = online
+                self._rebuild_table()
 
     def remove_channel(self, node_id: int) -> None:
         """Forget a patch: its frames are counted as unknown from now on."""
@@ -297,6 +312,8 @@ class DataPlane(can.Listener):
     def _rebuild_table(self) -> None:
         table: dict[int, _Entry] = {}
         for slot in self._slots.values():
+            if not slot.online:
+                continue
             codec = slot.channel.codec
             for p, (cob, size) in enumerate(zip(codec.cob_ids.tolist(), codec.sizes.tolist(),
                                                 strict=True)):

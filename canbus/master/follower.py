@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 from canbus.master.buslink import BusLink
 from canbus.master.discovery import UnknownNode
-from canbus.master.patch_setup import configured_info, plan_setup
+from canbus.master.patch_setup import PatchSetup, configured_info, plan_setup
 from canbus.master.records import PatchRecord
 
 if TYPE_CHECKING:
@@ -49,6 +49,10 @@ class ListenOnly:
                                      patch.config.mode, configured_info(patch.config),
                                      fd=patch.link.fd)
             self.host.decoders.get(patch.config, patch.setup)
+
+    def planned(self, patch: PatchRecord) -> PatchSetup:
+        assert patch.setup is not None, "prepare() plans every patch"
+        return patch.setup
 
     def subscribe(self) -> None:
         host = self.host

@@ -18,7 +18,7 @@ What it does with the patches is its policy's:
 - :class:`~canbus.master.active.ActiveMaster` (the default) discovers the patches (boot-up,
   canopen's SDO scan, 0x1018), configures them by SDO, starts them by NMT, produces SYNC on
   each patch bus (or, with ``sync = "external"``, follows the SYNC another master
-  produces), re-configures a patch that boots again, and withdraws a lost patch's forces;
+  produces), re-configures a patch that boots again;
 - :class:`~canbus.master.follower.ListenOnly` (``listen_only``) transmits nothing: it
   decodes what another master runs (or a recording ``skin replay`` sends), following the
   NMT commands, boot-ups, heartbeats and SYNCs on the bus.
@@ -33,7 +33,6 @@ from __future__ import annotations
 import logging
 import os
 import threading
-import time
 from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
@@ -88,14 +87,16 @@ class HostManager:
     are not shut down on stop). ``on_unknown`` is called with an
     :class:`~canbus.master.discovery.UnknownNode` for every node the host does not manage;
     the host never writes to such a node. ``listen_only`` (default: ``config.listen_only``):
-    decode what another master runs and send nothing. ``clock`` times the heartbeats
-    (a recording's own clock when one is decoded offline: ``canbus.master.offline``).
+    decode what another master runs and send nothing. ``clock`` (default: real time,
+    checked by each heartbeat consumer's thread) times the heartbeats and leaves the
+    checks to the caller (``link.monitor.check()``): a recording's clock when one is
+    decoded offline (``canbus.master.offline``).
     """
 
     def __init__(self, bus: Buses, config: HostConfig, *,
                  on_unknown: Callable[[UnknownNode], None] | None = None,
                  listen_only: bool | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] | None = None) -> None:
         config = config.check()
         if listen_only is not None:
             config = replace(config, listen_only=listen_only)
@@ -162,10 +163,13 @@ class HostManager:
             window_s = self.config.sync_window_ms / 1000.0
             patch_buses = {p.link.name for p in self.patches.values()}
             for link in self.links.values():
-                dataplane = None
                 if link.name in patch_buses:
-                    dataplane = DataPlane(link.bus, sync_window_s=window_s)
-                    dataplane.subscribe(self._on_frames)
+                    link.dataplane = DataPlane(link.bus, sync_window_s=window_s)
+                    link.dataplane.subscribe(self._on_frames)
+            for patch in self.patches.values():  # one sample per SYNC from the first
+                self.add_placeholder(patch, patch.setup or self.policy.planned(patch))
+            for link in self.links.values():
+                dataplane = link.dataplane
                 follower = (SyncFollower(dataplane.on_sync)
                             if dataplane is not None and self.config.sync_following else None)
                 link.listen(dataplane, follower)
@@ -353,11 +357,23 @@ class HostManager:
             self._changed.notify_all()
 
     def take_offline(self, patch: PatchRecord, state: str) -> None:
+        """Stop decoding the patch: from now on its samples are all-invalid (``MISSING``),
+        one per SYNC, so that no consumer keeps its last forces and every cycle counts."""
         dataplane = patch.link.dataplane
         if patch.channel is not None and dataplane is not None:
-            dataplane.remove_channel(patch.node_id)
+            dataplane.set_online(patch.node_id, False)
             patch.channel = None
         self.set_state(patch, state)
+
+    def add_placeholder(self, patch: PatchRecord, setup: PatchSetup) -> None:
+        """An offline channel for a patch not decoded yet: its all-invalid sample per SYNC."""
+        dataplane = patch.link.dataplane
+        assert dataplane is not None
+        decoder, _ = self.decoders.get(patch.config, setup)
+        dataplane.add_channel(PatchChannel(
+            node_id=patch.node_id, codec=setup.codec, pillars=setup.pillars,
+            lsb_ohm=setup.info.lsb_ohm, decoder=decoder, force_node=patch.force_node,
+            masked=patch.masked, answer_order=patch.config.answer_order), online=False)
 
     def go_online(self, patch: PatchRecord, setup: PatchSetup) -> None:
         """Decode the patch from now on (lock held by the caller)."""

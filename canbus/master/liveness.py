@@ -47,13 +47,15 @@ class HeartbeatMonitor:
                  on_boot: Callable[[int], None], on_lost: Callable[[int], None],
                  on_return: Callable[[int, int], None],
                  on_change: Callable[[int, int], None] | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 self_checking: bool = True) -> None:
         self.network = network
         self.period_s = period_ms / 1000.0
         self.lost_after_s = LOST_AFTER_PERIODS * self.period_s
         self.on_boot, self.on_lost, self.on_return = on_boot, on_lost, on_return
         self.on_change = on_change
         self.clock = clock
+        self.self_checking = self_checking  # False: the owner calls check() on its clock
         self._watches: dict[int, _Watch] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -146,6 +148,8 @@ class HeartbeatMonitor:
 
     def start(self) -> None:
         self._stop.clear()
+        if not self.self_checking:
+            return
         self._thread = threading.Thread(target=self._run, name="heartbeat-monitor", daemon=True)
         self._thread.start()
 

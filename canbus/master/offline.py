@@ -30,17 +30,20 @@ from skin.errors import BusError
 class RecordingBus(can.BusABC):
     """A recording as a bus that only receives, each frame with its recorded timestamp.
 
-    ``on_frame(timestamp)`` runs just before each frame is handed on; :attr:`finished` is
-    set once the recording is read to its end (the frames still go to the listeners).
+    ``on_frame(timestamp)`` runs as each frame is read, before it is handed on, and
+    ``after_frame()`` once it has been (when the next one is asked for: a notifier asks
+    only then). :attr:`finished` is set once every frame was handed on.
     """
 
     def __init__(self, path: str | os.PathLike[str], *,
-                 on_frame: Callable[[float], None] | None = None, **kwargs: Any) -> None:
+                 on_frame: Callable[[float], None] | None = None,
+                 after_frame: Callable[[], None] | None = None, **kwargs: Any) -> None:
         self.recording = Recording(path)
         self._frames = iter(self.recording)
-        self.on_frame = on_frame
+        self.on_frame, self.after_frame = on_frame, after_frame
         self.finished = threading.Event()
         self._closed = threading.Event()
+        self._last: float | None = None
         self.error: BaseException | None = None
         self.channel_info = f"recording {os.fspath(path)}"
         super().__init__(channel=os.fspath(path), **kwargs)
@@ -49,6 +52,8 @@ class RecordingBus(can.BusABC):
         if self.finished.is_set():  # nothing more to read: idle, as a quiet bus would
             self._closed.wait(timeout)
             return None, False
+        if self._last is not None and self.after_frame is not None:
+            self.after_frame()
         try:
             msg = next(self._frames)
         except StopIteration:
@@ -58,6 +63,7 @@ class RecordingBus(can.BusABC):
             self.error = err
             self.finished.set()
             return None, False
+        self._last = msg.timestamp
         if self.on_frame is not None:
             self.on_frame(msg.timestamp)
         return msg, False
@@ -88,11 +94,13 @@ def decode_recording(path: str | os.PathLike[str], config: HostConfig, *,
 
     def at(timestamp: float) -> None:
         now[0] = timestamp
+
+    def check() -> None:  # a live host's heartbeat consumer, at this frame's time
         if host is not None:
             for link in host.links.values():
                 link.monitor.check()
 
-    bus = RecordingBus(Path(path), on_frame=at)
+    bus = RecordingBus(Path(path), on_frame=at, after_frame=check)
     try:
         host = HostManager(bus, config, listen_only=True, clock=lambda: now[0])
         host.on_forces(frames.append)

@@ -82,7 +82,9 @@ def test_late_answers_never_make_a_mixed_sample(udp_channel: str, udp_port: int,
     patch = result.patches[1]
     stats = json.loads((tmp_path / "run.json").read_text())["stats"]
     assert result.syncs == stats["sync_cycles"] > 0.8 * SECONDS * 100
-    assert patch.samples == result.syncs  # one force sample per SYNC, complete or not
+    # One force sample per SYNC, complete or not (the host's count, and the recording's).
+    assert stats["samples"] == stats["sync_cycles"], stats
+    assert patch.samples == result.syncs, (stats, result.verdict())
     assert patch.complete > 0.5 * result.syncs, result.verdict()
     assert patch.mixed == [], result.verdict()  # every complete one is one whole answer
 

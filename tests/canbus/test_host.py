@@ -189,8 +189,11 @@ def test_a_silent_patch_is_lost_the_others_go_on_and_it_comes_back(rig: Rig) -> 
     eventually(lambda: len(rig.frames_of(1, lost_at)) >= 5 and len(rig.frames_of(3, lost_at)) >= 5,
                "patches 1 and 3 go on")
     assert all(f.complete for n in (1, 3) for f in rig.frames_of(n, lost_at))
-    assert not rig.frames_of(2, lost_at + 1)  # no samples of a lost patch
-    # its force node withdrew the forces: one sample with no valid taxel
+    # a lost patch still gets one sample per SYNC, with no valid taxel: its force node
+    # withdrew the forces and every cycle counts
+    eventually(lambda: len(rig.frames_of(2, lost_at + 1)) >= 3, "patch 2's empty samples")
+    assert all(not f.valid.any() and (f.reason == Reason.MISSING).all() and not f.complete
+               for f in rig.frames_of(2, lost_at + 1))
     eventually(lambda: decode_force_pdos(force_pdos(rig.seen, 66), 66)[1] == 0, "withdrawal")
     mN, _ = decode_force_pdos(force_pdos(rig.seen, 66), 66)
     assert (mN == -0x8000).all()

@@ -116,7 +116,7 @@ def test_reads_big_endian_and_nanosecond_files(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(("content", "message"), [
     (b"", "not a pcap file: empty"),
-    (struct.pack("<I", 0x0A0D0D0A) + bytes(40), "pcapng is not read"),
+    (struct.pack("<I", 0x0A0D0D0A) + bytes(40), "a pcapng file: read it with"),
     (b"GIF89a" + bytes(30), "not a pcap file (magic"),
     (_pcap([])[:20], "pcap header cut short (20 of 24 bytes)"),
     (_pcap([], link=1), "link type 1 is not LINKTYPE_CAN_SOCKETCAN (227)"),
