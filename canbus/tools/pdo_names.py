@@ -30,6 +30,7 @@ import numpy as np
 from canbus import codes
 from canbus.od import load_od
 from canbus.pdo_codec import PdoCodec, Reader, TpdoLayout, read_defaults, read_layouts
+from decoder.reasons import reason_name
 from skin.errors import ConfigError
 
 PATCH_PRODUCT, FORCES_PRODUCT = 1, 2
@@ -160,8 +161,10 @@ class NodeView:
         if product == FORCES_PRODUCT and index == 0x2000 and subindex:
             taxel, axis = divmod(subindex - 1, 3)
             return functools.partial(_force, f"F{taxel}{_AXES[axis]}")
-        if product in SHIPPED_BY_PRODUCT and index == 0x2004 and subindex:
+        if product == PATCH_PRODUCT and index == 0x2004 and subindex:
             return lambda value: _status(f"S{subindex - 1}", int(value))
+        if product == FORCES_PRODUCT and index == 0x2004 and subindex:
+            return lambda value: _reason(f"S{subindex - 1}", int(value))
         if product == FORCES_PRODUCT and index == 0x2005:
             return _valid_taxels
         if index == 0x1001:
@@ -357,6 +360,12 @@ def _status(name: str, status: int) -> NamedValue:
     faults = [f"{p} {codes.FAULT_NAMES[(status >> (2 * k)) & 3]}"
               for k, p in enumerate(_PILLARS) if (status >> (2 * k)) & 3]
     return NamedValue(name, float(status), "", f"{name}={'ok' if not faults else ','.join(faults)}")
+
+
+def _reason(name: str, code: int) -> NamedValue:
+    """A force node's 0x2004: the decoder's reason code for the taxel (0 OK)."""
+    text = "ok" if code == 0 else reason_name(code)
+    return NamedValue(name, float(code), "", f"{name}={text}")
 
 
 def describe_taxel_fault(taxel: int, status: int) -> str:
