@@ -19,8 +19,9 @@ after ``start()``, or the caller) assembles, counts (a
 :class:`~canbus.tools.sample_tracker.SampleTracker`) and calls the ``on_sample``
 callbacks; a view reads :meth:`ForceReader.snapshot`.
 
-A sample's PDOs need not come in any order. It is complete when every mapped PDO came
-once and 0x2005 says the host's sample was complete. A taxel is valid when its bit in
+Which PDOs make one sample: :mod:`canbus.tools.pdo_samples` (the lowest-COB-ID PDO
+begins a sample). A sample is complete when every mapped PDO came once and 0x2005 says
+the host's sample was complete. A taxel is valid when its bit in
 0x2005 is set and its three components came, none 0x8000. Where a force PDO did not come,
 its taxels are invalid with reason MISSING (a taxel the mapping does not carry: invalid,
 UNSPECIFIED). A CAN FD force node that sends the whole
@@ -158,7 +159,7 @@ class ForceReader(PdoSampleReader):
     (a path or a shipped name; e.g. a CAN FD force node's)."""
 
     def __init__(self, nodes: Iterable[int | ForceNodeSpec] | None = None, *,
-                 eds: EdsChoice = "skin-forces", max_span_s: float | None = None,
+                 eds: EdsChoice = "skin-forces", period_s: float | None = None,
                  tracker: SampleTracker | None = None) -> None:
         specs = [n if isinstance(n, ForceNodeSpec) else ForceNodeSpec(int(n))
                  for n in (FORCE_NODE_IDS if nodes is None else nodes)]
@@ -169,7 +170,7 @@ class ForceReader(PdoSampleReader):
         self.samples = 0
         self._callbacks: tuple[Callable[[ForceSample], None], ...] = ()
         self._columns: dict[int, _Columns] = {}
-        super().__init__(self.patches, eds, max_span_s=max_span_s,
+        super().__init__(self.patches, eds, period_s=period_s,
                          cob_ids={s.node_id: s.cob_ids for s in specs if s.cob_ids})
         for spec in specs:
             if spec.patch is not None:

@@ -7,11 +7,24 @@ CAN FD's 64 bytes) and the sample being assembled: each frame's bytes go into a
 preallocated buffer at its PDO's place; when the sample closes, one ``np.frombuffer``
 with a structured dtype reads every mapped variable.
 
-A sample closes *complete* when every mapped TPDO arrived once, and *partial* when one of
-its PDOs comes again (the next sample began) or when it has been open longer than a
-span (the caller's rule; the readers use 80 % of the SYNC period). So two samples are
-never mixed, however frames are lost: a partial sample carries the PDOs that came, and
-says which.
+Where a sample begins. A classic PDO carries no cycle number, but a node sends the PDOs
+of one sample together and in a fixed order, and the PDO with the lowest COB-ID comes
+first in both orders a sender may use: TPDO number order (one transmit FIFO, the host's
+force nodes) and ascending COB-ID (queued frames leave a CAN controller by arbitration);
+it is TPDO 1 in the predefined connection set. That PDO, the *first*, begins a sample. So
+a sample closes:
+
+- *complete* when every mapped PDO came once;
+- *partial* when the next first PDO comes (the next sample began), or when a PDO it
+  already holds comes again with other bytes (the next sample's first PDO was lost; the
+  same bytes again right after are a CAN retransmission seen twice: ignored);
+- *partial* when it was open for two sample periods (by bus time: nothing more will come);
+  a sample that lacks its first PDO, for one period's 80 % (a sender holds one sample's
+  PDOs together; this keeps two samples apart even when their first PDOs are both lost).
+
+A sender that is held up mid-sample (a busy host thread) delays its PDOs; they still
+join their own sample, never the next one. A partial sample carries the PDOs that came,
+and says which.
 
 :class:`PdoSampleReader` is the ``can.Listener`` around assemblies of many nodes that the
 force reader and the resistance reader share: the receive thread only appends
@@ -23,6 +36,7 @@ the sniffer follows it) and the SYNC period.
 
 from __future__ import annotations
 
+import itertools
 import statistics
 import threading
 from collections import deque
@@ -39,12 +53,12 @@ from canbus.tools.pdo_names import Dictionary, EdsChoice, NodeView
 from canbus.tools.services import SdoDecoder
 
 SYNC_COB_ID = 0x080
-DEFAULT_SPAN_S = 0.008
-"""How long a sample may stay open before it closes partial, until SYNCs are seen: 80 %
-of the 10 ms period of the host's default 100 Hz."""
-SPAN_SHARE = 0.8
-"""Of the median SYNC interval: a sample open longer is closed partial (CiA 301's
-synchronous window, 0x1007, is typically this share of the period)."""
+DEFAULT_PERIOD_S = 0.01
+"""The sample period assumed until SYNCs are seen: the host's default 100 Hz."""
+HEADLESS_SHARE = 0.8
+"""Of the period: how long a sample without its first PDO may stay open."""
+OPEN_PERIODS = 2.0
+"""Periods after which any open sample closes partial."""
 _SYNC_INTERVALS = 8
 _POLL_S = 0.01
 
@@ -107,6 +121,9 @@ class PdoAssembly:
                         for dtype, cols in by_dtype.items()]
         self._pdo = np.array([v.pdo for v in variables], dtype=np.int64)
         self.full = (1 << len(self.layouts)) - 1
+        cob_ids = [layout.cob_id for layout in self.layouts]
+        self.first_pdo = cob_ids.index(min(cob_ids)) if cob_ids else 0
+        self.last_pdo = -1
         self.seen = 0
         self.first = 0.0
         self.last = 0.0
@@ -119,12 +136,21 @@ class PdoAssembly:
         return None
 
     def take(self, cob_id: int, data: bytes, timestamp: float,
-             span_s: float) -> list[RawSample]:
+             period_s: float) -> list[RawSample]:
         """One frame of PDO ``cob_id``: the samples it closes (none, one or two)."""
         bit, offset, size = self.slots[cob_id]
         out = []
-        if self.seen and (self.seen >> bit & 1 or timestamp - self.first > span_s):
-            out.append(self.close())
+        if self.seen:
+            if bit == self.first_pdo:
+                out.append(self.close())
+            elif self.seen >> bit & 1:
+                if bit == self.last_pdo and bytes(data[:size]) == \
+                        self.buffer[offset:offset + size]:
+                    return out  # the frame just taken, again: a retransmission seen twice
+                out.append(self.close())
+            elif not self.seen >> self.first_pdo & 1 and \
+                    timestamp - self.first > HEADLESS_SHARE * period_s:
+                out.append(self.close())
         if len(data) < size:
             self.malformed += 1  # not trusted: its PDO stays missing
             return out
@@ -133,13 +159,18 @@ class PdoAssembly:
         self.buffer[offset:offset + size] = data[:size]
         self.seen |= 1 << bit
         self.last = timestamp
+        self.last_pdo = bit
         if self.seen == self.full:
             out.append(self.close())
         return out
 
-    def expire(self, now: float, span_s: float) -> RawSample | None:
-        """The open sample, closed partial, if it has been open longer than ``span_s``."""
-        if self.seen and now - self.first > span_s:
+    def expire(self, now: float, period_s: float) -> RawSample | None:
+        """The open sample, closed partial, if it has been open for :data:`OPEN_PERIODS`
+        periods by bus time ``now`` (:data:`HEADLESS_SHARE` of one without its first PDO)."""
+        if not self.seen:
+            return None
+        limit = OPEN_PERIODS if self.seen >> self.first_pdo & 1 else HEADLESS_SHARE
+        if now - self.first > limit * period_s:
             return self.close()
         return None
 
@@ -174,17 +205,17 @@ class PdoSampleReader(can.Listener):
     """Samples of the TPDOs of ``node_ids`` (EDS ``eds``), handed to :meth:`on_raw`.
 
     ``cob_ids`` pins a node's TPDO COB-IDs (TPDO 1, 2, ... in order; a master that set
-    them without SDO, e.g. a host config's ``force_cob_ids``). ``max_span_s`` fixes the
-    span after which an open sample closes partial (default: 80 % of the median SYNC
-    interval seen, :data:`DEFAULT_SPAN_S` before two SYNCs).
+    them without SDO, e.g. a host config's ``force_cob_ids``). ``period_s`` fixes the
+    sample period the closing rules use (module docstring; default: the median of the
+    last SYNC intervals seen, :data:`DEFAULT_PERIOD_S` before two SYNCs).
     """
 
     def __init__(self, node_ids: Iterable[int], eds: EdsChoice, *,
                  cob_ids: dict[int, Sequence[int]] | None = None,
-                 max_span_s: float | None = None) -> None:
+                 period_s: float | None = None) -> None:
         self.node_ids = tuple(sorted(set(node_ids)))
         self.dictionary = Dictionary(dict.fromkeys(self.node_ids, eds))
-        self.max_span_s = max_span_s
+        self.fixed_period_s = period_s
         self.received = 0  # every frame the listener was handed
         self.frames = 0  # PDO frames of the nodes taken
         self.malformed = 0  # of which shorter than their mapping
@@ -193,7 +224,7 @@ class PdoSampleReader(can.Listener):
         self.latest = -np.inf  # the newest bus timestamp processed
         self._sdo = SdoDecoder()
         self._sync_times: deque[float] = deque(maxlen=_SYNC_INTERVALS + 1)
-        self._span_s = DEFAULT_SPAN_S
+        self._period_s = DEFAULT_PERIOD_S
         self._pending: deque[Frame] = deque()
         self._lock = threading.Lock()
         self._assemblies: dict[int, PdoAssembly] = {}
@@ -235,11 +266,11 @@ class PdoSampleReader(can.Listener):
         while not self._stopping.wait(_POLL_S):
             self.process()
 
-    def span_s(self) -> float:
-        """How long a sample may stay open (see the class docstring)."""
-        if self.max_span_s is not None:
-            return self.max_span_s
-        return self._span_s
+    def period_s(self) -> float:
+        """The sample period the closing rules use (the class docstring)."""
+        if self.fixed_period_s is not None:
+            return self.fixed_period_s
+        return self._period_s
 
     def _on_sync(self, data: bytes, timestamp: float) -> None:
         self.syncs += 1
@@ -247,16 +278,16 @@ class PdoSampleReader(can.Listener):
         times = self._sync_times
         times.append(timestamp)
         if len(times) >= 2:
-            intervals = [b - a for a, b in zip(times, list(times)[1:], strict=False)]
-            self._span_s = SPAN_SHARE * statistics.median(intervals)
+            intervals = [b - a for a, b in itertools.pairwise(times)]
+            self._period_s = statistics.median(intervals)
 
     def process(self, now: float | None = None) -> None:
-        """Assemble every frame received so far; with ``now`` (bus time), also close the
-        samples that have been open longer than the span by then."""
+        """Assemble every frame received so far, and close the samples open too long by
+        the newest frame's time or ``now`` (bus time), whichever is later."""
         with self._lock:
             pending = self._pending
             sdo_low, sdo_high = 0x581, 0x67F
-            span = self.span_s()
+            period = self.period_s()
             closed: dict[int, tuple[PdoAssembly, list[RawSample]]] = {}
             while pending:
                 cob_id, data, timestamp = pending.popleft()
@@ -266,19 +297,19 @@ class PdoSampleReader(can.Listener):
                 if assembly is not None:
                     self.frames += 1
                     before = assembly.malformed
-                    raws = assembly.take(cob_id, data, timestamp, span)
+                    raws = assembly.take(cob_id, data, timestamp, period)
                     if raws:
                         closed.setdefault(id(assembly), (assembly, []))[1].extend(raws)
                     self.malformed += assembly.malformed - before
                 elif cob_id == SYNC_COB_ID:
                     self._on_sync(data, timestamp)
-                    span = self.span_s()
+                    period = self.period_s()
                 elif sdo_low <= cob_id <= sdo_high:
                     self._sdo_frame(cob_id, data)
             until = self.latest if now is None else max(self.latest, now)
-            span = self.span_s()
+            period = self.period_s()
             for assembly in self._assemblies.values():
-                expired = assembly.expire(until, span)
+                expired = assembly.expire(until, period)
                 if expired is not None:
                     closed.setdefault(id(assembly), (assembly, []))[1].append(expired)
             for assembly, raws in closed.values():

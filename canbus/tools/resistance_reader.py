@@ -37,10 +37,10 @@ class ResistanceSample:
 class ResistanceReader(PdoSampleReader):
     """Resistance samples of the patches ``patches`` (node-IDs) on the bus it listens to."""
 
-    def __init__(self, patches: Iterable[int], *, max_span_s: float | None = None) -> None:
+    def __init__(self, patches: Iterable[int], *, period_s: float | None = None) -> None:
         self.lsb_ohm = dict.fromkeys(patches, DEFAULT_LSB_OHM)
         self._callbacks: tuple[Callable[[ResistanceSample], None], ...] = ()
-        super().__init__(self.lsb_ohm, "skin-patch", max_span_s=max_span_s)
+        super().__init__(self.lsb_ohm, "skin-patch", period_s=period_s)
 
     def on_sample(self, callback: Callable[[ResistanceSample], None]) -> None:
         """Call ``callback(sample)`` for every sample, on the processing thread."""

@@ -109,19 +109,51 @@ def test_pdos_in_cob_id_order_make_the_same_samples() -> None:
     np.testing.assert_array_equal(samples[1].force_N, f)
 
 
-def test_a_repeated_pdo_closes_the_sample_and_a_slow_one_closes_after_the_span() -> None:
+def _syncs(until: float, count: int = 4, period: float = 0.01) -> list[can.Message]:
+    return [can.Message(arbitration_id=0x80, data=[k + 1], timestamp=until - period * k,
+                        is_extended_id=False) for k in range(count - 1, -1, -1)]
+
+
+def test_a_sender_held_up_mid_sample_still_makes_whole_samples() -> None:
     reader = ForceReader([65])
-    frames = NODE.frames(_press(4), np.ones(9, bool), True)
-    syncs = [can.Message(arbitration_id=0x80, data=[k], timestamp=0.99 - 0.01 * k,
-                         is_extended_id=False) for k in range(4, 0, -1)]
-    first = _read(reader, [*syncs, *_messages(frames[:3], 1.0)])
-    assert first == [] and reader.span_s() == pytest.approx(0.008)
-    again = _read(reader, _messages(frames[2:3], 1.001))  # TPDO 3 twice: a new sample
-    assert len(again) == 1 and again[0].pdos_missing == 4 and not again[0].complete
-    later = _read(reader, _messages(frames[3:], 1.0095))  # 8.5 ms after the sample began
-    assert len(later) == 1 and later[0].pdos_missing == 6
-    assert _read(reader, [], now=1.02)[0].pdos_missing == 3  # expired, by bus time
-    status = reader.snapshot(1.02).patches[1]
+    a, b = _press(10), _press(11)
+    fa = NODE.frames(a, np.ones(9, bool), True)
+    fb = NODE.frames(b, np.ones(9, bool), True)
+    messages = [*_syncs(0.999), *_messages(fa[:3], 1.0), *_messages(fa[3:], 1.009),
+                *_syncs(1.0095, 1), *_messages(fb, 1.0096)]  # A's tail, then B, at once
+    samples = _read(reader, messages)
+    assert reader.period_s() == pytest.approx(0.01)
+    assert [s.complete for s in samples] == [True, True]
+    np.testing.assert_array_equal(samples[0].force_N, a)
+    np.testing.assert_array_equal(samples[1].force_N, b)
+
+
+def test_a_frame_seen_twice_is_one_frame_but_other_bytes_end_the_sample() -> None:
+    fa = NODE.frames(_press(12), np.ones(9, bool), True)
+    fb = NODE.frames(_press(13), np.ones(9, bool), True)
+    twice = [*fa[:3], fa[2], *fa[3:]]
+    (sample,) = _read(ForceReader([65]), _messages(twice, 1.0))
+    assert sample.complete
+    # B's first PDO lost, and its third is one A already holds: A ends there
+    first, second = _read(ForceReader([65]), [*_messages(fa[:3], 1.0),
+                                               *_messages(fb[1:], 1.001)], now=1.05)
+    assert (first.pdos_missing, second.pdos_missing) == (4, 1)
+    assert not first.complete and not second.complete
+    np.testing.assert_array_equal(second.valid, ~np.isin(np.arange(9), [0, 1]))
+
+
+def test_samples_without_their_first_pdo_stay_apart_and_open_ones_close_by_bus_time() -> None:
+    reader = ForceReader([65])
+    fa = NODE.frames(_press(14), np.ones(9, bool), True)
+    fb = NODE.frames(_press(15), np.ones(9, bool), True)
+    got = _read(reader, [*_syncs(0.999), *_messages(fa[1:3], 1.0), *_messages(fb[3:], 1.01)])
+    assert [s.pdos_missing for s in got] == [5]  # B's frames came 10 ms after A's began
+    assert _read(reader, [], now=1.017) == []  # B, open 7 ms: less than 80 % of a period
+    assert [s.pdos_missing for s in _read(reader, [], now=1.019)] == [3]
+    reader.feed(_messages(fa[:2], 1.03))  # with its first PDO: open for two periods
+    assert _read(reader, [], now=1.045) == []
+    assert [s.pdos_missing for s in _read(reader, [], now=1.051)] == [5]
+    status = reader.snapshot(1.06).patches[1]
     assert (status.samples, status.incomplete, status.partial) == (3, 3, 3)
 
 
