@@ -16,7 +16,7 @@ from skin import __version__
 from skin.errors import SkinError
 
 SUBCOMMANDS = (
-    "sim", "model", "train", "bench", "plan", "eds", "run", "demo", "sniff", "replay",
+    "sim", "model", "train", "bench", "plan", "eds", "run", "demo", "sniff", "replay", "view",
 )
 
 
