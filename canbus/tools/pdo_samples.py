@@ -60,7 +60,7 @@ HEADLESS_SHARE = 0.8
 OPEN_PERIODS = 2.0
 """Periods after which any open sample closes partial."""
 _SYNC_INTERVALS = 8
-_POLL_S = 0.01
+_POLL_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -250,7 +250,7 @@ class PdoSampleReader(can.Listener):
     # -- processing -------------------------------------------------------------------
 
     def start(self) -> None:
-        """Process on a thread of the reader's, every 10 ms."""
+        """Process on a thread of the reader's, every 50 ms (a batch per node)."""
         if self._thread is None:
             self._thread = threading.Thread(target=self._run, name="pdo-samples", daemon=True)
             self._thread.start()

@@ -57,7 +57,7 @@ class PatchStatus:
     samples: int
     incomplete: int  # samples not complete (the host said so, or PDOs went missing)
     partial: int  # of which the reader missed force PDOs (bus reader only)
-    rate_hz: float  # samples per second over the last window
+    rate_hz: float  # samples per second over the last window (or since the first sample)
     complete_pct: float  # complete samples in the last window, % (0 without samples)
     age_s: float | None  # since the last sample
     last: SampleLike | None
@@ -130,8 +130,8 @@ class SampleTracker:
         recent = [(t, ok) for t, ok in record.recent if now - self.window_s < t <= now]
         if now - record.first >= self.window_s:
             rate = len(recent) / self.window_s
-        elif len(recent) >= 2:
-            rate = (len(recent) - 1) / max(recent[-1][0] - recent[0][0], 1e-9)
+        elif len(recent) >= 2:  # a younger patch: over the time since its first sample
+            rate = (len(recent) - 1) / max(now - recent[0][0], 1e-9)
         else:
             rate = 0.0
         pct = 100.0 * sum(ok for _, ok in recent) / len(recent) if recent else 0.0

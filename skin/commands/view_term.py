@@ -102,10 +102,46 @@ def _rgb(hex_colour: str) -> tuple[int, int, int]:
 
 
 def cell_style(fz: float, scale_N: float) -> str:
+    """The rich style of a valid taxel's cell (cached by Fz to 0.01 N)."""
+    return _cell_style(round(fz, 2), scale_N)
+
+
+@functools.lru_cache(maxsize=4096)
+def _cell_style(fz: float, scale_N: float) -> str:
     background = colour(fz, scale_N)
     r, g, b = _rgb(background)
     light = 0.2126 * r + 0.7152 * g + 0.0722 * b > 110
     return f"{'bold ' if fz > scale_N else ''}{'black' if light else 'white'} on {background}"
+
+
+class _Frame:
+    """Lines of (text, style) segments as a rich renderable: cheap to draw."""
+
+    def __init__(self, lines: list[Line]) -> None:
+        self.lines = lines
+
+    def __rich_console__(self, console: Any, options: Any) -> Any:
+        from rich.segment import Segment
+
+        width = options.max_width
+        for line in self.lines:
+            used = 0
+            for text, style in line:
+                if used + len(text) > width:
+                    text = text[:max(width - used, 0)]
+                if text:
+                    yield Segment(text, _style(style))
+                used += len(text)
+                if used >= width:
+                    break
+            yield Segment.line()
+
+
+@functools.lru_cache(maxsize=4096)
+def _style(text: str) -> Any:
+    from rich.style import Style
+
+    return Style.parse(text) if text else None
 
 
 @dataclass(frozen=True)
@@ -165,16 +201,9 @@ class SkinView:
                          for line in self.lines(now, label)) + "\n"
 
     def renderable(self, now: float | None = None, label: str | None = None) -> RenderableType:
-        """One frame for rich (``Live.update``, ``Console.print``)."""
-        from rich.text import Text
-
-        out = Text(no_wrap=True, overflow="crop")
-        for k, line in enumerate(self.lines(now, label)):
-            if k:
-                out.append("\n")
-            for text, style in line:
-                out.append(text, style or None)
-        return out
+        """One frame for rich (``Live.update``, ``Console.print``): lines of styled
+        segments, cropped to the console's width (no wrapping, no measuring of text)."""
+        return _Frame(self.lines(now, label))
 
     def summary(self, now: float | None = None) -> dict[str, Any]:
         """Every patch's figures, JSON-able."""
