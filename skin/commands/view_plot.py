@@ -2,10 +2,11 @@
 
 A moment (:func:`moment_picture`): every patch at its position (mm, seen from above: +x
 right, +y up), its 3x3 taxels coloured by Fz on the fixed scale (inferno, as the terminal
-view; a colour bar in N, its ends marked when values lie beyond), each valid taxel's Fz
-written in it, its shear (Fx, Fy) as an arrow (half the scale's force is one taxel pitch
-long; a key shows 1 N), invalid taxels hatched grey with their reason's short code, and
-per patch its state and rate; the time in the title. An animation (:func:`save_animation`)
+view; a colour bar in N whose pointed ends stand for values beyond the scale), each valid
+taxel's Fz written in its corner, its shear (Fx, Fy) as an arrow from its centre (a quarter
+of the scale's force, 1.25 N of 5 N, reaches the taxel's edge; a key shows 1 N), invalid
+taxels hatched grey with their reason's short code, and per patch its state (coloured
+when not live) and rate; the time in the title. An animation (:func:`save_animation`)
 is such moments at a fixed rate, written by Pillow (GIF) or ffmpeg (MP4). A trace
 (:func:`save_trace`) is one taxel's Fx, Fy, Fz over time, optionally over its pillars'
 raw resistances. Every file is written to a temporary name and renamed into place.
@@ -36,6 +37,7 @@ if TYPE_CHECKING:
 DPI = 100
 HATCH_GREY = "#9e9e9e"
 ARROW_COLOUR = "#00d7ff"
+STATE_COLOURS = {"live": "black", "waiting": "#616161", "stale": "#e65100", "lost": "#c62828"}
 
 
 def pyplot(flag: str) -> Any:
@@ -128,7 +130,9 @@ def moment_picture(state: ViewState, *, scale_N: float, time_s: float | None,
     norm = Normalize(0.0, scale_N)
     pitch = state.layout.pitch_m * 1000.0
     half = 1.5 * pitch
-    arrow_scale = (scale_N / 2.0) / pitch  # N per mm: half the scale is one pitch long
+    arrow_scale = (scale_N / 4.0) / (0.5 * pitch)  # N per mm: a quarter of the scale (1.25 N
+    # of 5 N) reaches the taxel's edge, so arrows stay inside their taxel up to that shear
+    inside = _crowded(state, pitch)  # labels inside the patches' top edge, all alike
     centres: dict[int, list[tuple[float, float]]] = {}
     for patch, (x_m, y_m) in sorted(state.layout.positions.items()):
         cx, cy = 1000.0 * x_m, 1000.0 * y_m
@@ -151,8 +155,15 @@ def moment_picture(state: ViewState, *, scale_N: float, time_s: float | None,
                                edgecolor="black", linewidth=1.2, zorder=3))
         state_text = "waiting" if status is None else status.state
         rate = "" if status is None or sample is None else f", {status.rate_hz:.0f} Hz"
-        ax.text(cx, cy + half + 0.15 * pitch, f"patch {patch} · {state_text}{rate}",
-                ha="center", va="bottom", fontsize=9, zorder=4)
+        label = f"patch {patch} · {state_text}{rate}"
+        tone = STATE_COLOURS.get(state_text, "black")
+        if inside:
+            ax.text(cx - half + 0.05 * pitch, cy + half - 0.05 * pitch, label, ha="left",
+                    va="top", fontsize=7, color=tone, zorder=6,
+                    bbox={"facecolor": "white", "alpha": 0.85, "pad": 1.0, "linewidth": 0})
+        else:
+            ax.text(cx, cy + half + 0.15 * pitch, label, ha="center", va="bottom", fontsize=9,
+                    color=tone, zorder=4)
         if sample is None:
             ax.text(cx, cy, "no sample", ha="center", va="center", fontsize=8, color="#555555")
             continue
@@ -168,8 +179,8 @@ def moment_picture(state: ViewState, *, scale_N: float, time_s: float | None,
             fx, fy, f = (float(c) for c in sample.force_N[k])
             rgba = cmap(norm(f))
             light = 0.2126 * rgba[0] + 0.7152 * rgba[1] + 0.0722 * rgba[2] > 0.45
-            ax.text(tx, ty - 0.3 * pitch, _decimal(f), ha="center", va="center", fontsize=8,
-                    color="black" if light else "white", zorder=4)
+            ax.text(tx - 0.44 * pitch, ty - 0.44 * pitch, _decimal(f), ha="left",
+                    va="bottom", fontsize=8, color="black" if light else "white", zorder=4)
             if math.hypot(fx, fy) >= shear_min_N:
                 xs.append(tx)
                 ys.append(ty)
@@ -178,7 +189,7 @@ def moment_picture(state: ViewState, *, scale_N: float, time_s: float | None,
         if u:
             ax.quiver(xs, ys, u, v, angles="xy", scale_units="xy", scale=arrow_scale,
                       color=ARROW_COLOUR, edgecolor="black", linewidth=0.6, width=0.012,
-                      zorder=5)
+                      minlength=0.0, zorder=5)
     x0, x1, y0, y1 = _extent_mm(state)
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
@@ -202,6 +213,15 @@ def _decimal(value: float) -> str:
     """One decimal, without a sign on a value that rounds to zero."""
     shown = round(value, 1)
     return f"{shown if shown else 0.0:.1f}"
+
+
+def _crowded(state: ViewState, pitch: float) -> bool:
+    """Some patch has another less than a pitch above it: no room for labels above."""
+    half = 1.5 * pitch
+    places = [(1000.0 * x, 1000.0 * y) for x, y in state.layout.positions.values()]
+    return any(abs(qx - x) < 2 * half and 0 < qy - y < 2 * half + pitch
+               for k, (x, y) in enumerate(places) for j, (qx, qy) in enumerate(places)
+               if j != k)
 
 
 def save_png(picture: Picture, path: str | os.PathLike[str]) -> None:
