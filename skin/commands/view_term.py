@@ -239,8 +239,10 @@ class SkinView:
             return [[("no patch yet", "dim")]]
         columns = max(c for c, _ in places.values()) + 1
         rows = max(r for _, r in places.values()) + 1
-        blocks = {place: self._block(state.statuses.get(patch), patch)
-                  for patch, place in places.items()}
+        blocks = {}
+        for patch, place in places.items():
+            blocks[place] = self._block(state.statuses.get(patch), patch)
+            time.sleep(0)  # a thread waiting for the GIL (a bus, a host) goes first
         height = len(next(iter(blocks.values())))
         out: list[Line] = []
         for row in range(rows):
