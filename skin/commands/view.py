@@ -117,6 +117,11 @@ def _layout(args: argparse.Namespace, config: HostConfig | None) -> Layout:
 
 
 def _view(args: argparse.Namespace) -> int:
+    if args.file is None and args.layout:  # `--layout 1=0,0 2=0.05,0 run.log`: the file
+        files = [t for t in args.layout if "=" not in t]
+        if len(files) == 1:
+            args.file = files[0]
+            args.layout = [t for t in args.layout if "=" in t]
     _check(args)
     config = None
     if args.config:
@@ -181,6 +186,10 @@ def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) ->
         cause = err.__cause__ or err
         raise BusError(f"cannot open the bus: {type(cause).__name__}: {cause}") from err
     with bus:
+        if args.rcvbuf:
+            from canbus.tools.recorder import enlarge_receive_buffer
+
+            enlarge_receive_buffer(bus, args.rcvbuf)
         source: BusForces | BusDecode = BusDecode(bus, config) if args.decode and config \
             else BusForces(bus, force_specs(config))
         where = f"{args.interface}:{args.channel}"
@@ -401,6 +410,8 @@ def _trace(args: argparse.Namespace, config: HostConfig | None, times: Recording
 def add_subparser(subparsers: Any) -> None:
     import can.cli
 
+    from skin.commands.busargs import add_rcvbuf_argument
+
     parser = subparsers.add_parser(
         "view", help="every patch's taxels at its place: live, or pictures of a recording",
         description="Show the skin: each patch a 3x3 grid of taxels at its position, Fz as "
@@ -451,5 +462,6 @@ def add_subparser(subparsers: Any) -> None:
     pictures.add_argument("--raw", action="store_true",
                           help="also the taxel's raw resistances, from the patch's own PDOs")
     parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
+    add_rcvbuf_argument(parser)
     can.cli.add_bus_arguments(parser)
     parser.set_defaults(func=_view, interface="virtual")

@@ -64,6 +64,14 @@ def test_bad_arguments_fail_in_one_line(args: list[str], message: str, recording
     assert list(tmp_path.glob("x.*")) == []  # nothing half-written
 
 
+def test_a_recording_may_follow_the_layout(recording: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["view", "--snapshot", "--layout", "1=0,0", "2=0.05,0", str(recording)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("skin view run.log  t 0.000 s  2 patches")
+    assert "patch 1        waiting  patch 2        waiting" in out
+
+
 def test_a_damaged_or_unknown_recording_is_named(tmp_path: Path,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
     cut = tmp_path / "cut.log"
