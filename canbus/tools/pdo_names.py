@@ -18,6 +18,7 @@ SDO (0x1018:02 product code) switches a node to the shipped EDS of that product.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import os
@@ -118,6 +119,22 @@ class NodeView:
             return False
         self.seen[(index, subindex)] = value
         return self._rebuild()
+
+    def tpdo_layouts(self) -> list[TpdoLayout]:
+        """The node's valid TPDOs, from the EDS defaults and the SDO values seen, of any
+        length (a CAN FD PDO too); a TPDO whose mapping is half-way through a rewrite
+        (an entry the dictionary does not have) is left out, the others kept."""
+        read, layouts = self._reader(), []
+        number = 0
+        while TPDO_COMM + number in self.od and TPDO_MAP + number in self.od:
+            try:
+                found = read_layouts(read, 1, comm=TPDO_COMM + number,
+                                     mapping=TPDO_MAP + number)
+            except (ConfigError, KeyError):
+                found = []
+            layouts += [dataclasses.replace(layout, number=number + 1) for layout in found]
+            number += 1
+        return layouts
 
     def decode_pdo(self, cob_id: int, data: bytes) -> list[NamedValue] | None:
         """The named values of PDO ``cob_id``; None if the node has no such PDO or it is short."""
@@ -245,8 +262,9 @@ class NodeView:
                 layouts = read_layouts(read, count, comm=comm, mapping=mapping)
                 for layout in layouts:
                     table[layout.cob_id] = PdoEntry(kind, layout, PdoCodec([layout], self.od))
-            except (ConfigError, KeyError):
-                continue  # a mapping half-way through a rewrite: keep the rest
+            except (ConfigError, KeyError, ValueError):
+                continue  # a mapping half-way through a rewrite (or longer than the
+                # codec's 8 bytes): keep the rest
         changed = {c: e.layout for c, e in table.items()} != \
             {c: e.layout for c, e in self.pdos.items()}
         self.pdos = table
