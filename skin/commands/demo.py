@@ -227,7 +227,7 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
                 for bus in opened:
                     bus.wire_start = _wire(bus.host_bus)
                 started = time.monotonic()
-                _watch(host, live, args.seconds)
+                _watch(host, live, args.seconds, scene)
                 for bus in opened:
                     bus.wire_end = _wire(bus.host_bus)
             seconds = time.monotonic() - started
@@ -340,28 +340,6 @@ def _ms(value: float | None) -> str:
     return "-" if value is None else f"{value:.2f} ms"
 
 
-def _table(host: HostManager, live: Record, elapsed: float, seconds: float) -> Any:
-    import numpy as np
-    from rich.table import Table
-
-    table = Table(title=f"skin demo  {elapsed:4.1f} / {seconds:g} s", title_justify="left")
-    several = len(host.links) > 1
-    for column in ("patch", *(("bus",) if several else ()), "state", "samples", "incomplete",
-                   "peak |F| N", "taxel", "sum Fz N"):
-        table.add_column(column, justify="right")
-    for node_id, health in sorted(host.health().items()):
-        where = (str(node_id), *((health.bus,) if several else ()), health.state)
-        frame = live.latest.get(node_id)
-        if frame is None:
-            table.add_row(*where, "0", "0", "-", "-", "-")
-            continue
-        magnitude = np.linalg.norm(frame.force_N, axis=1)
-        k = int(np.argmax(magnitude))
-        table.add_row(*where, str(health.samples), str(health.incomplete),
-                      f"{magnitude[k]:.2f}", str(k), f"{frame.force_N[:, 2].sum():.2f}")
-    return table
-
-
 def _line(host: HostManager, live: Record, elapsed: float) -> str:
     import numpy as np
 
@@ -375,19 +353,28 @@ def _line(host: HostManager, live: Record, elapsed: float) -> str:
             f"{stats['incomplete_samples']} incomplete  peak {peak:.2f} N ({where})")
 
 
-def _watch(host: HostManager, live: Record, seconds: float) -> None:
-    """Show live forces for ``seconds``: a rich table on a terminal, a line a second if not."""
+def _watch(host: HostManager, live: Record, seconds: float, scene: Scene) -> None:
+    """Show live forces for ``seconds``: on a terminal the skin itself (``skin view``'s
+    live heat map, drawn on its own thread, never holding up the data path); else a line a
+    second."""
     started = time.monotonic()
     stop = threading.Event()
     if sys.stdout.isatty():
-        from rich.live import Live
+        from skin.commands.view_layout import layout_from_positions
+        from skin.commands.view_live import LiveThread
+        from skin.commands.view_term import SkinView
 
-        with Live(_table(host, live, 0.0, seconds), auto_refresh=False) as view:
-            while not stop.wait(max(0.0, min(REFRESH_S, seconds - (time.monotonic() - started)))):
-                elapsed = time.monotonic() - started
-                view.update(_table(host, live, elapsed, seconds), refresh=True)
-                if elapsed >= seconds:
-                    break
+        layout = layout_from_positions({p.node_id: p.position_m for p in scene.patches},
+                                       "scene")
+        view = SkinView(layout, title=f"skin demo ({scene.name})")
+        host.on_forces(view.update)
+
+        def label() -> str:
+            return f"{time.monotonic() - started:4.1f} / {seconds:g} s"
+
+        with LiveThread(view, refresh_hz=1 / REFRESH_S, label=label):
+            stop.wait(seconds)
+        host.remove_callback(view.update)
         return
     next_line = 1.0
     while (elapsed := time.monotonic() - started) < seconds:

@@ -216,11 +216,13 @@ def test_demo_scenes_put_every_load_on_every_patch() -> None:
     assert _scene("indenter", None) is not None and _scene("indenter", 1).node_ids == (1,)
 
 
-def test_skin_demo_on_a_terminal_shows_a_live_table(capsys: pytest.CaptureFixture[str],
+def test_skin_demo_on_a_terminal_shows_the_skin_live(capsys: pytest.CaptureFixture[str],
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     import sys
 
     monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
     assert _in_thread(["demo", "--patches", "1", "--seconds", "0.6"]) == 0
     text = capsys.readouterr().out
-    assert "peak |F| N" in text and "operational" in text and "rmse" in text
+    # skin view's live heat map: the patch, its state, rate and completeness, its taxels
+    assert "skin demo (indenter)" in text and "patch 1" in text and "live" in text
+    assert "complete" in text and "max Fz" in text and "rmse" in text
