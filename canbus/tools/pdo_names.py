@@ -29,8 +29,16 @@ import canopen
 import numpy as np
 
 from canbus import codes
+from canbus.mappings import force_fd_entries, patch_fd_entries
 from canbus.od import load_od
-from canbus.pdo_codec import PdoCodec, Reader, TpdoLayout, read_defaults, read_layouts
+from canbus.pdo_codec import (
+    COB_ID_INVALID,
+    PdoCodec,
+    Reader,
+    TpdoLayout,
+    read_defaults,
+    read_layouts,
+)
 from decoder.reasons import reason_name
 from skin.errors import ConfigError
 
@@ -135,6 +143,34 @@ class NodeView:
             layouts += [dataclasses.replace(layout, number=number + 1) for layout in found]
             number += 1
         return layouts
+
+    def adopt_fd(self, mode: str = "xyz") -> bool:
+        """Take canskin's CAN FD mapping (``canbus.mappings``): the node's whole answer or
+        sample in TPDO 1, TPDO 2..7 invalid, as if a master's SDO writes had been seen.
+        False (nothing changed) for a node that is not a canskin patch or force node."""
+        if self.product == FORCES_PRODUCT:
+            entries = force_fd_entries()
+        elif self.product == PATCH_PRODUCT:
+            entries = patch_fd_entries(mode)
+        else:
+            return False
+        read = self._reader()
+        for n in range(1, 7):
+            if TPDO_COMM + n in self.od:
+                self.seen[(TPDO_COMM + n, 1)] = read(TPDO_COMM + n, 1) | COB_ID_INVALID
+        self.seen[(TPDO_MAP, 0)] = len(entries)
+        for sub, entry in enumerate(entries, start=1):
+            self.seen[(TPDO_MAP, sub)] = entry.to_raw()
+        return self._rebuild()
+
+    def fd_frame(self, cob_id: int, length: int) -> bool:
+        """A CAN FD frame of ``length`` bytes came on ``cob_id``: if it is the node's TPDO 1
+        and longer than its mapping, the node was mapped for CAN FD in place (a host's own
+        force node): adopt that mapping. True if the PDO table changed."""
+        entry = self.pdos.get(cob_id)
+        if entry is None or length <= max(entry.layout.size, 8) or entry.layout.number != 1:
+            return False
+        return self.adopt_fd("xyz" if length > 20 else "z")
 
     def decode_pdo(self, cob_id: int, data: bytes) -> list[NamedValue] | None:
         """The named values of PDO ``cob_id``; None if the node has no such PDO or it is short."""

@@ -295,6 +295,10 @@ class PdoSampleReader(can.Listener):
                 if timestamp > self.latest:
                     self.latest = timestamp
                 assembly = self._table.get(cob_id)
+                if assembly is not None and len(data) > 8 and \
+                        self._view(assembly.node_id).fd_frame(cob_id, len(data)):
+                    self._rebuild(assembly.node_id)  # a force node mapped for CAN FD in place
+                    assembly = self._table.get(cob_id)
                 if assembly is not None:
                     self.frames += 1
                     before = assembly.malformed
