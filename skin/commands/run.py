@@ -98,13 +98,14 @@ def _wire(bus: can.BusABC) -> Any:
 
 def _run(args: argparse.Namespace) -> int:
     from canbus.master.hostconfig import load_host_config
+    from skin.commands.configpath import find_config
     from skin.commands.cpu import pinned
     from skin.commands.hostbus import resolve
     from skin.errors import ConfigError
 
     if args.status_every is not None and not args.status_every > 0:
         raise ConfigError("--status-every", f"must be > 0 s, got {args.status_every}")
-    config = resolve(load_host_config(args.config), args)
+    config = resolve(load_host_config(find_config(args.config)), args)
     with pinned(args.cpu):  # before the bus and the host start their threads
         return _run_host(args, config)
 
@@ -183,7 +184,10 @@ def add_subparser(subparsers: Any) -> None:
     from skin.commands.cpu import add_cpu_argument
 
     parser = subparsers.add_parser("run", help="the host manager on a bus (CONFIG.toml)")
-    parser.add_argument("config", metavar="CONFIG", help="host config (see examples/host.toml)")
+    parser.add_argument("config", metavar="CONFIG", nargs="?", default=None,
+                        help="host config (see examples/host.toml); default: the first of "
+                             "$SKIN_HOST_CONFIG, ./host.toml, ~/.config/canskin/host.toml, "
+                             "/etc/canskin/host.toml")
     parser.add_argument("--seconds", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C)")
     parser.add_argument("--listen-only", action="store_true",
