@@ -271,3 +271,39 @@ def test_the_sniffer_and_the_view_read_can_fd_forces(fd_bus: Buses) -> None:
         mine = by_counter[sample.sync_counter]  # the host's own sample of that SYNC
         np.testing.assert_allclose(sample.force_N, np.rint(mine.force_N * 1000) / 1000,
                                    atol=1e-9)
+
+
+def test_bit_errors_on_a_timed_bus_never_mix_a_sample(request: pytest.FixtureRequest) -> None:
+    """The patches' node hits bit errors (retransmitted, as CAN does): every sample the host
+    publishes complete is the decode of one whole answer; the rest are flagged."""
+    from canbus.device.source import ArraySource
+
+    loads = [press({k % 9: (0.1 * k, -0.05 * k, 0.5 + 0.2 * k)}) for k in range(12)]
+    channel = f"timed-{request.node.name}"
+    host_bus = can.Bus(interface="timed", channel=channel)
+    patch_bus = can.Bus(interface="timed", channel=channel, error_probability=0.05,
+                        error_seed=7)
+    net = canopen.Network(patch_bus)
+    net.NOTIFIER_CYCLE = 0.05
+    net.connect()
+    server = PatchServer(net, ArraySource(np.stack(loads)[:, None], (1,)))
+    server.start()
+    frames: list[ForceFrame] = []
+    try:
+        host = HostManager(host_bus, HostConfig(patches=(PatchConfig(1),), scan_ms=100,
+                                                sync_period_ms=20.0))
+        host.on_forces(frames.append)
+        with host:
+            eventually(lambda: len(frames) >= 40, "forty cycles")
+        wire = host_bus.wire_stats()
+    finally:
+        server.stop()
+        net.disconnect()
+        host_bus.shutdown()
+        patch_bus.shutdown()
+    assert wire.error_frames > 0 and wire.retransmissions > 0  # the errors happened
+    answers = [expected(load)[0] for load in loads]
+    complete = [f for f in frames if f.complete]
+    assert len(complete) > len(frames) // 2
+    for frame in complete:
+        assert any(np.allclose(frame.force_N, a, rtol=1e-12, atol=1e-12) for a in answers)
