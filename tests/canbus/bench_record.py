@@ -107,7 +107,7 @@ def bench_udp(args: argparse.Namespace, folder: Path) -> dict[str, object]:
     drain = threading.Thread(target=_drain, args=(master,), daemon=True)
     drain.start()
     deadline = time.monotonic() + 30
-    while not any(p.name.startswith(f".{out.name}.") for p in folder.iterdir()):
+    while not out.exists():
         if time.monotonic() > deadline or sniff.poll() is not None:
             raise SystemExit("skin sniff did not start")
         time.sleep(0.05)

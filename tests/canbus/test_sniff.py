@@ -215,7 +215,9 @@ def test_sniff_summary_and_json(capture: Capture) -> None:
         "missed_sync": 0, "incomplete_samples": 0, "complete_samples": 2 * (SYNCS - 1),
         "heartbeat_gaps": 0, "unknown_frames": 0, "unknown_cob_ids": [], "error_frames": 0}
     assert record["recording"] == {"path": str(capture.folder / "live.pcap"),
-                                   "frames": len(capture.sent)}
+                                   "frames": len(capture.sent),
+                                   "files": [str(capture.folder / "live.pcap")]}
+    assert record["stopped_by"] == "SIGINT"
     assert f"recorded {len(capture.sent)} frames to" in capture.summary
     assert "anomalies: missed SYNC 0, incomplete samples 0 of 10" in capture.summary
 
