@@ -25,7 +25,7 @@ from skin.commands.signals import stop_signal_name, stop_signals_interrupt
 from skin.errors import SkinError
 
 SUBCOMMANDS = (
-    "sim", "model", "train", "bench", "plan", "eds", "run", "demo", "sniff", "replay",
+    "sim", "model", "train", "eval", "bench", "plan", "eds", "run", "demo", "sniff", "replay",
 )
 
 
