@@ -232,6 +232,10 @@ class _Segment:
         """The bytes of the file, as written so far plus what the next write adds."""
         raise NotImplementedError
 
+    def buffered(self) -> int:
+        """The bytes the writer holds in memory for the next write."""
+        raise NotImplementedError
+
     def checkpoint(self) -> None:
         raise NotImplementedError
 
@@ -264,6 +268,9 @@ class _StreamSegment(_Segment):
 
     def size(self) -> int:
         return self._end + self._memory.tell() + len(self._footer)
+
+    def buffered(self) -> int:
+        return self._memory.tell()
 
     def _take(self) -> bytes:
         data = self._memory.getvalue()
@@ -312,6 +319,9 @@ class _BlfSegment(_Segment):
 
     def size(self) -> int:
         return int(self._writer.file.tell())
+
+    def buffered(self) -> int:
+        return self._writer._buffer_size  # uncompressed objects not yet in a container
 
     def checkpoint(self) -> None:
         self._writer.checkpoint()
@@ -404,7 +414,7 @@ class Recorder(can.Listener):
                 if self.rotate_s is not None and now - self._segment.opened >= self.rotate_s:
                     self._rotate()
                     flushed = now
-                elif now - flushed >= FLUSH_S or self._segment.size() >= _FLUSH_BYTES:
+                elif now - flushed >= FLUSH_S or self._segment.buffered() >= _FLUSH_BYTES:
                     self._segment.checkpoint()
                     flushed = now
                 if stopping:
