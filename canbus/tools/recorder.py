@@ -30,6 +30,7 @@ goes on in ``run.001.log``, ``run.002.log``, ... (:func:`rotated_path`).
 
 from __future__ import annotations
 
+import abc
 import contextlib
 import functools
 import io
@@ -217,7 +218,7 @@ class LiveBLFWriter(can.BLFWriter):
         self.file.seek(end)
 
 
-class _Segment:
+class _Segment(abc.ABC):
     """One file of a recording and its writer; complete on disk after each checkpoint()."""
 
     def __init__(self, path: Path) -> None:
@@ -225,23 +226,25 @@ class _Segment:
         self.frames = 0
         self.opened = time.monotonic()
 
+    @abc.abstractmethod
     def writer(self) -> can.Listener:
-        raise NotImplementedError
+        """The python-can writer that takes the frames."""
 
+    @abc.abstractmethod
     def size(self) -> int:
         """The bytes of the file, as written so far plus what the next write adds."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def buffered(self) -> int:
         """The bytes the writer holds in memory for the next write."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def checkpoint(self) -> None:
-        raise NotImplementedError
+        """Write what the writer holds: the file is then complete up to the last frame."""
 
+    @abc.abstractmethod
     def close(self) -> None:
         """The writer's end (footer, header), everything written, synced and closed."""
-        raise NotImplementedError
 
 
 class _StreamSegment(_Segment):
