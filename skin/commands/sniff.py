@@ -70,7 +70,7 @@ def _sniff(args: argparse.Namespace) -> int:
                           "--record FILE too")
     if args.channel_name is not None:
         check_channel_name(args.channel_name)
-    for name in ("seconds", "refresh", "rotate_size", "rotate_seconds"):
+    for name in ("seconds", "refresh", "rotate_seconds"):
         value = getattr(args, name)
         if value is not None and not value > 0:
             raise ConfigError(f"--{name.replace('_', '-')}", f"must be positive, got {value}")
