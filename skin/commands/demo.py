@@ -165,6 +165,7 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     from canbus.master.hostconfig import HostConfig, PatchConfig, predefined_tpdo_cob_ids
     from sim import Simulator
     from skin.commands.demo_rig import BusClock, Record, Replay
+    from skin.commands.signals import until_stopped
     from skin.errors import BusError, ConfigError
 
     scene = _scene(args.scene, args.patches)
@@ -227,7 +228,8 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
                 for bus in opened:
                     bus.wire_start = _wire(bus.host_bus)
                 started = time.monotonic()
-                _watch(host, live, args.seconds, scene)
+                with until_stopped():  # Ctrl-C, SIGTERM, SIGHUP: the summary all the same
+                    _watch(host, live, args.seconds, scene)
                 for bus in opened:
                     bus.wire_end = _wire(bus.host_bus)
             seconds = time.monotonic() - started

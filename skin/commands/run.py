@@ -16,11 +16,14 @@ the host on CPU 3 (see ``skin.commands.cpu``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import gc
 import json
+import logging
 import threading
 import time
+from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -117,6 +120,7 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     from canbus.tools.recorder import enlarge_receive_buffer
     from skin.atomic import atomic_write
     from skin.commands.hostbus import describe, open_all
+    from skin.commands.signals import until_stopped
 
     started = time.monotonic()
     with ExitStack() as stack:
@@ -129,21 +133,24 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
         gc.collect()  # the object dictionaries are long-lived: keep the collector off them
         gc.freeze()
         stack.callback(gc.unfreeze)
+        stack.enter_context(_host_events_shown())
         n = len(config.patches)
         patches = f"{n} patch{'es' if n > 1 else ''} on {describe(config)}"
-        if host.listen_only:
-            print(f"host (listen-only): {patches}, following the SYNCs on the bus, "
-                  "decoding; nothing is sent; Ctrl-C stops", flush=True)
-        else:
-            forces = ", ".join(f"{p.node_id}->{p.force_node}" for p in config.patches)
-            print(f"host: {patches}, SYNC every {config.sync_period_ms:g} ms, forces "
-                  f"published as nodes {forces}; Ctrl-C stops", flush=True)
-        with host:
-            _hint_if_nobody_answered(host, config)
-            try:
+        # A stop (Ctrl-C, SIGTERM, SIGHUP) from the line that says how to stop on ends the
+        # run as --seconds does: the summary and --json follow.
+        with until_stopped() as stopped:
+            if host.listen_only:
+                print(f"host (listen-only): {patches}, following the SYNCs on the bus, "
+                      "decoding; nothing is sent; Ctrl-C stops", flush=True)
+            else:
+                forces = ", ".join(f"{p.node_id}->{p.force_node}" for p in config.patches)
+                print(f"host: {patches}, SYNC {sync_text(config)}, forces published as "
+                      f"nodes {forces}; Ctrl-C stops", flush=True)
+            with host:
+                _hint_if_nobody_answered(host, config)
                 _follow(host, args.seconds, args.status_every)
-            except KeyboardInterrupt:
-                print("stopping", flush=True)
+        if stopped.signal is not None:
+            print(f"stopped by {stopped.signal}", flush=True)
         stats = host.stats()
         health = host.health()
         buses_stats = host.bus_stats()
@@ -156,13 +163,34 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     if args.json:
         record: dict[str, Any] = {
             "config": config.source, "listen_only": host.listen_only,
-            "seconds": round(elapsed, 3), "stats": stats, "buses": buses_stats,
+            "seconds": round(elapsed, 3), "stopped_by": stopped.signal, "stats": stats,
+            "buses": buses_stats,
             "patches": {str(n): dataclasses.asdict(h) for n, h in health.items()},
             "unknown_nodes": sorted(host.unknown_nodes),
         }
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
     return 0
+
+
+def sync_text(config: HostConfig) -> str:
+    if config.sync == "external":
+        return "from another master (sync = external)"
+    return f"every {config.sync_period_ms:g} ms"
+
+
+@contextlib.contextmanager
+def _host_events_shown() -> Iterator[None]:
+    """The host's own log lines (state changes, lost patches, EMCYs, invalid taxels) at
+    INFO, shown whenever the command's own progress lines are (the default)."""
+    host = logging.getLogger("canbus.master")
+    before = host.level
+    if logging.getLogger("skin.commands").getEffectiveLevel() <= logging.INFO:
+        host.setLevel(min(logging.INFO, host.getEffectiveLevel()))
+    try:
+        yield
+    finally:
+        host.setLevel(before)
 
 
 def _hint_if_nobody_answered(host: HostManager, config: HostConfig) -> None:

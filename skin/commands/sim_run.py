@@ -1,4 +1,8 @@
-"""``skin sim run SCENE``: the scene's patches as CANopen nodes on a bus until stopped."""
+"""``skin sim run SCENE``: the scene's patches as CANopen nodes on a bus until stopped.
+
+Ctrl-C, SIGTERM or SIGHUP (or ``--seconds``) ends it normally: the summary, ``--json``,
+exit status 0.
+"""
 
 from __future__ import annotations
 
@@ -21,6 +25,7 @@ def _run(args: argparse.Namespace) -> int:
     from sim import Simulator, load_scene
     from skin.atomic import atomic_write
     from skin.commands.busargs import default_channel
+    from skin.commands.signals import until_stopped
 
     scene = load_scene(args.scene)
     default_channel(args)
@@ -33,7 +38,8 @@ def _run(args: argparse.Namespace) -> int:
     started, cpu0 = time.monotonic(), os.times()
     stop = threading.Event()
     try:
-        with PatchServer(network, source, event_rate_hz=scene.rate_hz) as server:
+        with PatchServer(network, source, event_rate_hz=scene.rate_hz) as server, \
+                until_stopped() as stopped:  # from the line that tells how to stop it
             ids = ", ".join(str(n) for n in source.node_ids)
             print(f"scene {scene.name}: nodes {ids} ({server.nodes[0].mode}) on "
                   f"{args.interface}:{args.channel}; Ctrl-C stops", flush=True)
@@ -46,7 +52,8 @@ def _run(args: argparse.Namespace) -> int:
           f"{elapsed:.1f} s, CPU {100 * cpu:.1f} %")
     if args.json:
         record = {"scene": scene.name, "seconds": elapsed, "syncs": server.sync_count,
-                  "frames": server.frames_sent, "cpu_share": cpu}
+                  "frames": server.frames_sent, "cpu_share": cpu,
+                  "stopped_by": stopped.signal}
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
     return 0
