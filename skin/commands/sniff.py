@@ -227,17 +227,10 @@ def _size(text: str) -> int:
     return int(match[1]) << 10 * " KMG".index(match[2].upper() or " ")
 
 
-def _node_id(text: str) -> int:
-    value = int(text, 0)
-    if not 1 <= value <= 127:
-        raise argparse.ArgumentTypeError(f"node-ID must be in 1..127, got {text}")
-    return value
-
-
 def add_subparser(subparsers: Any) -> None:
     import can.cli
 
-    from skin.commands.busargs import add_rcvbuf_argument
+    from skin.commands.busargs import add_rcvbuf_argument, node_id
 
     parser = subparsers.add_parser(
         "sniff", help="live, EDS-aware bus view; --record to .log/.asc/.blf/.pcap",
@@ -246,7 +239,7 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--eds", action="append", default=[], metavar="NODE=FILE",
                         help="decode node NODE (or FIRST-LAST) with FILE (a path or a shipped "
                              "EDS name); default: 1..64 skin-patch, 65..127 skin-forces")
-    parser.add_argument("--node", action="append", type=_node_id, default=[], metavar="N",
+    parser.add_argument("--node", action="append", type=node_id, default=[], metavar="N",
                         help="show only node N (repeatable); statistics still see every frame")
     parser.add_argument("--service", action="append", choices=SERVICES, default=[],
                         help="show only this service (repeatable)")
