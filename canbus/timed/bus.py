@@ -9,6 +9,8 @@ node with its own FIFO transmit queue. See docs/timedbus.md.
 
 from __future__ import annotations
 
+import queue
+import time
 from typing import Any
 
 import can
@@ -130,7 +132,8 @@ class TimedBus(can.BusABC):
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         """Queue ``msg`` for the wire (FIFO); wait up to ``timeout`` s for room in the queue."""
-        self._check_open()
+        if self._is_shutdown:
+            raise TimedBusError("Cannot operate on a closed bus")
         self._wire.submit(self._node, self._pending(msg), timeout)
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
@@ -140,12 +143,29 @@ class TimedBus(can.BusABC):
         real time while it waits for another thread to send.
         """
         if self._wire.realtime:
-            return super().recv(timeout)
+            return self._recv_realtime(timeout)
         self._check_open()
         msg = self._wire.receive(self._node, timeout, self._matches_filters)
         if msg is None:
             self._check_open()  # a bus shut down while its reader waited says so
         return msg
+
+    def _recv_realtime(self, timeout: float | None) -> can.Message | None:
+        """``BusABC.recv`` without its per-frame logging and double calls: the frames are
+        in the node's queue already (the wire's thread puts them there at their end)."""
+        rx, deadline = self._node.rx, None if timeout is None else time.monotonic() + timeout
+        while True:
+            self._check_open()
+            try:
+                if deadline is None:
+                    msg = rx.get()
+                else:
+                    remaining = deadline - time.monotonic()
+                    msg = rx.get(timeout=remaining) if remaining > 0 else rx.get_nowait()
+            except queue.Empty:
+                return None
+            if msg is not None and (self._filters is None or self._matches_filters(msg)):
+                return msg
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         self._check_open()
@@ -230,6 +250,16 @@ class TimedBus(can.BusABC):
             raise TimedBusError("Cannot operate on a closed bus")
 
     def _pending(self, msg: can.Message) -> Pending:
+        can_id, dlc = msg.arbitration_id, msg.dlc
+        if not (msg.is_extended_id or msg.is_remote_frame or msg.is_fd or msg.is_error_frame):
+            data = bytes(msg.data or b"")  # the frame sent most: a base-format classic data frame
+            if 0 <= can_id <= 0x7FF and len(data) <= 8:
+                return Pending(message.copy(msg, data, self.channel_id, 0.0, True, dlc),
+                               can_id, 0, len(data), data, can_id << 21)
+        return self._checked(msg)
+
+    def _checked(self, msg: can.Message) -> Pending:
+        """Any other frame, checked (the error names what is wrong)."""
         if msg.is_error_frame:
             raise TimedBusError("a controller cannot send an error frame")
         if msg.is_fd and not self._fd:
@@ -244,7 +274,7 @@ class TimedBus(can.BusABC):
         try:
             if msg.is_fd:
                 data += bytes(framebits.FD_LENGTHS[framebits.fd_dlc(len(data))] - len(data))
-            framebits.bits_for(msg.arbitration_id, flags, dlc, data)  # validates the frame
+            framebits.check(msg.arbitration_id, len(data), flags, dlc)
         except ValueError as err:
             raise TimedBusError(f"cannot send frame 0x{msg.arbitration_id:X}: {err}") from err
         key = framebits.arbitration_key(msg.arbitration_id, extended=msg.is_extended_id,

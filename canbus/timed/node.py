@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import can
 
+from canbus.framebits import FrameBits
 from canbus.timed.faults import BUS_OFF_ABOVE, PASSIVE_ABOVE, BitErrors
 from canbus.timed.stats import NodeStats
 
@@ -28,6 +29,8 @@ class Pending:
     """Arbitration key: the smallest wins."""
     submitted: float = 0.0
     attempts: int = 0
+    bits: FrameBits | None = None
+    """Its bits, counted when it first goes on the wire."""
 
 
 @dataclass(eq=False)
@@ -46,6 +49,8 @@ class Node:
     errors: BitErrors
     room: threading.Condition
     """Notified when the transmit queue shrinks (shares the wire's lock)."""
+    room_waiters: int = 0
+    """Senders waiting on :attr:`room` (none: no notification needed)."""
     tx: deque[Pending] = field(default_factory=deque)
     rx: queue.SimpleQueue[can.Message | None] = field(default_factory=queue.SimpleQueue)
     open: bool = True
@@ -77,13 +82,6 @@ class Node:
     def understands(self, fd: bool) -> bool:
         """Receives (and acknowledges) a frame of this kind: open, not bus off, FD if needed."""
         return self.open and not self.bus_off and (self.fd or not fd)
-
-    def sent_ok(self) -> None:
-        self.sent += 1
-        self.tec = max(0, self.tec - 1)
-
-    def received_ok(self) -> None:
-        self.rec = PASSIVE_ABOVE if self.rec > PASSIVE_ABOVE else max(0, self.rec - 1)
 
     def transmit_error(self, *, ack_error: bool, at: float) -> None:
         """Error frame on its frame; bus off past TEC 255, recovery counted from ``at``."""

@@ -35,11 +35,12 @@ from dataclasses import dataclass
 
 import can
 
-from canbus.framebits import F_ESI, F_FD, IFS_BITS, FrameBits, bits_for
+from canbus.framebits import F_ESI, F_FD, IFS_BITS, FrameBits, bits_unchecked
 from canbus.timed import message
 from canbus.timed.errors import TimedBusError
 from canbus.timed.faults import (
     ERROR_FRAME_BITS,
+    PASSIVE_ABOVE,
     RECOVERY_RUN_BITS,
     RECOVERY_SEQUENCES,
     SUSPEND_BITS,
@@ -106,6 +107,11 @@ class Wire:
         self.ifs_s = IFS_BITS / bitrate
         self.lock = threading.Lock()
         self.wake = threading.Condition(self.lock)
+        """Simulated time: readers waiting for another thread to send."""
+        self._alarm = threading.Lock()
+        """Real time: the wire's thread sleeps on it (held unless :meth:`_rouse` releases it)."""
+        self._alarm.acquire()
+        self._sleeping = False
         self.nodes: list[Node] = []
         self._next_index = 0
         self.started = time.time()
@@ -147,7 +153,7 @@ class Wire:
                 self.thread = threading.Thread(target=self._serve, daemon=True,
                                                name=f"timed wire {self.channel}")
                 self.thread.start()
-            self.wake.notify_all()
+            self._signal()
         return node
 
     def remove_node(self, node: Node) -> bool:
@@ -166,7 +172,7 @@ class Wire:
             if self.nodes:
                 return False
             self.closed = True
-            self.wake.notify_all()
+            self._signal()
             return True
 
     def join_thread(self) -> None:
@@ -182,7 +188,7 @@ class Wire:
                 node.acknowledge = acknowledge
             if error_probability is not None:
                 node.errors.probability = error_probability
-            self.wake.notify_all()
+            self._signal()
 
     # ---------------------------------------------------------------- traffic
 
@@ -195,8 +201,10 @@ class Wire:
             now = self._event()
             pending.submitted = now
             node.tx.append(pending)
-            if self.flight is None or not self.realtime:
+            if not self.realtime:
                 self.wake.notify_all()
+            elif self.flight is None:  # else the thread wakes at the flight's end anyway
+                self._rouse()
 
     def _wait_room(self, node: Node, timeout: float | None) -> None:
         deadline = None if timeout is None else time.monotonic() + timeout
@@ -209,7 +217,11 @@ class Wire:
             if remaining is not None and remaining <= 0:
                 raise TimedBusError(f"transmit queue full ({node.tx_limit} frames) for "
                                     f"{timeout} s on timed channel {self.channel}")
-            node.room.wait(remaining)
+            node.room_waiters += 1
+            try:
+                node.room.wait(remaining)
+            finally:
+                node.room_waiters -= 1
             if not node.open:
                 raise TimedBusError("Cannot operate on a closed bus")
 
@@ -283,11 +295,41 @@ class Wire:
 
     def _event(self) -> float:
         """Something outside the wire happens now: settle a stuck retry loop. Lock held."""
-        now = self._clock()
+        now = time.time() - self.started if self.realtime else self.sim_now
         if self.stuck is not None:
             self._unstick(now)
-            self.wake.notify_all()
+            self._signal()
         return now
+
+    def _signal(self) -> None:
+        """Let whoever waits on the wire look again: its thread, or simulated-time readers."""
+        if self.realtime:
+            self._rouse()
+        else:
+            self.wake.notify_all()
+
+    def _rouse(self) -> None:
+        """Wake the wire's thread if it sleeps (lock held)."""
+        if self._sleeping:
+            self._sleeping = False
+            self._alarm.release()
+
+    def _sleep(self, timeout: float | None) -> None:
+        """The wire's thread sleeps up to ``timeout`` s (None: no limit) or until roused.
+
+        A bare lock rather than a Condition: a Condition's wait allocates a lock and a list
+        entry each time, which doubled the CPU of a wake-up. Lock held on entry and on exit.
+        """
+        self._sleeping = True
+        self.lock.release()
+        try:
+            roused = self._alarm.acquire(True, -1 if timeout is None else timeout)
+        finally:
+            self.lock.acquire()
+        if self._sleeping:
+            self._sleeping = False  # timed out
+        elif not roused:
+            self._alarm.acquire()  # roused just after timing out: take the permit back
 
     def _serve(self) -> None:
         """The real-time thread: sleep to the next event, carry out all that fell due.
@@ -297,42 +339,49 @@ class Wire:
         own end; a frame after an idle spell is delivered at its end.
         """
         last = -math.inf
+        started, clock, resolution = self.started, time.time, self.resolution_s
         with self.lock:
             while not self.closed:
-                self._process(self._clock())
-                wake_at = self._next_time()
+                wake_at = self._process(clock() - started)
                 if wake_at is None:
-                    self.wake.wait()
+                    self._sleep(None)
                     continue
-                timeout = max(wake_at, last + self.resolution_s) - self._clock()
+                timeout = max(wake_at, last + resolution) - (clock() - started)
                 if timeout > 0:
-                    self.wake.wait(timeout)
-                last = self._clock()
+                    self._sleep(timeout)
+                last = clock() - started
 
-    def _process(self, until: float, stop: Callable[[], bool] | None = None) -> None:
-        """Carry out every event up to ``until`` (or until ``stop()``). Lock held."""
+    def _process(self, until: float, stop: Callable[[], bool] | None = None) -> float | None:
+        """Carry out every event up to ``until`` (or until ``stop()``). Lock held.
+
+        Returns when the next event falls due: None if the wire waits for the outside (or
+        ``stop()`` ended the run: then see :meth:`_next_time`).
+        """
         while True:
             flight = self.flight
             if flight is not None:
                 if flight.done > until:
-                    return
+                    return flight.done
                 self._land(flight)
                 if stop is not None and stop():
-                    return
+                    return None
                 continue
             if self.stuck is not None:
-                return
+                return None
             recovery, node = self._next_recovery() if self.off else (math.inf, None)
             decision = self._arbitration()
             if decision is not None and decision[0] < recovery:
                 cutoff, start, winner, pending = decision
                 if cutoff > until:
-                    return
-                self._tick(cutoff)
+                    return cutoff
+                if not self.realtime and cutoff > self.sim_now:
+                    self.sim_now = cutoff
                 self._launch(start, winner, pending)
                 continue
-            if node is None or recovery > until:
-                return
+            if node is None:
+                return None
+            if recovery > until:
+                return recovery
             self._tick(recovery)
             self._recover(node, recovery)
 
@@ -363,18 +412,21 @@ class Wire:
                     earliest = ready
         if earliest == math.inf:
             return None
-        cutoff = max(self.free_at - self.ifs_s, earliest)
-        best: tuple[int, float, int] | None = None
+        free = self.free_at
+        cutoff = free - self.ifs_s
+        if earliest > cutoff:
+            cutoff = earliest
+        best: Pending | None = None
         winner: Node | None = None
         for node in self.nodes:
             if node.tx and not node.bus_off:
                 pending = node.tx[0]
-                if pending.submitted <= cutoff and node.not_before <= cutoff:
-                    rank = (pending.key, pending.submitted, node.index)
-                    if best is None or rank < best:
-                        best, winner = rank, node
-        assert winner is not None
-        return cutoff, max(self.free_at, earliest), winner, winner.tx[0]
+                if pending.submitted <= cutoff and node.not_before <= cutoff and (
+                        best is None or pending.key < best.key or (
+                            pending.key == best.key and pending.submitted < best.submitted)):
+                    best, winner = pending, node  # nodes in index order: ties go to the first
+        assert winner is not None and best is not None
+        return cutoff, free if free > earliest else earliest, winner, best
 
     def _next_recovery(self) -> tuple[float, Node | None]:
         """When the first bus-off node recovers if the wire stays idle."""
@@ -402,20 +454,27 @@ class Wire:
                     other.counted_until = start
                     if other.recovery >= RECOVERY_SEQUENCES:
                         self._recover(other, start)
-        flags = pending.flags | (F_ESI if node.passive and pending.flags & F_FD else 0)
-        bits = bits_for(pending.can_id, flags, pending.dlc, pending.data)
+        flags = pending.flags
+        if flags & F_FD and (node.tec > PASSIVE_ABOVE or node.rec > PASSIVE_ABOVE):
+            flags |= F_ESI  # an error-passive node's FD frames carry ESI recessive
+        bits = pending.bits
+        if bits is None or flags != pending.flags:
+            bits = bits_unchecked(pending.can_id, flags, pending.dlc, pending.data)
+            if flags == pending.flags:
+                pending.bits = bits  # for its retransmissions
         if pending.attempts:
             self.retransmissions += 1
-        fd = bool(flags & F_FD)
+        fd = flags & F_FD
         acked = False
         for other in self.nodes:
             if (other.acknowledge and other is not node and other.open and not other.bus_off
                     and (other.fd or not fd)):
                 acked = True
                 break
-        if node.errors.hit():
+        errors = node.errors
+        if errors.probability > 0.0 and errors.hit():
             outcome = BIT_ERROR
-            held = node.errors.error_time_s(bits, self.bit_s, self.data_bit_s) + (
+            held = errors.error_time_s(bits, self.bit_s, self.data_bit_s) + (
                 ERROR_FRAME_BITS * self.bit_s)
         elif not acked:
             outcome = ACK_ERROR
@@ -423,54 +482,69 @@ class Wire:
                 ERROR_FRAME_BITS * self.bit_s)
         else:
             outcome = OK
-            held = bits.duration_s(self.bitrate, self.data_bitrate) - self.ifs_s
+            nominal, data = bits[0], bits[1]
+            held = (nominal / self.bitrate if not data else
+                    bits.duration_s(self.bitrate, self.data_bitrate)) - self.ifs_s
         self.flight = _Flight(node, pending, start, start + held, start + held + self.ifs_s,
                               bits, flags, outcome)
 
     def _land(self, flight: _Flight) -> None:
         self.flight = None
         node, pending = flight.node, flight.pending
-        self.free_at = flight.end
-        self.busy_s += flight.end - flight.start
-        self.window.add(flight.start, flight.end, flight.done if flight.outcome == OK else None)
-        self._tick(flight.done)
-        fd = bool(flight.flags & F_FD)
+        end = self.free_at = flight.end
+        self.busy_s += end - flight.start
+        ok = flight.outcome == OK
+        self.window.add(flight.start, end, flight.done if ok else None)
+        if not self.realtime and flight.done > self.sim_now:
+            self.sim_now = flight.done
         if self.off:
             for other in self.nodes:  # every frame and error frame ends with 11 recessive bits
                 if other.bus_off and other is not node:
                     other.recovery += 1
-                    other.counted_until = flight.end
+                    other.counted_until = end
                     if other.recovery >= RECOVERY_SEQUENCES:
-                        self._recover(other, flight.end)
-        if flight.outcome == OK:
-            if node.tx and node.tx[0] is pending:
-                node.tx.popleft()
-                node.room.notify_all()
-            node.sent_ok()
+                        self._recover(other, end)
+        if ok:
+            tx = node.tx
+            if tx and tx[0] is pending:
+                tx.popleft()
+                if node.room_waiters:
+                    node.room.notify_all()
+            node.sent += 1
+            if node.tec:
+                node.tec -= 1
             self.frames += 1
-            self.nominal_bits += flight.bits.nominal
-            self.data_bits += flight.bits.data
-            self._deliver(node, pending.template, flight, fd)
+            bits = flight.bits
+            self.nominal_bits += bits[0]
+            self.data_bits += bits[1]
+            self._deliver(node, pending.template, flight)
         else:
-            pending.attempts += 1
-            self.error_frames += 1
-            node.transmit_error(ack_error=flight.outcome == ACK_ERROR, at=flight.end)
-            self.off += node.bus_off and node.open  # a node gone since counts no more
-            for other in self.nodes:
-                if other is not node and other.understands(fd):
-                    if flight.outcome == BIT_ERROR:
-                        other.receive_error()
-                    if other.receive_error_frames:
-                        other.rx.put(message.error_frame(self.channel,
-                                                         self.started + flight.done))
-            if node.receive_error_frames and node.open:
-                node.rx.put(message.error_frame(self.channel, self.started + flight.done))
-        if node.passive and not node.bus_off:
-            node.not_before = flight.end + SUSPEND_BITS * self.bit_s
-        if flight.outcome == ACK_ERROR:
-            self._maybe_stuck(flight)
+            self._failed(flight)
+        if node.tec > PASSIVE_ABOVE or node.rec > PASSIVE_ABOVE:
+            if not node.bus_off:
+                node.not_before = end + SUSPEND_BITS * self.bit_s
+            if flight.outcome == ACK_ERROR:
+                self._maybe_stuck(flight)
 
-    def _deliver(self, sender: Node, template: can.Message, flight: _Flight, fd: bool) -> None:
+    def _failed(self, flight: _Flight) -> None:
+        """An attempt that ended in an error frame: counters, error frames to who wants them."""
+        node = flight.node
+        flight.pending.attempts += 1
+        self.error_frames += 1
+        node.transmit_error(ack_error=flight.outcome == ACK_ERROR, at=flight.end)
+        self.off += node.bus_off and node.open  # a node gone since counts no more
+        fd = bool(flight.flags & F_FD)
+        for other in self.nodes:
+            if other is not node and other.understands(fd):
+                if flight.outcome == BIT_ERROR:
+                    other.receive_error()
+                if other.receive_error_frames:
+                    other.rx.put(message.error_frame(self.channel, self.started + flight.done))
+        if node.receive_error_frames and node.open:
+            node.rx.put(message.error_frame(self.channel, self.started + flight.done))
+
+    def _deliver(self, sender: Node, template: can.Message, flight: _Flight) -> None:
+        fd = flight.flags & F_FD
         if flight.flags & F_ESI:
             template.error_state_indicator = True
         stamp = self.started + flight.done
@@ -482,20 +556,20 @@ class Wire:
                 if not node.receive_own:
                     continue
             elif node.rec:
-                node.received_ok()
+                node.rec = PASSIVE_ABOVE if node.rec > PASSIVE_ABOVE else node.rec - 1
             if node.rx_limit and node.rx.qsize() >= node.rx_limit:
                 node.lost_overflow += 1
             else:
                 takers.append(node)
-        last = len(takers) - 1
-        for k, node in enumerate(takers):  # copies first: the last taker gets the template
-            is_rx = node is not sender
-            if k == last:
-                template.timestamp, template.is_rx = stamp, is_rx
-                node.rx.put(template)
-            else:
-                node.rx.put(message.delivered(template, stamp, is_rx))
+        if not takers:
+            return
+        last = takers.pop()  # copies for all but the last taker, which gets the template
+        for node in takers:
+            node.rx.put(message.delivered(template, stamp, node is not sender))
             node.received += 1
+        template.timestamp, template.is_rx = stamp, last is not sender
+        last.rx.put(template)
+        last.received += 1
 
     def _maybe_stuck(self, flight: _Flight) -> None:
         """After an ACK error: enter the retry loop if nothing but outside events can end it."""
