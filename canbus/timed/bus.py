@@ -9,8 +9,6 @@ node with its own FIFO transmit queue. See docs/timedbus.md.
 
 from __future__ import annotations
 
-import queue
-import time
 from typing import Any
 
 import can
@@ -139,33 +137,16 @@ class TimedBus(can.BusABC):
     def recv(self, timeout: float | None = None) -> can.Message | None:
         """The next frame that passes the filters, waiting up to ``timeout`` seconds.
 
-        In simulated time the timeout is simulated time while the wire has frames to carry,
+        In real time a reader waiting here runs the wire (see ``canbus.timed.wire``). In
+        simulated time the timeout is simulated time while the wire has frames to carry,
         real time while it waits for another thread to send.
         """
-        if self._wire.realtime:
-            return self._recv_realtime(timeout)
         self._check_open()
-        msg = self._wire.receive(self._node, timeout, self._matches_filters)
+        msg = self._wire.receive(self._node, timeout,
+                                 None if self._filters is None else self._matches_filters)
         if msg is None:
             self._check_open()  # a bus shut down while its reader waited says so
         return msg
-
-    def _recv_realtime(self, timeout: float | None) -> can.Message | None:
-        """``BusABC.recv`` without its per-frame logging and double calls: the frames are
-        in the node's queue already (the wire's thread puts them there at their end)."""
-        rx, deadline = self._node.rx, None if timeout is None else time.monotonic() + timeout
-        while True:
-            self._check_open()
-            try:
-                if deadline is None:
-                    msg = rx.get()
-                else:
-                    remaining = deadline - time.monotonic()
-                    msg = rx.get(timeout=remaining) if remaining > 0 else rx.get_nowait()
-            except queue.Empty:
-                return None
-            if msg is not None and (self._filters is None or self._matches_filters(msg)):
-                return msg
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         self._check_open()

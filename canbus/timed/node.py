@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import queue
 import threading
 from collections import deque
 from dataclasses import dataclass, field
@@ -12,6 +11,32 @@ import can
 from canbus.framebits import FrameBits
 from canbus.timed.faults import BUS_OFF_ABOVE, PASSIVE_ABOVE, BitErrors
 from canbus.timed.stats import NodeStats
+
+
+class Waiter:
+    """A thread waiting on a wire: a lock of its own, held until someone lets it go."""
+
+    __slots__ = ("alarm", "roused", "timed")
+
+    def __init__(self) -> None:
+        self.alarm = threading.Lock()
+        self.alarm.acquire()
+        self.timed = False
+        """It sleeps until a set time (the end of a frame), not only until woken."""
+        self.roused = False
+        """Someone released its lock (and took it off the node's list)."""
+
+
+_local = threading.local()
+
+
+def waiter() -> Waiter:
+    """The calling thread's waiter (a thread waits for one thing at a time)."""
+    try:
+        me: Waiter = _local.waiter
+    except AttributeError:
+        me = _local.waiter = Waiter()
+    return me
 
 
 @dataclass(eq=False, slots=True)
@@ -52,7 +77,10 @@ class Node:
     room_waiters: int = 0
     """Senders waiting on :attr:`room` (none: no notification needed)."""
     tx: deque[Pending] = field(default_factory=deque)
-    rx: queue.SimpleQueue[can.Message | None] = field(default_factory=queue.SimpleQueue)
+    rx: deque[can.Message] = field(default_factory=deque)
+    """Frames delivered and not yet read (the wire's lock guards it)."""
+    waiters: list[Waiter] = field(default_factory=list)
+    """Readers blocked in ``recv`` on this node."""
     open: bool = True
     tec: int = 0
     rec: int = 0

@@ -1,4 +1,4 @@
-"""The shared wire of a timed channel: arbitration, exact frame times, delivery, its thread.
+"""The shared wire of a timed channel: arbitration, exact frame times, delivery.
 
 Every bus opened on a channel in this process is a node on that channel's :class:`Wire`. A
 node's frames leave in the order it sent them (a FIFO transmit queue, the default of most
@@ -12,22 +12,24 @@ the previous frame)``; it occupies the wire for its exact bits (``canbus.framebi
 receivers get it at the end of its EOF, stamped with that time, and the next frame starts
 after the 3-bit intermission. The arbitration at the end of a frame is among the frames
 submitted before its EOF ended (a frame submitted during the 3 intermission bits waits for
-the next arbitration unless the wire has nothing else to send): so a late wake-up of the
-wire's thread never changes the order or the timestamps.
+the next arbitration unless the wire has nothing else to send): so the order and the
+timestamps depend only on when frames were submitted, never on when the wire is run.
 
-Real time (the default): the clock is ``time.time()``; the wire's thread sleeps until the
-end of the frame on the wire (timed wake-ups at least ``resolution_s`` apart), delivers
-every frame whose end has passed, each stamped with its own end, decides the next
-arbitrations and sleeps again. Simulated time (``realtime=False``): no thread; the clock
-starts at ``time.time()`` and moves only as frames cross the wire (or by
-:meth:`Wire.advance`); the readers drive it: a ``recv`` runs the wire until its node has a
-frame, frames submitted meanwhile are stamped with the simulated time.
+Real time (the default): the clock is ``time.time()``, and whoever waits for the wire runs
+it: a reader blocked in ``recv`` sleeps until the end of the next frame that may reach it
+(wake-ups at least ``resolution_s`` apart), then carries out every event whose time has
+passed (delivering each frame, stamped with its own end, to every receiver, and waking the
+readers it reached) and sleeps again. Every other call (send, statistics) first carries out
+what fell due. No thread of its own: a reader is woken once for the frames it gets, not once
+by a wire thread and again by the hand-over (each wake-up of a thread costs more CPU than
+carrying a frame). Simulated time (``realtime=False``): the clock starts at ``time.time()``
+and moves only as frames cross the wire (or by :meth:`Wire.advance`); a ``recv`` runs the
+wire until its node has a frame, frames submitted meanwhile are stamped with the simulated
+time.
 """
-
 from __future__ import annotations
 
 import math
-import queue
 import threading
 import time
 from collections.abc import Callable, Hashable
@@ -47,7 +49,7 @@ from canbus.timed.faults import (
     BitErrors,
     ack_error_time_s,
 )
-from canbus.timed.node import Node, Pending
+from canbus.timed.node import Node, Pending, Waiter, waiter
 from canbus.timed.stats import LoadWindow, NodeStats, WireStats
 
 OK, BIT_ERROR, ACK_ERROR = 0, 1, 2
@@ -108,10 +110,6 @@ class Wire:
         self.lock = threading.Lock()
         self.wake = threading.Condition(self.lock)
         """Simulated time: readers waiting for another thread to send."""
-        self._alarm = threading.Lock()
-        """Real time: the wire's thread sleeps on it (held unless :meth:`_rouse` releases it)."""
-        self._alarm.acquire()
-        self._sleeping = False
         self.nodes: list[Node] = []
         self._next_index = 0
         self.started = time.time()
@@ -128,8 +126,9 @@ class Wire:
         self.off = 0
         """Nodes that are bus off (their recovery is counted only while there are some)."""
         self.resolution_s = resolution_s
-        self.closed = False
-        self.thread: threading.Thread | None = None
+        self.batch_at = -math.inf
+        """Real time: when a woken reader last ran the wire (the next timed wake-up is at
+        least ``resolution_s`` later)."""
 
     @property
     def data_bit_s(self) -> float:
@@ -149,16 +148,12 @@ class Wire:
             self._next_index += 1
             self._event()
             self.nodes.append(node)
-            if self.realtime and self.thread is None:
-                self.thread = threading.Thread(target=self._serve, daemon=True,
-                                               name=f"timed wire {self.channel}")
-                self.thread.start()
             self._signal()
         return node
 
     def remove_node(self, node: Node) -> bool:
         """The node leaves; its queued frames go (one on the wire finishes). True if it was
-        the last: the wire is then closed and its thread told to end (:meth:`join_thread`)."""
+        the last: the wire is then closed."""
         with self.lock:
             if not node.open:
                 return False
@@ -167,17 +162,10 @@ class Wire:
             node.open = False
             node.tx.clear()
             self.nodes.remove(node)
-            node.rx.put(None)  # wakes a reader blocked in recv
+            self._rouse(node)  # a reader blocked in recv returns (its bus says it is closed)
             node.room.notify_all()
-            if self.nodes:
-                return False
-            self.closed = True
             self._signal()
-            return True
-
-    def join_thread(self) -> None:
-        if self.thread is not None and self.thread is not threading.current_thread():
-            self.thread.join()
+            return not self.nodes
 
     def update(self, node: Node, *, acknowledge: bool | None = None,
                error_probability: float | None = None) -> None:
@@ -203,20 +191,34 @@ class Wire:
             node.tx.append(pending)
             if not self.realtime:
                 self.wake.notify_all()
-            elif self.flight is None:  # else the thread wakes at the flight's end anyway
-                self._rouse()
+                return
+            # Readers it may reach and that wait for nothing in particular must start timing
+            # it; on an idle wire it may also end before what timed readers wait for.
+            idle = self.flight is None
+            for other in self.nodes:
+                if other.waiters and (other is not node or other.receive_own
+                                      or other.receive_error_frames):
+                    self._rouse(other, timed=idle)
 
     def _wait_room(self, node: Node, timeout: float | None) -> None:
+        """Wait for room in the node's transmit queue: running the wire meanwhile."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while len(node.tx) >= node.tx_limit:
-            if not self.realtime:
+            if self.realtime:
+                now = time.time() - self.started
+                next_at = self._process(now)
+                wake_in = None if next_at is None else next_at - now
+            else:
                 self._process(math.inf, lambda: len(node.tx) < node.tx_limit)
-                if len(node.tx) < node.tx_limit:
-                    break
+                wake_in = None
+            if len(node.tx) < node.tx_limit:
+                break
             remaining = None if deadline is None else deadline - time.monotonic()
             if remaining is not None and remaining <= 0:
                 raise TimedBusError(f"transmit queue full ({node.tx_limit} frames) for "
                                     f"{timeout} s on timed channel {self.channel}")
+            if wake_in is not None:
+                remaining = wake_in if remaining is None else min(remaining, wake_in)
             node.room_waiters += 1
             try:
                 node.room.wait(remaining)
@@ -227,30 +229,30 @@ class Wire:
 
     def receive(self, node: Node, timeout: float | None,
                 accept: Callable[[can.Message], bool] | None = None) -> can.Message | None:
-        """The node's next frame, waiting up to ``timeout`` seconds (None: no limit).
+        """The node's next frame ``accept`` takes (others are dropped, as filters do), waiting
+        up to ``timeout`` seconds (None: no limit); None also once the node is closed.
 
-        Simulated time: the wire runs until the node has a frame ``accept`` takes (others are
-        dropped, as filters do) or ``timeout`` of simulated time has passed; if nothing is left
-        to simulate it waits, in real time, for another thread to send.
+        Real time: while none is there the caller runs the wire (:meth:`_receive_realtime`).
+        Simulated time: the wire runs until the node has a frame or ``timeout`` of simulated
+        time has passed; if nothing is left to simulate it waits, in real time, for another
+        thread to send.
         """
         if self.realtime:
-            try:
-                if timeout is not None and timeout <= 0:
-                    return node.rx.get_nowait()
-                return node.rx.get(timeout=timeout)
-            except queue.Empty:
-                return None
+            return self._receive_realtime(node, timeout, accept)
         deadline = None if timeout is None else time.monotonic() + timeout
+        rx = node.rx
         with self.lock:
             horizon = math.inf if timeout is None else self.sim_now + timeout
             while True:
-                while not node.rx.empty():
-                    msg = node.rx.get_nowait()
-                    if msg is None or accept is None or accept(msg):
+                while rx:
+                    msg = rx.popleft()
+                    if accept is None or accept(msg):
                         return msg
-                self._process(horizon, lambda: not node.rx.empty())
+                if not node.open:
+                    return None
+                self._process(horizon, lambda: bool(rx))
                 pending = self._next_time() is not None
-                if not node.rx.empty():
+                if rx:
                     if pending:
                         self.wake.notify_all()  # other readers may be waiting for these
                     continue
@@ -258,9 +260,83 @@ class Wire:
                     self.sim_now = max(self.sim_now, horizon)  # the simulated timeout ran out
                     return None
                 remaining = None if deadline is None else deadline - time.monotonic()
-                if (remaining is not None and remaining <= 0) or not node.open:
+                if remaining is not None and remaining <= 0:
                     return None
                 self.wake.wait(remaining)  # until another thread submits
+
+    def _receive_realtime(self, node: Node, timeout: float | None,
+                          accept: Callable[[can.Message], bool] | None) -> can.Message | None:
+        """Real time: carry out what fell due; while nothing is there for the node, sleep to
+        the next event that may bring something (or until woken) and look again."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        rx = node.rx
+        with self.lock:
+            while True:
+                while rx:
+                    msg = rx.popleft()
+                    if accept is None or accept(msg):
+                        return msg
+                if not node.open:
+                    return None
+                now = time.time() - self.started
+                next_at = self._process(now)
+                if rx:
+                    continue
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    return None
+                timed = next_at is not None and self._may_reach(node)
+                if timed:
+                    assert next_at is not None
+                    wake_in = max(next_at, self.batch_at + self.resolution_s) - now
+                    if remaining is None or wake_in < remaining:
+                        remaining = wake_in
+                self._wait(node, remaining, timed)
+                if timed:  # a frame after an idle spell is still delivered at its end
+                    self.batch_at = time.time() - self.started
+
+    def _may_reach(self, node: Node) -> bool:
+        """Whether something on the wire or queued may still reach the node (else only a new
+        frame can, and its ``submit`` wakes the node's reader)."""
+        own = node.receive_own or node.receive_error_frames
+        flight = self.flight
+        if flight is not None and (flight.node is not node or own):
+            return True
+        return any(other.tx and (other is not node or own) for other in self.nodes)
+
+    def _wait(self, node: Node, timeout: float | None, timed: bool) -> None:
+        """Sleep up to ``timeout`` s (None: no limit) or until :meth:`_rouse`. Lock held on
+        entry and on exit (released meanwhile).
+
+        A bare lock per thread rather than a Condition: a Condition's wait allocates a lock
+        and a list entry each time, which doubled the CPU of a wake-up.
+        """
+        me = waiter()
+        me.timed, me.roused = timed, False
+        node.waiters.append(me)
+        self.lock.release()
+        woken = False
+        try:
+            woken = me.alarm.acquire(True, -1 if timeout is None else max(timeout, 0.0))
+        finally:
+            self.lock.acquire()
+            if not me.roused:
+                node.waiters.remove(me)
+            elif not woken:
+                me.alarm.acquire()  # roused just as it timed out: take the permit back
+
+    @staticmethod
+    def _rouse(node: Node, *, timed: bool = True) -> None:
+        """Wake the node's waiting readers (with ``timed`` False only those that wait for
+        nothing in particular). Lock held."""
+        kept: list[Waiter] = []
+        for sleeper in node.waiters:
+            if sleeper.timed and not timed:
+                kept.append(sleeper)
+            else:
+                sleeper.roused = True
+                sleeper.alarm.release()
+        node.waiters = kept
 
     def advance(self, seconds: float) -> None:
         """Simulated time only: let ``seconds`` pass, carrying every frame due meanwhile."""
@@ -302,54 +378,12 @@ class Wire:
         return now
 
     def _signal(self) -> None:
-        """Let whoever waits on the wire look again: its thread, or simulated-time readers."""
+        """Let everyone who waits on the wire look again (the nodes or the queues changed)."""
         if self.realtime:
-            self._rouse()
+            for node in self.nodes:
+                self._rouse(node)
         else:
             self.wake.notify_all()
-
-    def _rouse(self) -> None:
-        """Wake the wire's thread if it sleeps (lock held)."""
-        if self._sleeping:
-            self._sleeping = False
-            self._alarm.release()
-
-    def _sleep(self, timeout: float | None) -> None:
-        """The wire's thread sleeps up to ``timeout`` s (None: no limit) or until roused.
-
-        A bare lock rather than a Condition: a Condition's wait allocates a lock and a list
-        entry each time, which doubled the CPU of a wake-up. Lock held on entry and on exit.
-        """
-        self._sleeping = True
-        self.lock.release()
-        try:
-            roused = self._alarm.acquire(True, -1 if timeout is None else timeout)
-        finally:
-            self.lock.acquire()
-        if self._sleeping:
-            self._sleeping = False  # timed out
-        elif not roused:
-            self._alarm.acquire()  # roused just after timing out: take the permit back
-
-    def _serve(self) -> None:
-        """The real-time thread: sleep to the next event, carry out all that fell due.
-
-        Timed wake-ups are at least ``resolution_s`` apart (a wake-up costs more CPU than a
-        frame): back-to-back frames are delivered in small batches, each stamped with its
-        own end; a frame after an idle spell is delivered at its end.
-        """
-        last = -math.inf
-        started, clock, resolution = self.started, time.time, self.resolution_s
-        with self.lock:
-            while not self.closed:
-                wake_at = self._process(clock() - started)
-                if wake_at is None:
-                    self._sleep(None)
-                    continue
-                timeout = max(wake_at, last + resolution) - (clock() - started)
-                if timeout > 0:
-                    self._sleep(timeout)
-                last = clock() - started
 
     def _process(self, until: float, stop: Callable[[], bool] | None = None) -> float | None:
         """Carry out every event up to ``until`` (or until ``stop()``). Lock held.
@@ -539,9 +573,15 @@ class Wire:
                 if flight.outcome == BIT_ERROR:
                     other.receive_error()
                 if other.receive_error_frames:
-                    other.rx.put(message.error_frame(self.channel, self.started + flight.done))
+                    self._put(other, message.error_frame(self.channel,
+                                                         self.started + flight.done))
         if node.receive_error_frames and node.open:
-            node.rx.put(message.error_frame(self.channel, self.started + flight.done))
+            self._put(node, message.error_frame(self.channel, self.started + flight.done))
+
+    def _put(self, node: Node, msg: can.Message) -> None:
+        node.rx.append(msg)
+        if node.waiters:
+            self._rouse(node)
 
     def _deliver(self, sender: Node, template: can.Message, flight: _Flight) -> None:
         fd = flight.flags & F_FD
@@ -557,7 +597,7 @@ class Wire:
                     continue
             elif node.rec:
                 node.rec = PASSIVE_ABOVE if node.rec > PASSIVE_ABOVE else node.rec - 1
-            if node.rx_limit and node.rx.qsize() >= node.rx_limit:
+            if node.rx_limit and len(node.rx) >= node.rx_limit:
                 node.lost_overflow += 1
             else:
                 takers.append(node)
@@ -565,11 +605,15 @@ class Wire:
             return
         last = takers.pop()  # copies for all but the last taker, which gets the template
         for node in takers:
-            node.rx.put(message.delivered(template, stamp, node is not sender))
+            node.rx.append(message.delivered(template, stamp, node is not sender))
             node.received += 1
+            if node.waiters:
+                self._rouse(node)
         template.timestamp, template.is_rx = stamp, last is not sender
-        last.rx.put(template)
+        last.rx.append(template)
         last.received += 1
+        if last.waiters:
+            self._rouse(last)
 
     def _maybe_stuck(self, flight: _Flight) -> None:
         """After an ACK error: enter the retry loop if nothing but outside events can end it."""
