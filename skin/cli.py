@@ -17,7 +17,7 @@ from skin.errors import SkinError
 
 SUBCOMMANDS = (
     "sim", "model", "train", "bench", "plan", "eds", "run", "demo", "sniff", "replay", "tare",
-    "decode",
+    "decode", "dataset", "calibrate",
 )
 
 
