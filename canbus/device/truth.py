@@ -38,13 +38,19 @@ if TYPE_CHECKING:
     from sim import Simulator
 
 SYNC_COB_ID = 0x080
+BATCH = 50
 LATE_FRACTION = 0.5
 """An answer sent later than this fraction of the SYNC period after its SYNC gets no truth."""
 
 
 class TruthSource:
     """A simulator as a patch server's source that keeps the true force of the step it
-    served last (``force_N``: (patches, 9, 3), before any effect)."""
+    served last (``force_N``: (patches, 9, 3), before any effect).
+
+    Steps are computed :data:`BATCH` at a time (one vectorised ``run``, about 60x cheaper
+    per step than one ``step`` each) and served one per read: the same steps, since a
+    simulator's ``run(a)`` then ``run(b)`` is ``run(a + b)`` (docs/sim.md), without the
+    cost of a whole step in every SYNC's answer."""
 
     def __init__(self, simulator: Simulator) -> None:
         self.simulator = simulator
@@ -52,12 +58,21 @@ class TruthSource:
         self.pillars = int(simulator.pillars)
         self.force_N: NDArray[np.float64] = np.zeros((len(self.node_ids), 9, 3))
         self.steps = 0
+        self._resistance: NDArray[np.float64] = np.zeros((0, len(self.node_ids), 9, 1))
+        self._force: NDArray[np.float64] = np.zeros((0, len(self.node_ids), 9, 3))
+        self._next = 0
 
     def read(self) -> NDArray[np.float64]:
-        frame = self.simulator.step()
-        self.force_N = np.asarray(frame.force_N[0], dtype=np.float64)
+        if self._next == len(self._force):
+            frame = self.simulator.run(BATCH)
+            self._resistance = np.asarray(frame.resistance_ohm, dtype=np.float64)
+            self._force = np.asarray(frame.force_N, dtype=np.float64)
+            self._next = 0
+        k, self._next = self._next, self._next + 1
+        self.force_N = self._force[k]
         self.steps += 1
-        return np.asarray(frame.resistance_ohm[0], dtype=np.float64)
+        sample: NDArray[np.float64] = self._resistance[k]
+        return sample
 
 
 class TruthLog:
