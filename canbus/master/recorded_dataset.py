@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from canbus.master.recorded import PatchSamples, RecordedSamples, read_patch_samples
 from canbus.tools.join import Join, Series, default_tolerance_s, join
@@ -42,6 +43,7 @@ class JoinChoice:
 @dataclass(frozen=True)
 class RecordedDataset:
     dataset: Dataset
+    cycles: NDArray[np.int64]  # (rows,) the listen-only host's SYNC cycle of each row
     report: dict[str, Any]  # counts per patch, the join, the mapping (JSON-able)
     recorded: RecordedSamples
     reference: ReferenceSamples
@@ -106,7 +108,8 @@ def dataset_from_recording(recording: str | os.PathLike[str],
             "recording": os.fspath(recording), "reference": os.fspath(reference),
             "node_ids": list(nodes), "join": report["join"], "mapping": report["mapping"],
             "samples": report["samples"]}
-    return RecordedDataset(Dataset(r, f, meta), report, recorded, ref)
+    cycles = recorded.patches[nodes[0]].cycle[rows[nodes[0]]]
+    return RecordedDataset(Dataset(r, f, meta), cycles, report, recorded, ref)
 
 
 def _nothing(by: str, period_s: float, tolerance_s: float | None,
