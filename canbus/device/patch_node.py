@@ -10,12 +10,14 @@ drives many nodes from one source on one bus.
 
 from __future__ import annotations
 
+import math
 import threading
 import weakref
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+from canopen.sdo.exceptions import SdoAbortedError
 from numpy.typing import ArrayLike, NDArray
 
 from canbus import codes
@@ -28,6 +30,7 @@ from skin.errors import ConfigError
 
 RESISTANCES, LSB, NOMINAL, CONSTANTS, STATUS = 0x2000, 0x2001, 0x2002, 0x2003, 0x2004
 ANSWERED = 0x2006
+INVALID_VALUE, ABOVE_LIMIT, BELOW_LIMIT = 0x0609_0030, 0x0609_0031, 0x0609_0032
 """The counter byte of the SYNC the TPDOs answer (0: none): mapped into a CAN FD answer, it
 tells the master which cycle the answer belongs to."""
 _CONSTANT_FIELDS = ("youngs_modulus_pa", "resistivity_ohm_m", "length_m", "area_m2",
@@ -59,6 +62,20 @@ class PatchNode(LocalDevice):
         self.faults = FaultReporter()
         self.answered = 0  # 0x2006
         super().__init__(node_id, "skin-patch")
+        self.store.validators.append(self._check_rest)
+
+    def _check_rest(self, index: int, subindex: int, value: Any) -> None:
+        """A master may write the patch's rest resistances (0x2002, a calibration's tare):
+        each must be a finite resistance the ADC can read."""
+        if index != NOMINAL or not subindex:
+            return
+        ohm = float(value)
+        if not math.isfinite(ohm):
+            raise SdoAbortedError(INVALID_VALUE)
+        if ohm <= 0.0:
+            raise SdoAbortedError(BELOW_LIMIT)
+        if ohm >= codes.SATURATED * float(self.store.value(LSB)):
+            raise SdoAbortedError(ABOVE_LIMIT)
 
     def update(self, resistance_ohm: ArrayLike) -> None:
         """Take the patch's resistances, shape ``(9, P)``: codes, taxel status, EMCY."""
