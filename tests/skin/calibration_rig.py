@@ -1,9 +1,9 @@
 """The calibration loop end to end, as a user runs it, in separate processes on udp_multicast.
 
-``python tests/skin/calibration_rig.py [--classic] [--seconds S] [--folder DIR]`` prints the
+``python tests/skin/calibration_rig.py [--fd] [--seconds S] [--folder DIR]`` prints the
 figures of docs/calibrate.md; ``tests/skin/test_calibrate_e2e.py`` asserts them.
 
-1. ``skin run host.toml`` (the host, CAN FD unless ``--classic``) and, for each of two
+1. ``skin run host.toml`` (the host; classic CAN, or CAN FD with ``--fd``) and, for each of two
    runs, ``skin sniff --record runN.log`` and ``skin sim run calibration --truth truthN.csv
    --seed N``, the simulator stopped by SIGTERM (its truth must survive it);
 2. ``skin dataset from-recording run1.log --reference truth1.csv -o d1.npz`` (and d2);
@@ -165,16 +165,16 @@ def loop(folder: Path, *, classic: bool, decoders: list[str] | None = None) -> F
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--classic", action="store_true", help="classic CAN, not CAN FD")
+    parser.add_argument("--fd", action="store_true", help="CAN FD, not classic CAN")
     parser.add_argument("--seconds", type=float, default=4.0, help="seconds per recording")
     parser.add_argument("--folder", help="where to work (default: a temporary folder)")
     args = parser.parse_args()
     folder = Path(args.folder or tempfile.mkdtemp(prefix="calibration-"))
     folder.mkdir(parents=True, exist_ok=True)
     port = 44000 + os.getpid() % 1000
-    record(folder, classic=args.classic, seconds=args.seconds,
+    record(folder, classic=not args.fd, seconds=args.seconds,
            group=f"239.74.{os.getpid() % 250}.77", port=port)
-    f = loop(folder, classic=args.classic)
+    f = loop(folder, classic=not args.fd)
     print(f"\nfolder {folder}")
     for run, d in ((1, f.dataset1), (2, f.dataset2)):
         p = d["patches"]["1"]
