@@ -263,9 +263,9 @@ def _check(args: argparse.Namespace) -> int:
         out = model.decode(normalise(r, rest_ohm, r0))
         e = evaluate(f, out.force_N, out.valid, mode=mode, constants=constants)
         flagged = float(1.0 - out.valid.mean())
-        fits = e.ave_rel_err_floored_pct <= limit and 100 * flagged <= max(
-            1.0, 2 * own.get("flagged_pct", 0.0))
-        return {"floored_pct": e.ave_rel_err_floored_pct, "ave_rel_err_pct": e.ave_rel_err_pct,
+        floored = e.ave_rel_err_floored_pct if e.floored else math.nan  # none compared
+        fits = floored <= limit and 100 * flagged <= max(1.0, 2 * own.get("flagged_pct", 0.0))
+        return {"floored_pct": floored, "ave_rel_err_pct": e.ave_rel_err_pct,
                 "rmse_N": e.rmse_N, "flagged_pct": 100 * flagged, "fits": bool(fits)}
 
     now = figures(rest)
@@ -279,13 +279,13 @@ def _check(args: argparse.Namespace) -> int:
         verdict, code = "does not fit: recalibrate", RECALIBRATE
     own_pct = own["heldout_floored_pct"]
     print(f"{args.check} on patch {node} of {args.dataset} ({r.shape[0]} samples): floored "
-          f"{now['floored_pct']:.3f} % (its own held-out {own_pct:.3f} %, limit "
+          f"{_fmt(now['floored_pct'])} % (its own held-out {own_pct:.3f} %, limit "
           f"{limit:.3f} %), refused {now['flagged_pct']:.2f} %")
     if retared is not None and tare is not None:
         drift = 100.0 * (np.asarray(tare.rest_ohm) / np.asarray(rest) - 1.0)
         print(f"after a tare on its {tare.samples} samples at rest (rest moved "
               f"{np.min(drift):+.3f}..{np.max(drift):+.3f} %): floored "
-              f"{retared['floored_pct']:.3f} %")
+              f"{_fmt(retared['floored_pct'])} %, refused {retared['flagged_pct']:.2f} %")
     print(f"{args.check} {verdict}")
     if args.json:
         write_json(args.json, {"model": args.check, "dataset": args.dataset, "node_id": node,
