@@ -50,12 +50,14 @@ def rest_rows(force_N: ArrayLike, rest_N: float = DEFAULT_REST_N) -> NDArray[np.
 
 def tare_at_rest(resistance_ohm: ArrayLike, force_N: ArrayLike,
                  rest_N: float = DEFAULT_REST_N) -> Tare | None:
-    """The tare of one patch from ``(n, 9, P)`` readings and ``(n, 9, 3)`` reference forces;
-    None with fewer than :data:`MIN_REST_SAMPLES` rest samples."""
+    """The tare of one patch from ``(n, 9, P)`` readings and ``(n, 9, 3)`` reference forces,
+    over the rest samples whose every reading is a finite resistance; None with fewer than
+    :data:`MIN_REST_SAMPLES` of them."""
     if not rest_N >= 0:
         raise DecodeError(f"rest_N must be >= 0 N, got {rest_N!r}")
     r = np.asarray(resistance_ohm, dtype=np.float64)
-    rows = rest_rows(force_N, rest_N)
+    readable = np.all(np.isfinite(r) & (r > 0), axis=(-2, -1))  # no open or shorted pillar
+    rows = rest_rows(force_N, rest_N) & readable
     count = int(rows.sum())
     if count < MIN_REST_SAMPLES:
         return None

@@ -53,7 +53,8 @@ def dataset_from_recording(recording: str | os.PathLike[str],
                            reference: str | os.PathLike[str], *,
                            nodes: tuple[int, ...] | None = None, mapping: str | None = None,
                            how: JoinChoice = JoinChoice(), sync_window_ms: float | None = None,
-                           heartbeat_ms: int | None = None) -> RecordedDataset:
+                           heartbeat_ms: int | None = None,
+                           answer_order: str = "cob-id") -> RecordedDataset:
     """Read, join and count (module docstring); raises ReferenceFileError, RecordingError
     or ConfigError with one line naming the file and row, frame or option."""
     ref = read_reference(reference)
@@ -67,7 +68,8 @@ def dataset_from_recording(recording: str | os.PathLike[str],
             raise ConfigError("--node", f"{ref.source} has no complete sample of patch "
                               f"{absent[0]}")
     recorded = read_patch_samples(recording, nodes, mapping=mapping,
-                                  sync_window_ms=sync_window_ms, heartbeat_ms=heartbeat_ms)
+                                  sync_window_ms=sync_window_ms, heartbeat_ms=heartbeat_ms,
+                                  answer_order=answer_order)
     pillars = {p.mapping.pillars for p in recorded.patches.values()}
     if len(pillars) > 1:
         raise ConfigError("--node", "the patches are read in z and in xyz mode: make one "

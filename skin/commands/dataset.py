@@ -48,7 +48,8 @@ def _from_recording(args: argparse.Namespace) -> int:
         made = dataset_from_recording(args.recording, args.reference, nodes=nodes,
                                       mapping=args.mapping, how=how,
                                       sync_window_ms=args.sync_window_ms,
-                                      heartbeat_ms=args.heartbeat_ms)
+                                      heartbeat_ms=args.heartbeat_ms,
+                                      answer_order=args.answer_order)
     report = made.report
     _print(args, report)
     if args.json:
@@ -112,6 +113,13 @@ def _finite(text: str) -> float:
     return value
 
 
+def _milliseconds(text: str) -> int:
+    value = int(text)
+    if not 1 <= value <= 0xFFFF:
+        raise argparse.ArgumentTypeError(f"must be in 1..65535 ms, got {text}")
+    return value
+
+
 def add_subparser(subparsers: Any) -> None:
     parser = subparsers.add_parser("dataset", help="calibration datasets from bus recordings")
     group = parser.add_subparsers(title="dataset commands", metavar="ACTION", required=True)
@@ -143,7 +151,10 @@ def add_subparser(subparsers: Any) -> None:
     make.add_argument("--sync-window-ms", type=_positive, metavar="MS",
                       help="the SYNC window the recording's master used (default 80 %% of "
                            "the SYNC period, the host's default)")
-    make.add_argument("--heartbeat-ms", type=int, metavar="MS",
+    make.add_argument("--answer-order", choices=("cob-id", "tpdo"), default="cob-id",
+                      help="how the patches order one answer's TPDOs (default cob-id; "
+                           "docs/host.md)")
+    make.add_argument("--heartbeat-ms", type=_milliseconds, metavar="MS",
                       help="the patches' heartbeat period (default: what their master "
                            "wrote, else what they beat at)")
     make.add_argument("--json", metavar="FILE", help="write the counts as JSON")
