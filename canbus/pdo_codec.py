@@ -96,7 +96,7 @@ class PdoCodec:
         variables: dict[tuple[int, int], np.dtype[np.generic]] = {}
         for layout in self.layouts:
             for entry in layout.entries:
-                variables.setdefault((entry.index, entry.subindex), _entry_dtype(entry, od))
+                variables.setdefault((entry.index, entry.subindex), entry_dtype(entry, od))
         self.variables = tuple(variables)
         self.dtypes = tuple(variables.values())  # of each variable, in ``variables`` order
         self.cob_ids = np.array([layout.cob_id for layout in self.layouts], dtype=np.uint32)
@@ -155,7 +155,7 @@ class PdoCodec:
         return out
 
 
-def _entry_dtype(entry: MappedEntry, od: canopen.ObjectDictionary) -> np.dtype[np.generic]:
+def entry_dtype(entry: MappedEntry, od: canopen.ObjectDictionary) -> np.dtype[np.generic]:
     where = f"0x{entry.index:04X}:{entry.subindex:02X}"
     try:
         obj = od[entry.index]

@@ -90,3 +90,20 @@ def evaluate(
         masked=int(np.count_nonzero(~ok)),
         floored=int(np.count_nonzero(floored)),
     )
+
+
+AXES = ("x", "y", "z")
+
+
+def rmse_per_axis(
+    true_N: ArrayLike, pred_N: ArrayLike, valid: ArrayLike | None = None, *, mode: str = "z",
+) -> dict[str, float]:
+    """RMSE in N of each compared component (Fz only in z-only mode) over the valid taxels;
+    NaN for a component when no taxel is valid."""
+    t = np.asarray(true_N, np.float64).reshape(-1, 9, 3)
+    p = np.asarray(pred_N, np.float64).reshape(-1, 9, 3)
+    ok = (np.ones(t.shape[:2], bool) if valid is None
+          else np.asarray(valid, bool).reshape(t.shape[:2]))
+    err = (p - t)[ok]
+    axes = (2,) if mode == "z" else (0, 1, 2)
+    return {AXES[a]: _rmse(err[:, a]) for a in axes}

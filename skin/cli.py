@@ -3,6 +3,13 @@
 Each subcommand module has ``add_subparser(subparsers)`` and sets
 ``func``; modules are imported when the parser is built, but they import the
 heavy packages (sim, decoder, canbus) only inside their ``func``.
+
+Logging (``-v``, ``-q``, ``--log-level``, before or after the subcommand) is configured
+here, once (``skin.commands.logs``). Exit status: 0 when a command did its work or a
+long-running one was stopped (Ctrl-C, SIGTERM, SIGHUP: it prints its summary and writes
+its ``--json``); 1 on an error (one line on stderr; ``--debug`` shows the traceback);
+2 on a usage error (argparse); 130 when a stop interrupts a command whose work has an
+end (train, bench, ...): nothing half-written is left.
 """
 
 from __future__ import annotations
@@ -10,14 +17,16 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 from skin import __version__
+from skin.commands.logs import add_logging_arguments, configured_logging
+from skin.commands.signals import stop_signal_name, stop_signals_interrupt
 from skin.errors import SkinError
 
 SUBCOMMANDS = (
-    "sim", "model", "train", "bench", "plan", "eds", "run", "demo", "sniff", "replay", "tare",
-    "decode", "dataset", "calibrate",
+    "sim", "model", "train", "eval", "bench", "plan", "eds", "run", "demo", "sniff", "replay",
+    "tare", "decode", "view", "dataset", "calibrate",
 )
 
 
@@ -28,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("--debug", action="store_true", help="show the traceback on errors")
+    add_logging_arguments(parser, subcommand=False)
     subparsers = parser.add_subparsers(title="subcommands", metavar="COMMAND", required=True)
     for name in SUBCOMMANDS:
         try:
@@ -37,16 +47,30 @@ def build_parser() -> argparse.ArgumentParser:
                 raise
             continue
         module.add_subparser(subparsers)
+    for command in _commands(subparsers):
+        add_logging_arguments(command, subcommand=True)
     return parser
+
+
+def _commands(
+    subparsers: argparse._SubParsersAction[argparse.ArgumentParser],
+) -> Iterator[argparse.ArgumentParser]:
+    """Every (sub-)subcommand's parser: ``sim``, ``sim dataset``, ``sim run``, ..."""
+    for command in dict.fromkeys(subparsers.choices.values()):  # aliases share a parser
+        yield command
+        for action in command._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                yield from _commands(action)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        code = args.func(args)
-    except KeyboardInterrupt:
-        print("skin: interrupted", file=sys.stderr)
+        with configured_logging(args), stop_signals_interrupt():
+            code = args.func(args)
+    except KeyboardInterrupt as err:
+        print(f"skin: interrupted ({stop_signal_name(err)})", file=sys.stderr)
         return 130
     except (SkinError, OSError) as err:
         if args.debug:

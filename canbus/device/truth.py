@@ -17,13 +17,11 @@ from __future__ import annotations
 
 import contextlib
 import os
-import signal
 import statistics
 import threading
 import time
 from collections import deque
 from collections.abc import Iterator, Sequence
-from types import FrameType
 from typing import TYPE_CHECKING
 
 import canopen
@@ -114,33 +112,12 @@ class TruthLog:
 @contextlib.contextmanager
 def truth_log(path: str | os.PathLike[str], network: canopen.Network, source: TruthSource,
               nodes: Sequence[PatchNode]) -> Iterator[TruthLog]:
-    """Write the truth while inside; the file is synced and closed on leaving, also on
-    Ctrl-C and on SIGTERM (which, unless the command already handles it, stops the
-    command as Ctrl-C does while inside)."""
+    """Write the truth while inside; the file is synced and closed on leaving, however the
+    block ends (``skin`` turns SIGTERM and SIGHUP into Ctrl-C's KeyboardInterrupt)."""
     log = TruthLog(path, source, nodes)
     network.subscribe(SYNC_COB_ID, log.on_sync)
-    with _sigterm_interrupts():
-        try:
-            yield log
-        finally:
-            network.unsubscribe(SYNC_COB_ID, log.on_sync)
-            log.close()
-
-
-@contextlib.contextmanager
-def _sigterm_interrupts() -> Iterator[None]:
-    """SIGTERM raises KeyboardInterrupt in the main thread, if nothing else handles it."""
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
-        yield
-        return
-
-    def interrupt(signum: int, frame: FrameType | None) -> None:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one stop; a second must not cut it
-        raise KeyboardInterrupt(signal.Signals(signum).name)
-
-    signal.signal(signal.SIGTERM, interrupt)
     try:
-        yield
+        yield log
     finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        network.unsubscribe(SYNC_COB_ID, log.on_sync)
+        log.close()

@@ -45,7 +45,7 @@ from skin.errors import BusError, SkinError
 if TYPE_CHECKING:
     from canbus.master.host import HostManager
 
-logger = logging.getLogger("canbus.master.host")
+logger = logging.getLogger(__name__)
 
 NMT_START, NMT_PRE_OPERATIONAL = 0x01, 0x80
 OPERATIONAL_STATE, STOPPED_STATE = 0x05, 0x04

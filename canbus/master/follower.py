@@ -24,7 +24,7 @@ from canbus.master.records import PatchRecord
 if TYPE_CHECKING:
     from canbus.master.host import HostManager
 
-logger = logging.getLogger("canbus.master.host")
+logger = logging.getLogger(__name__)
 
 NMT_COB_ID = 0x000
 NMT_START, NMT_PRE_OPERATIONAL = 0x01, 0x80

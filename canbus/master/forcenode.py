@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from canbus.device.local_device import TPDO_COUNT, LocalDevice
 from canbus.device.nmt_slave import OPERATIONAL, START
+from canbus.mappings import force_fd_entries
 from canbus.od import load_od
 from canbus.pdo_codec import (
     COB_ID_INVALID,
@@ -160,8 +161,7 @@ def _layout(codec: PdoCodec) -> _Layout:
     return layout
 
 
-FD_MAPPING = tuple([MappedEntry(FORCES, k, 16) for k in range(1, 28)]
-                   + [MappedEntry(VALID, 0, 16), MappedEntry(ANSWERED, 0, 8)])
+FD_MAPPING = force_fd_entries()
 """A whole sample in one CAN FD TPDO: 27 forces, 0x2005, 0x2006 (57 bytes)."""
 
 

@@ -24,6 +24,7 @@ import numpy as np
 from canopen.sdo.client import SdoClient
 from numpy.typing import ArrayLike, NDArray
 
+from canbus.mappings import patch_fd_entries
 from canbus.master.hostconfig import TPDO_COUNT, PatchConfig, predefined_tpdo_cob_ids
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM, TPDO_MAP, MappedEntry, PdoCodec, TpdoLayout
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
@@ -111,11 +112,7 @@ def tpdo_layouts(node_id: int, mode: str, *, fd: bool = False) -> tuple[TpdoLayo
     ``fd`` (a CAN FD bus): the whole answer in TPDO 1, the codes (27 or 9) then 0x2006, the
     counter of the SYNC answered (55 or 19 bytes: one 64- or 20-byte CAN FD frame)."""
     if fd:
-        subs = list(range(1, 28)) if mode == "xyz" else [3 * t + 1 for t in range(9)]
-        if mode not in ("z", "xyz"):
-            raise ValueError(f"mode must be 'z' or 'xyz', got {mode!r}")
-        entries = (*(MappedEntry(RESISTANCES, s, 16) for s in subs), MappedEntry(ANSWERED, 0, 8))
-        return (TpdoLayout(1, predefined_tpdo_cob_ids(node_id)[0], entries),)
+        return (TpdoLayout(1, predefined_tpdo_cob_ids(node_id)[0], patch_fd_entries(mode)),)
     if mode == "xyz":
         subs = list(range(1, 28))
         groups = [subs[k:k + ENTRIES_PER_TPDO] for k in range(0, 27, ENTRIES_PER_TPDO)]

@@ -18,7 +18,7 @@ import numpy as np
 from canbus.master.dataplane import ForceFrame
 from decoder.reasons import Reason, reason_name
 
-logger = logging.getLogger("canbus.master.host")
+logger = logging.getLogger(__name__)
 
 INTERVAL_S = 10.0
 

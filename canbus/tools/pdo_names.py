@@ -18,6 +18,7 @@ SDO (0x1018:02 product code) switches a node to the shipped EDS of that product.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import os
@@ -28,8 +29,17 @@ import canopen
 import numpy as np
 
 from canbus import codes
+from canbus.mappings import force_fd_entries, patch_fd_entries
 from canbus.od import load_od
-from canbus.pdo_codec import PdoCodec, Reader, TpdoLayout, read_defaults, read_layouts
+from canbus.pdo_codec import (
+    COB_ID_INVALID,
+    PdoCodec,
+    Reader,
+    TpdoLayout,
+    read_defaults,
+    read_layouts,
+)
+from decoder.reasons import reason_name
 from skin.errors import ConfigError
 
 PATCH_PRODUCT, FORCES_PRODUCT = 1, 2
@@ -118,6 +128,50 @@ class NodeView:
         self.seen[(index, subindex)] = value
         return self._rebuild()
 
+    def tpdo_layouts(self) -> list[TpdoLayout]:
+        """The node's valid TPDOs, from the EDS defaults and the SDO values seen, of any
+        length (a CAN FD PDO too); a TPDO whose mapping is half-way through a rewrite
+        (an entry the dictionary does not have) is left out, the others kept."""
+        read, layouts = self._reader(), []
+        number = 0
+        while TPDO_COMM + number in self.od and TPDO_MAP + number in self.od:
+            try:
+                found = read_layouts(read, 1, comm=TPDO_COMM + number,
+                                     mapping=TPDO_MAP + number)
+            except (ConfigError, KeyError):
+                found = []
+            layouts += [dataclasses.replace(layout, number=number + 1) for layout in found]
+            number += 1
+        return layouts
+
+    def adopt_fd(self, mode: str = "xyz") -> bool:
+        """Take canskin's CAN FD mapping (``canbus.mappings``): the node's whole answer or
+        sample in TPDO 1, TPDO 2..7 invalid, as if a master's SDO writes had been seen.
+        False (nothing changed) for a node that is not a canskin patch or force node."""
+        if self.product == FORCES_PRODUCT:
+            entries = force_fd_entries()
+        elif self.product == PATCH_PRODUCT:
+            entries = patch_fd_entries(mode)
+        else:
+            return False
+        read = self._reader()
+        for n in range(1, 7):
+            if TPDO_COMM + n in self.od:
+                self.seen[(TPDO_COMM + n, 1)] = read(TPDO_COMM + n, 1) | COB_ID_INVALID
+        self.seen[(TPDO_MAP, 0)] = len(entries)
+        for sub, entry in enumerate(entries, start=1):
+            self.seen[(TPDO_MAP, sub)] = entry.to_raw()
+        return self._rebuild()
+
+    def fd_frame(self, cob_id: int, length: int) -> bool:
+        """A CAN FD frame of ``length`` bytes came on ``cob_id``: if it is the node's TPDO 1
+        and longer than its mapping, the node was mapped for CAN FD in place (a host's own
+        force node): adopt that mapping. True if the PDO table changed."""
+        entry = self.pdos.get(cob_id)
+        if entry is None or length <= max(entry.layout.size, 8) or entry.layout.number != 1:
+            return False
+        return self.adopt_fd("xyz" if length > 20 else "z")
+
     def decode_pdo(self, cob_id: int, data: bytes) -> list[NamedValue] | None:
         """The named values of PDO ``cob_id``; None if the node has no such PDO or it is short."""
         return self.decode_pdos(cob_id, [data])[0]
@@ -160,8 +214,10 @@ class NodeView:
         if product == FORCES_PRODUCT and index == 0x2000 and subindex:
             taxel, axis = divmod(subindex - 1, 3)
             return functools.partial(_force, f"F{taxel}{_AXES[axis]}")
-        if product in SHIPPED_BY_PRODUCT and index == 0x2004 and subindex:
+        if product == PATCH_PRODUCT and index == 0x2004 and subindex:
             return lambda value: _status(f"S{subindex - 1}", int(value))
+        if product == FORCES_PRODUCT and index == 0x2004 and subindex:
+            return lambda value: _reason(f"S{subindex - 1}", int(value))
         if product == FORCES_PRODUCT and index == 0x2005:
             return _valid_taxels
         if index == 0x1001:
@@ -242,8 +298,9 @@ class NodeView:
                 layouts = read_layouts(read, count, comm=comm, mapping=mapping)
                 for layout in layouts:
                     table[layout.cob_id] = PdoEntry(kind, layout, PdoCodec([layout], self.od))
-            except (ConfigError, KeyError):
-                continue  # a mapping half-way through a rewrite: keep the rest
+            except (ConfigError, KeyError, ValueError):
+                continue  # a mapping half-way through a rewrite (or longer than the
+                # codec's 8 bytes): keep the rest
         changed = {c: e.layout for c, e in table.items()} != \
             {c: e.layout for c, e in self.pdos.items()}
         self.pdos = table
@@ -357,6 +414,12 @@ def _status(name: str, status: int) -> NamedValue:
     faults = [f"{p} {codes.FAULT_NAMES[(status >> (2 * k)) & 3]}"
               for k, p in enumerate(_PILLARS) if (status >> (2 * k)) & 3]
     return NamedValue(name, float(status), "", f"{name}={'ok' if not faults else ','.join(faults)}")
+
+
+def _reason(name: str, code: int) -> NamedValue:
+    """A force node's 0x2004: the decoder's reason code for the taxel (0 OK)."""
+    text = "ok" if code == 0 else reason_name(code)
+    return NamedValue(name, float(code), "", f"{name}={text}")
 
 
 def describe_taxel_fault(taxel: int, status: int) -> str:

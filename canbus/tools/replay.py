@@ -18,6 +18,12 @@ replayed:
 
 A .log cut exactly at the end of a line is indistinguishable from a shorter recording.
 
+``partial=True`` reads a recording whose writer was killed (kill -9, a power cut): a bad
+frame at the very end of the file, where such a cut lands (a line without its newline, an
+.asc without ``End TriggerBlock``, a cut pcap record, a cut last .blf container, a .blf
+shorter than its header says), ends the recording quietly, and :attr:`Recording.cut`
+says what was dropped; a bad frame anywhere before the end is still an error.
+
 :class:`Replayer` sends a recording with its original timing (python-can's ``MessageSync``)
 or fast: as fast as the bus takes it, or paced to at most ``rate_fps`` frames per second
 (a transport without flow control, such as udp_multicast, drops what its receivers
@@ -31,6 +37,8 @@ forces.
 
 from __future__ import annotations
 
+import io
+import logging
 import math
 import os
 import re
@@ -49,6 +57,8 @@ from can.io.blf import BLFParseError
 from canbus.tools.pcap import FD_LENGTHS, PcapReader
 from canbus.tools.pcapng import SECTION_HEADER, PcapngReader
 from skin.errors import ConfigError, RecordingError
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["READERS", "Recording", "RecordingError", "ReplayResult", "Replayer",
            "recording_reader"]
@@ -73,6 +83,11 @@ def recording_reader(path: str | os.PathLike[str], *, field: str = "FILE") -> st
         raise ConfigError(field, f"unknown recording format {suffix or '(no suffix)'!r} of "
                           f"{os.fspath(path)!r}; use one of {', '.join(READERS)}")
     return suffix
+
+
+def _read_to_end(file: BinaryIO) -> bool:
+    """Whether ``file`` has been read to its end (closed: its reader finished it)."""
+    return file.closed or file.tell() >= os.fstat(file.fileno()).st_size
 
 
 class _Lines:
@@ -123,6 +138,10 @@ class _Lines:
                 self._frame_line = (self.line, self._frames())
         return text
 
+    def at_end(self) -> bool:
+        """Whether everything has been read: the line that failed was the last."""
+        return _read_to_end(self._file)
+
     def close(self) -> None:
         self._file.close()
 
@@ -131,14 +150,52 @@ class _Lines:
         return self._file.closed
 
 
-class Recording:
-    """A recording opened and checked: iterate it for its messages (once per instance)."""
+class _CountingFile(io.RawIOBase):
+    """A binary file that notes whether a read came back short: a cut last record."""
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+    def __init__(self, path: Path) -> None:
+        super().__init__()
+        self._file = path.open("rb")
+        self.name = str(path)
+        self.short = False
+
+    def readable(self) -> bool:
+        return True
+
+    def read(self, size: int = -1) -> bytes:
+        data = self._file.read(size)
+        if size is not None and size > 0 and 0 < len(data) < size:
+            self.short = True
+        return data
+
+    def readinto(self, buffer: Any) -> int:
+        data = self.read(len(buffer))
+        buffer[:len(data)] = data
+        return len(data)
+
+    def at_end(self) -> bool:
+        return self.short or _read_to_end(self._file)
+
+    def close(self) -> None:
+        self._file.close()
+        super().close()
+
+
+class Recording:
+    """A recording opened and checked: iterate it for its messages (once per instance).
+
+    ``partial``: a bad frame at the very end of the file (a cut tail) ends the recording
+    instead of raising; :attr:`cut` then names it.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, partial: bool = False) -> None:
         self.path = Path(path)
         self.suffix = recording_reader(path)
+        self.partial = partial
         self.frames = 0
+        self.cut: RecordingError | None = None
         self._lines: _Lines | None = None
+        self._binary: _CountingFile | None = None
         source = str(self.path)
         try:
             if self.suffix in (".log", ".asc"):
@@ -147,10 +204,13 @@ class Recording:
             elif self.suffix == ".pcap" and _is_pcapng(self.path):  # dumpcap's default format
                 self._reader = PcapngReader(source)
             else:
-                self._reader = READERS[self.suffix](source)
+                self._binary = _CountingFile(self.path)
+                self._reader = READERS[self.suffix](cast(BinaryIO, self._binary))
         except RecordingError:
+            self._close_files()
             raise
         except _READ_ERRORS as err:
+            self._close_files()
             raise RecordingError(source, None, f"not a {self.suffix} file: {err}") from err
 
     def __enter__(self) -> Recording:
@@ -161,8 +221,28 @@ class Recording:
 
     def close(self) -> None:
         self._reader.stop()
+        self._close_files()
+
+    def _close_files(self) -> None:
+        for file in (self._lines, self._binary):
+            if file is not None:
+                file.close()
+
+    def _at_end(self) -> bool:
+        if self._lines is not None:
+            return self._lines.at_end()
+        return self._binary is not None and self._binary.at_end()
 
     def __iter__(self) -> Iterator[can.Message]:
+        try:
+            yield from self._checked()
+        except RecordingError as err:
+            if not (self.partial and self._at_end()):
+                raise
+            self.cut = err
+            logger.warning("%s; the %d whole frames before it are kept", err, self.frames)
+
+    def _checked(self) -> Iterator[can.Message]:
         source = str(self.path)
         messages = iter(self._reader)
         while True:
@@ -183,11 +263,18 @@ class Recording:
             self.frames += 1
             yield msg
         if self.suffix == ".blf":
-            expected = cast(can.BLFReader, self._reader).file_size
-            actual = self.path.stat().st_size
-            if actual < expected:
-                raise RecordingError(source, self.frames + 1, f"the file ends here, at {actual}"
-                                     f" of the {expected} bytes its header promises (truncated)")
+            self._check_blf_end(source)
+
+    def _check_blf_end(self, source: str) -> None:
+        """A .blf shorter than its header says, or cut inside its last container."""
+        expected = cast(can.BLFReader, self._reader).file_size
+        actual = self.path.stat().st_size
+        if actual < expected:
+            raise RecordingError(source, self.frames + 1, f"the file ends here, at {actual}"
+                                 f" of the {expected} bytes its header promises (truncated)")
+        if self._binary is not None and self._binary.short:
+            raise RecordingError(source, self.frames + 1, "the file ends inside its last "
+                                 f"container, at byte {actual} (truncated)")
 
 
 def _is_pcapng(path: Path) -> bool:
@@ -242,14 +329,15 @@ class Replayer:
 
     ``realtime`` keeps the recorded intervals (python-can's ``MessageSync``; pauses longer
     than ``skip_s`` are cut to it); otherwise frames go as fast as ``bus.send`` takes
-    them. Error frames are sent only with ``error_frames`` (most interfaces cannot). The
+    them. Error frames are sent only with ``error_frames`` (most interfaces cannot).
+    ``partial`` replays a recording with a cut tail (see :class:`Recording`). The
     counters are live, so a caller still knows what was sent when a damaged frame stops
     the replay with RecordingError.
     """
 
     def __init__(self, bus: can.BusABC, path: str | os.PathLike[str], *, realtime: bool = True,
                  passes: int = 1, skip_s: float = 60.0, error_frames: bool = False,
-                 rate_fps: float | None = None) -> None:
+                 rate_fps: float | None = None, partial: bool = False) -> None:
         recording_reader(path)
         if rate_fps is not None and not (math.isfinite(rate_fps) and rate_fps > 0):
             raise ConfigError("rate_fps", f"must be a positive number of frames/s, got {rate_fps}")
@@ -257,35 +345,41 @@ class Replayer:
         self.realtime, self.passes, self.skip_s = realtime, passes, skip_s
         self.rate_fps = None if realtime else rate_fps
         self.error_frames = error_frames
+        self.partial = partial
+        self.cut: RecordingError | None = None
         self.sent = self.skipped = self.done = 0
+        self._started: float | None = None
 
     def run(self, stop: threading.Event | None = None,
             on_pass: Callable[[int, int], Any] | None = None) -> ReplayResult:
         """Replay until the passes are done or ``stop`` is set; ``on_pass(pass, frames)``."""
-        started = time.monotonic()
+        self._started = time.monotonic()
         pace = _Pace(self.rate_fps)
         while self.passes == 0 or self.done < self.passes:
-            with Recording(self.path) as recording:
+            with Recording(self.path, partial=self.partial) as recording:
                 messages: Any = recording if not self.realtime else \
                     can.MessageSync(recording, timestamps=True, skip=self.skip_s)
                 for msg in messages:
                     if stop is not None and stop.is_set():
-                        return self._result(started)
+                        return self.result()
                     if msg.is_error_frame and not self.error_frames:
                         self.skipped += 1
                         continue
                     pace.wait(stop)
                     self.bus.send(_outgoing(msg))
                     self.sent += 1
+            self.cut = recording.cut
             self.done += 1
             if on_pass is not None:
                 on_pass(self.done, recording.frames)
             if recording.frames == 0:
                 break  # an empty recording would loop for ever without sending anything
-        return self._result(started)
+        return self.result()
 
-    def _result(self, started: float) -> ReplayResult:
-        return ReplayResult(self.sent, self.skipped, self.done, time.monotonic() - started)
+    def result(self) -> ReplayResult:
+        """What has been sent so far (also after a stop or an error)."""
+        seconds = 0.0 if self._started is None else time.monotonic() - self._started
+        return ReplayResult(self.sent, self.skipped, self.done, seconds)
 
 
 class _Pace:

@@ -335,6 +335,9 @@ class ServiceDecoder:
     def describe_pdos(cob_id: int, payloads: Sequence[bytes], view: NodeView | None
                       ) -> list[str]:
         """Many frames of one PDO in words, decoded in one batch."""
+        longest = max((len(p) for p in payloads), default=0)
+        if view is not None and longest > 8:
+            view.fd_frame(cob_id, longest)  # a force node mapped for CAN FD in place
         decoded = view.decode_pdos(cob_id, payloads) if view is not None else \
             [None] * len(payloads)
         entry = view.pdos.get(cob_id) if view is not None else None

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
 from typing import Any
 
 SCENES = ("paper", "paper-noisy")
@@ -79,7 +80,9 @@ def hidden_auto(split: tuple[Any, ...], mode: str, params: dict[str, Any]) -> di
             "ave_rel_err_floored_pct": report.ave_rel_err_floored_pct}
 
 
-def run_decoders(quick: bool, goal_units: str = "N") -> dict[str, Any]:
+def run_decoders(quick: bool, goal_units: str = "N",
+                 stage: Callable[[str], None] = lambda label: None) -> dict[str, Any]:
+    """Every figure of ``skin bench``; ``stage(label)`` as each long part starts."""
     import sim
     from decoder import benchmark
     from decoder.registry import available_decoders, create_decoder
@@ -89,6 +92,7 @@ def run_decoders(quick: bool, goal_units: str = "N") -> dict[str, Any]:
     result: dict[str, Any] = {"goal_units": goal_units, "seeds": seeds, "scenes": []}
     splits: dict[str, list[tuple[Any, ...]]] = {}
     for name in SCENES:
+        stage(f"decoders on {name}")
         scene = sim.load_scene(name)
         splits[name] = _splits(name, seeds)
         part = benchmark.bench_decoders(splits[name], scene.crosstalk_matrix(), scene.mode,
@@ -100,14 +104,17 @@ def run_decoders(quick: bool, goal_units: str = "N") -> dict[str, Any]:
     result.update(scene="paper", oracle=paper["oracle"], decoders=paper["decoders"])
     table = []
     for name in TABLE1_SCENES:
+        stage(f"Table 1 on {name}")
         scene_splits = splits.get(name) or _splits(name, seeds)
         table += benchmark.table1(scene_splits, sim.load_scene(name).mode, name,
                                   params=params["lm-mlp"])
     result["table1"] = table
+    stage("--hidden auto")
     result["hidden_auto"] = hidden_auto(splits["paper"][0], "z", params["lm-mlp"])
     result["analytic_taxel_samples_per_s"] = {
         "z": benchmark.analytic_throughput(1, 10 * batch, repeats),
         "xyz": benchmark.analytic_throughput(3, 5 * batch, repeats)}
+    stage("3-axis speed")
     r_xyz, f_xyz, r_xyz_test, _ = _splits("indenter", 1)[0]
     result["xyz_speed"] = [
         dict(zip(("name", "decode_samples_per_s", "latency_us"),
@@ -115,6 +122,7 @@ def run_decoders(quick: bool, goal_units: str = "N") -> dict[str, Any]:
                      create_decoder(name, **params.get(name, {})).fit(r_xyz, f_xyz),
                      r_xyz_test, batch, repeats)), strict=True))
         for name in available_decoders()]
+    stage("LM against SciPy")
     r_train, f_train = splits["paper"][0][0], splits["paper"][0][1]
     result["lm_vs_scipy"] = benchmark.lm_vs_scipy(
         r_train.reshape(r_train.shape[0], -1), f_train[..., 2].reshape(r_train.shape[0], -1),
@@ -123,27 +131,23 @@ def run_decoders(quick: bool, goal_units: str = "N") -> dict[str, Any]:
 
 
 def print_dataplane(result: dict[str, Any]) -> None:
-    from rich.console import Console
-    from rich.table import Table
+    from skin.commands.tables import show
 
-    console = Console()
-    table = Table(title=f"data plane: {result['patches']} patches ({result['mode']}), "
-                        f"{result['frames_in']:,} PDOs in, {result['frames_out']:,} out",
-                  caption=f"{result['cycles']} SYNC cycles; best of {result['repeats']}; "
-                          "one thread; python-can delivery excluded")
-    for col in ("path", "frames in/s", "frames out/s", "CPU", "vs canopen"):
-        table.add_column(col, justify="left" if col == "path" else "right")
-    rows = (("data plane", "dataplane"), ("data plane, batch 1", "per_patch"),
-            ("canopen PdoMaps", "canopen"))
-    for label, key in rows:
+    rows = []
+    for label, key in (("data plane", "dataplane"), ("data plane, batch 1", "per_patch"),
+                       ("canopen PdoMaps", "canopen")):
         ratio = result["canopen_s"] / result[f"{key}_s"]
-        table.add_row(label, f"{result[f'{key}_frames_in_per_s']:,.0f}",
-                      f"{result[f'{key}_frames_out_per_s']:,.0f}",
-                      f"{100 * result[f'{key}_cpu_share']:.0f} %", f"{ratio:.2f}x")
-    console.print(table)
-    console.print(f"identical force frames: {result['identical_output']}; all samples complete: "
+        rows.append([label, f"{result[f'{key}_frames_in_per_s']:,.0f}",
+                     f"{result[f'{key}_frames_out_per_s']:,.0f}",
+                     f"{100 * result[f'{key}_cpu_share']:.0f} %", f"{ratio:.2f}x"])
+    show(f"data plane: {result['patches']} patches ({result['mode']}), "
+         f"{result['frames_in']:,} PDOs in, {result['frames_out']:,} out",
+         ["path", "frames in/s", "frames out/s", "CPU", "vs canopen"], rows,
+         caption=f"{result['cycles']} SYNC cycles; best of {result['repeats']}; one thread; "
+                 "python-can delivery excluded")
+    print(f"identical force frames: {result['identical_output']}; all samples complete: "
                   f"{result['all_samples_complete']}")
-    console.print(f"not included above: python-can virtual bus -> Notifier delivery alone "
+    print(f"not included above: python-can virtual bus -> Notifier delivery alone "
                   f"{result['notifier_frames_per_s']:,.0f} frames/s; the whole path (virtual "
                   f"bus, Notifier, data plane thread) {result['pipeline_frames_per_s']:,.0f} "
                   f"frames/s, {result['pipeline_mean_batch']:.1f} samples per decode")
@@ -187,9 +191,15 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             _write_json(args.json, result)
         return 0
-    from skin.commands.bench_view import plot, print_decoders
+    from skin.commands.bench_view import Stages, check_plot, plot, print_decoders
 
-    result = run_decoders(args.quick, args.goal_units)
+    if args.plot:
+        check_plot(args.plot)  # before minutes of work, not after
+    stages = Stages(len(SCENES) + len(TABLE1_SCENES) + 3)
+    try:
+        result = run_decoders(args.quick, args.goal_units, stages)
+    finally:
+        stages.close()
     print_decoders(result)
     if args.json:
         _write_json(args.json, result)

@@ -65,23 +65,16 @@ def _pct(value: float | None) -> str:
 
 
 def print_cross(result: dict[str, Any]) -> None:
-    from rich.console import Console
-    from rich.table import Table
+    from skin.commands.tables import show
 
-    console = Console()
     oracle = {(o["mode"], o["test"]): o for o in result["oracle"]}
     for mode, scenes in (("z", Z_SCENES), ("xyz", XYZ_SCENES)):
-        table = Table(title=f"{'z-only' if mode == 'z' else '3-axis'}: floored AveRelErr % on "
-                            "the taxels not flagged / the oracle's on the same taxels "
-                            "(share flagged EXTRAPOLATED)",
-                      caption=f"{result['train_samples']} training, {result['test_samples']} "
-                              "test samples per scene")
-        table.add_column("decoder")
-        table.add_column("trained on")
-        for test in scenes:
-            table.add_column(test, justify="right")
-        table.add_row("oracle", "", *[_pct(oracle[mode, t]["ave_rel_err_floored_pct"])
-                                      for t in scenes])
+        title = (f"{'z-only' if mode == 'z' else '3-axis'}: floored AveRelErr % on the taxels "
+                 "not flagged / the oracle's on the same taxels (share flagged EXTRAPOLATED)")
+        caption = (f"{result['train_samples']} training, {result['test_samples']} test "
+                   "samples per scene")
+        table = [["oracle", "", *[_pct(oracle[mode, t]["ave_rel_err_floored_pct"])
+                                  for t in scenes]]]
         rows: dict[tuple[str, str | None], dict[str, str]] = {}
         for c in result["cells"]:
             if c["mode"] != mode:
@@ -91,20 +84,20 @@ def print_cross(result: dict[str, Any]) -> None:
                     f"{100 * c['flagged_share']:.0f}%")
             rows.setdefault((c["decoder"], c["train"]), {})[c["test"]] = text
         for (decoder, train), cells in rows.items():
-            table.add_row(decoder, train or "(untrained)", *[cells.get(t, "") for t in scenes])
-        console.print(table)
+            table.append([decoder, train or "(untrained)", *[cells.get(t, "") for t in scenes]])
+        show(title, ["decoder", "trained on", *scenes], table, caption=caption, labels=2)
     bars = result["bars"]
     for key, label in (("hybrid_vs_deconv", "hybrid <= 1.2x deconv"),
                        ("unflagged_vs_oracle", "unflagged <= 2x the oracle")):
         checked = [b for b in bars[key] if b["met"] is not None]
         missed = [b for b in checked if not b["met"]]
         exact = len(bars[key]) - len(checked)
-        console.print(f"{label} on unseen scenes: met in {len(checked) - len(missed)} of "
+        print(f"{label} on unseen scenes: met in {len(checked) - len(missed)} of "
                       f"{len(checked)} cells" + (f" ({exact} more on a noise-free test set, "
                                                  "where the oracle is exact)" if exact else ""))
         for b in missed:
             who = b.get("decoder", "hybrid")
-            console.print(f"  not met: {who} {b['mode']} {b['train']} -> {b['test']}: "
+            print(f"  not met: {who} {b['mode']} {b['train']} -> {b['test']}: "
                           f"{_pct(b.get('error', b.get('hybrid')))} % against "
                           f"{_pct(b.get('oracle', b.get('deconv')))} %, ratio {_pct(b['ratio'])}"
                           + (f" on {b['compared']} components" if "compared" in b else ""))

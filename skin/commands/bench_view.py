@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from skin.commands.tables import show
 from skin.errors import ConfigError
 
 
@@ -12,22 +13,18 @@ def _f(value: float | None, digits: int = 3) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
-def _scene_table(console: Any, part: dict[str, Any], seeds: int) -> None:
-    from rich.table import Table
-
+def _scene_table(part: dict[str, Any], seeds: int) -> None:
     noise = "read noise and ADC" if part["noise"] else "noise-free"
-    table = Table(title=f"decoders on '{part['scene']}' ({noise}, z-only; means over "
-                        f"{seeds} seed{'s' if seeds > 1 else ''})")
+    title = (f"decoders on '{part['scene']}' ({noise}, z-only; means over {seeds} "
+             f"seed{'s' if seeds > 1 else ''})")
     speed = "latency_us" in part["decoders"][0] if part["decoders"] else False
     columns = ["decoder", "AveRelErr %", "floored %", "x oracle", "RMSE %FS",
                "max rel floored %", "train s"]
     if speed:
         columns += ["patch-samples/s", "latency us"]
-    for col in columns:
-        table.add_column(col, justify="left" if col == "decoder" else "right")
     o = part["oracle"]
-    table.add_row("oracle", _f(o["ave_rel_err_pct"]), _f(o["ave_rel_err_floored_pct"]), "",
-                  _f(o["rmse_pct_fs"]), *[""] * (len(columns) - 5))
+    rows = [["oracle", _f(o["ave_rel_err_pct"]), _f(o["ave_rel_err_floored_pct"]), "",
+             _f(o["rmse_pct_fs"]), *[""] * (len(columns) - 5)]]
     for d in part["decoders"]:
         ratio = (d["ave_rel_err_pct"] / o["ave_rel_err_pct"]
                  if o["ave_rel_err_pct"] > 1e-6 else None)
@@ -36,25 +33,23 @@ def _scene_table(console: Any, part: dict[str, Any], seeds: int) -> None:
                  _f(d["train_s"])]
         if speed:
             cells += [f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}"]
-        table.add_row(*cells)
-    console.print(table)
-    console.print(f"best: {part['best']}")
+        rows.append(cells)
+    show(title, columns, rows)
+    print(f"best: {part['best']}")
 
 
-def _table1(console: Any, result: dict[str, Any]) -> None:
-    from rich.table import Table
-
+def _table1(result: dict[str, Any]) -> None:
     scenes = list(dict.fromkeys(r["scene"] for r in result["table1"]))
     by = {(r["scene"], r["hidden"]): r for r in result["table1"]}
-    t1 = Table(title=f"Table 1: lm-mlp AveRelErr % by hidden nodes (goal MSE 1e-4 in "
-                     f"{'N' if result['goal_units'] == 'N' else 'scaled units'})")
-    t1.add_column("hidden", justify="right")
-    t1.add_column("article", justify="right")
+    title = (f"Table 1: lm-mlp AveRelErr % by hidden nodes (goal MSE 1e-4 in "
+             f"{'N' if result['goal_units'] == 'N' else 'scaled units'})")
+    columns = ["hidden", "article"]
     for scene in scenes:
-        t1.add_column(scene, justify="right")
+        columns.append(scene)
         if scene == "paper":
-            t1.add_column("<= article", justify="right")
-        t1.add_column(f"{scene} floored", justify="right")
+            columns.append("<= article")
+        columns.append(f"{scene} floored")
+    rows = []
     for h in sorted({r["hidden"] for r in result["table1"]}):
         paper_ref = by[(scenes[0], h)]["paper_ave_rel_err_pct"]
         cells = [str(h), _f(paper_ref, 2)]
@@ -64,49 +59,84 @@ def _table1(console: Any, result: dict[str, Any]) -> None:
             if scene == "paper":
                 cells.append({True: "yes", False: "no", None: ""}[row["at_most_paper"]])
             cells.append(_f(row["ave_rel_err_floored_pct"]))
-        t1.add_row(*cells)
-    console.print(t1)
+        rows.append(cells)
+    show(title, columns, rows)
 
 
 def print_decoders(result: dict[str, Any]) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
-    console = Console()
     for part in result["scenes"]:
-        _scene_table(console, part, result["seeds"])
-    _table1(console, result)
+        _scene_table(part, result["seeds"])
+    _table1(result)
     auto = result["hidden_auto"]
     curve = ", ".join(f"{c['hidden']}{'' if c['kept'] else ' (refused)'}: {c['val_mse']:.2e}"
                       for c in auto["curve"])
-    console.print(f"lm-mlp --hidden auto on 'paper': Eq. 21 candidates "
+    print(f"lm-mlp --hidden auto on 'paper': Eq. 21 candidates "
                   f"{auto['candidates'][0]}..{auto['candidates'][-1]}, start {auto['start']}; "
                   f"validation MSE by size: {curve}; chose {auto['hidden']} "
                   f"({auto['stopped']}); AveRelErr {auto['ave_rel_err_pct']:.3f} %, floored "
                   f"{auto['ave_rel_err_floored_pct']:.3f} %")
     speed = result["analytic_taxel_samples_per_s"]
     lm = result["lm_vs_scipy"]
-    xyz = Table(title="3-axis decode speed ('indenter' scene, 27 pillars per patch)")
-    for col in ("decoder", "patch-samples/s", "latency us"):
-        xyz.add_column(col, justify="left" if col == "decoder" else "right")
-    for d in result["xyz_speed"]:
-        xyz.add_row(d["name"], f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}")
-    console.print(xyz)
-    console.print(f"analytic: {speed['z']:,.0f} taxel-samples/s z-only, "
-                  f"{speed['xyz']:,.0f} 3-axis")
-    console.print(f"LM vs SciPy least_squares(method='lm'), {lm['samples']} samples, "
+    show("3-axis decode speed ('indenter' scene, 27 pillars per patch)",
+         ["decoder", "patch-samples/s", "latency us"],
+         [[d["name"], f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}"]
+          for d in result["xyz_speed"]])
+    print(f"analytic: {speed['z']:,.0f} taxel-samples/s z-only, "
+          f"{speed['xyz']:,.0f} 3-axis")
+    print(f"LM vs SciPy least_squares(method='lm'), {lm['samples']} samples, "
                   f"{lm['params']} weights: ours {1e3 * lm['ours_s_per_iteration']:.2f} ms/it "
                   f"({lm['ours_nit']} it, MSE {lm['ours_mse']:.2e}, {lm['ours_s']:.3f} s), SciPy "
                   f"{1e3 * lm['scipy_s_per_iteration']:.1f} ms/it ({lm['scipy_njev']} it, MSE "
                   f"{lm['scipy_mse']:.2e}); {lm['speedup_per_iteration']:.0f}x per iteration")
 
 
-def plot(result: dict[str, Any], path: str) -> None:
-    """Decode speed (on `paper`) against floored error on the noise study (`paper-noisy`)."""
+def check_plot(path: str) -> None:
+    """Refuse ``--plot`` before any work: matplotlib missing, or nowhere to write."""
+    import os
+
     try:
-        import matplotlib
+        import matplotlib  # noqa: F401
     except ModuleNotFoundError as err:
         raise ConfigError("--plot", "needs matplotlib: pip install 'canskin[plot]'") from err
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
+        raise ConfigError("--plot", f"cannot write in {folder!r}")
+    if not path.lower().endswith(".png"):
+        raise ConfigError("--plot", f"writes a PNG: name it .png, got {path!r}")
+
+
+class Stages:
+    """A progress line on stderr through the long parts of a benchmark (a terminal only)."""
+
+    def __init__(self, total: int) -> None:
+        import sys
+
+        self._progress: Any = None
+        if sys.stderr.isatty():
+            from rich.console import Console
+            from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+            self._progress = Progress(TextColumn("{task.description}"), BarColumn(),
+                                      TextColumn("{task.completed}/{task.total}"),
+                                      TimeElapsedColumn(), console=Console(stderr=True),
+                                      transient=True)
+            self._task = self._progress.add_task("bench", total=total)
+            self._progress.start()
+
+    def __call__(self, label: str) -> None:
+        if self._progress is not None:
+            self._progress.update(self._task, description=f"bench: {label}", advance=1)
+
+    def close(self) -> None:
+        if self._progress is not None:
+            self._progress.stop()
+
+
+def plot(result: dict[str, Any], path: str) -> None:
+    """Decode speed (on `paper`) against floored error on the noise study (`paper-noisy`)."""
+    check_plot(path)
+    import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

@@ -23,3 +23,11 @@ def add_rcvbuf_argument(parser: argparse.ArgumentParser) -> None:
                         help="socket receive buffer to ask for on socket buses (udp_multicast, "
                              "socketcan); 0 keeps the system's (default "
                              f"{DEFAULT_RCVBUF >> 20} MiB)")
+
+
+def node_id(text: str) -> int:
+    """An argparse type: a CANopen node-ID, 1..127 (decimal or 0x hex)."""
+    value = int(text, 0)
+    if not 1 <= value <= 127:
+        raise argparse.ArgumentTypeError(f"node-ID must be in 1..127, got {text}")
+    return value

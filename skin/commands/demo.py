@@ -88,16 +88,14 @@ class _Bus:
     frames_sent: int = 0
 
 
-def _open(kind: str, channel: str, args: argparse.Namespace, *, own: bool = False) -> can.BusABC:
+def _open(kind: str, channel: str, args: argparse.Namespace) -> can.BusABC:
     import can
 
     if kind == "virtual":
         protocol = can.CanProtocol.CAN_FD if args.fd else can.CanProtocol.CAN_20
-        return can.Bus(interface="virtual", channel=channel, protocol=protocol,
-                       receive_own_messages=own)
+        return can.Bus(interface="virtual", channel=channel, protocol=protocol)
     return can.Bus(interface="timed", channel=channel, bitrate=args.bitrate, fd=args.fd,
-                   data_bitrate=args.data_bitrate if args.fd else None,
-                   receive_own_messages=own)
+                   data_bitrate=args.data_bitrate if args.fd else None)
 
 
 def _plan(args: argparse.Namespace, scene: Scene, heartbeat_ms: int,
@@ -165,6 +163,7 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     from canbus.master.hostconfig import HostConfig, PatchConfig, predefined_tpdo_cob_ids
     from sim import Simulator
     from skin.commands.demo_rig import BusClock, Record, Replay
+    from skin.commands.signals import until_stopped
     from skin.errors import BusError, ConfigError
 
     scene = _scene(args.scene, args.patches)
@@ -192,7 +191,7 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
         for name, group in zip(names, groups, strict=True):
             channel = f"demo-{os.getpid()}-{name}"
             host_bus = _open(args.bus, channel, args)  # first: the patches' frames need it
-            patch_net = canopen.Network(_open(args.bus, channel, args, own=timed))
+            patch_net = canopen.Network(_open(args.bus, channel, args))
             patch_net.NOTIFIER_CYCLE = 0.05
             patch_net.connect()
             last = {(predefined_tpdo_cob_ids(n + 64)[0 if args.fd else -1]): n for n in group}
@@ -226,8 +225,12 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
                 print(_banner(args, scene, config, cpus), flush=True)
                 for bus in opened:
                     bus.wire_start = _wire(bus.host_bus)
+                    notifier = host.links[bus.name].network.notifier
+                    if timed and notifier is not None:  # only appends: off the data path
+                        notifier.add_listener(bus.clock.host_side)
                 started = time.monotonic()
-                _watch(host, live, args.seconds)
+                with until_stopped():  # Ctrl-C, SIGTERM, SIGHUP: the summary all the same
+                    _watch(host, live, args.seconds, scene)
                 for bus in opened:
                     bus.wire_end = _wire(bus.host_bus)
             seconds = time.monotonic() - started
@@ -276,7 +279,7 @@ def _summary(args: argparse.Namespace, scene: Scene, plan: Plan, opened: list[_B
     cycle = np.concatenate([live.cycle_latencies_ms(b.clock, list(b.patches)) for b in opened])
     sample = np.concatenate([live.sample_latencies_ms(b.clock, list(b.patches))
                              for b in opened])
-    wire = np.concatenate([1000.0 * np.asarray(b.clock.wire_s[1:-1]) for b in opened])
+    wire = np.concatenate([b.clock.wire_ms() for b in opened])
     used = stats["frames_in"] - stats["late_frames"] - stats["duplicate_frames"] - \
         stats["out_of_order_frames"] - stats["malformed_frames"]
     seen = sum(b.clock.force_frames for b in opened)
@@ -340,28 +343,6 @@ def _ms(value: float | None) -> str:
     return "-" if value is None else f"{value:.2f} ms"
 
 
-def _table(host: HostManager, live: Record, elapsed: float, seconds: float) -> Any:
-    import numpy as np
-    from rich.table import Table
-
-    table = Table(title=f"skin demo  {elapsed:4.1f} / {seconds:g} s", title_justify="left")
-    several = len(host.links) > 1
-    for column in ("patch", *(("bus",) if several else ()), "state", "samples", "incomplete",
-                   "peak |F| N", "taxel", "sum Fz N"):
-        table.add_column(column, justify="right")
-    for node_id, health in sorted(host.health().items()):
-        where = (str(node_id), *((health.bus,) if several else ()), health.state)
-        frame = live.latest.get(node_id)
-        if frame is None:
-            table.add_row(*where, "0", "0", "-", "-", "-")
-            continue
-        magnitude = np.linalg.norm(frame.force_N, axis=1)
-        k = int(np.argmax(magnitude))
-        table.add_row(*where, str(health.samples), str(health.incomplete),
-                      f"{magnitude[k]:.2f}", str(k), f"{frame.force_N[:, 2].sum():.2f}")
-    return table
-
-
 def _line(host: HostManager, live: Record, elapsed: float) -> str:
     import numpy as np
 
@@ -375,19 +356,28 @@ def _line(host: HostManager, live: Record, elapsed: float) -> str:
             f"{stats['incomplete_samples']} incomplete  peak {peak:.2f} N ({where})")
 
 
-def _watch(host: HostManager, live: Record, seconds: float) -> None:
-    """Show live forces for ``seconds``: a rich table on a terminal, a line a second if not."""
+def _watch(host: HostManager, live: Record, seconds: float, scene: Scene) -> None:
+    """Show live forces for ``seconds``: on a terminal the skin itself (``skin view``'s
+    live heat map, drawn on its own thread, never holding up the data path); else a line a
+    second."""
     started = time.monotonic()
     stop = threading.Event()
     if sys.stdout.isatty():
-        from rich.live import Live
+        from skin.commands.view_layout import layout_from_positions
+        from skin.commands.view_live import LiveThread
+        from skin.commands.view_term import SkinView
 
-        with Live(_table(host, live, 0.0, seconds), auto_refresh=False) as view:
-            while not stop.wait(max(0.0, min(REFRESH_S, seconds - (time.monotonic() - started)))):
-                elapsed = time.monotonic() - started
-                view.update(_table(host, live, elapsed, seconds), refresh=True)
-                if elapsed >= seconds:
-                    break
+        layout = layout_from_positions({p.node_id: p.position_m for p in scene.patches},
+                                       "scene")
+        view = SkinView(layout, title=f"skin demo ({scene.name})")
+        host.on_forces(view.update)
+
+        def label() -> str:
+            return f"{time.monotonic() - started:4.1f} / {seconds:g} s"
+
+        with LiveThread(view, refresh_hz=1 / REFRESH_S, label=label):
+            stop.wait(seconds)
+        host.remove_callback(view.update)
         return
     next_line = 1.0
     while (elapsed := time.monotonic() - started) < seconds:

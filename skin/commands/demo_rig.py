@@ -3,9 +3,11 @@ published, and the wire time of every cycle.
 
 Each bus of the demo has a patch server (the simulated patches) on a canopen Network of
 its own, and a :class:`BusClock` on that network's notifier, which sees every frame the
-host sends (SYNC, force PDOs) and, on the timed bus, the patches' own frames too
-(``receive_own_messages``): so it knows when each SYNC went out, when each sample's last
-force PDO reached the bus, and how long every frame held the wire.
+host sends (SYNC, force PDOs): so it knows when each SYNC went out and when each sample's
+last force PDO reached the bus. On the timed bus the clock also keeps the frames the host
+receives (the patches' own, handed to it by a listener on the host's notifier that only
+appends them), so that after the run it knows how long every frame of a cycle held the
+wire; nothing is computed on the data path.
 """
 
 from __future__ import annotations
@@ -70,23 +72,41 @@ class BusClock:
         self.bitrate, self.data_bitrate = bitrate, data_bitrate
         self.syncs: list[float] = []
         self.ends: dict[int, list[float]] = {p: [] for p in last_force_cob.values()}
-        self.wire_s: list[float] = []  # per cycle, from its SYNC to the next
         self.force_frames = 0
         self.force_cobs: set[int] = set()
+        self.seen: list[can.Message] = []  # every frame of the wire, both sides (timed bus)
 
     def __call__(self, msg: can.Message) -> None:
         cob_id = msg.arbitration_id
+        if self.bitrate is not None:
+            self.seen.append(msg)
         if cob_id == SYNC_COB_ID:
             self.syncs.append(msg.timestamp)
-            if self.bitrate is not None:
-                self.wire_s.append(0.0)
         elif cob_id in self.force_cobs:
             self.force_frames += 1
             patch = self.last_force_cob.get(cob_id)
             if patch is not None:
                 self.ends[patch].append(msg.timestamp)
-        if self.bitrate is not None and self.wire_s and not msg.is_error_frame:
-            self.wire_s[-1] += _duration_s(msg, self.bitrate, self.data_bitrate)
+
+    def host_side(self, msg: can.Message) -> None:
+        """A frame the host received (the patches'): kept for the wire time."""
+        self.seen.append(msg)
+
+    def wire_ms(self) -> NDArray[np.float64]:
+        """Per whole cycle (from one SYNC to the next), ms the cycle's frames held the
+        wire: each frame's exact bits at the bus's rates (``canbus.framebits``)."""
+        if self.bitrate is None or len(self.syncs) < 2:
+            return np.empty(0)
+        frames = [m for m in self.seen if not m.is_error_frame]
+        stamps = np.array([m.timestamp for m in frames])
+        durations = np.array([_duration_s(m, self.bitrate, self.data_bitrate) for m in frames])
+        order = np.argsort(stamps, kind="stable")
+        stamps, durations = stamps[order], durations[order]
+        # a frame is stamped at its end: it belongs to the cycle its start falls in
+        cycle = np.searchsorted(np.asarray(self.syncs), stamps - durations, side="right")
+        per_cycle = np.bincount(cycle, weights=durations, minlength=len(self.syncs) + 1)
+        out: NDArray[np.float64] = 1000.0 * per_cycle[1:len(self.syncs)].astype(np.float64)
+        return out
 
 
 def _duration_s(msg: can.Message, bitrate: int, data_bitrate: int | None) -> float:

@@ -3,6 +3,10 @@
 The bus stamps what it sends, in both timings (the recorded timestamps are not carried:
 a consumer sees the bus's time, as it would live). To decode the forces of a recording,
 replay it to ``skin run CONFIG --listen-only`` on the same bus.
+
+Ctrl-C, SIGTERM and SIGHUP stop a replay normally: the summary of what was sent,
+``--json``, exit status 0. ``--partial`` replays a recording whose writer was killed up to
+its last whole frame.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ def _replay(args: argparse.Namespace) -> int:
     from canbus.tools.replay import Recording, RecordingError, Replayer
     from skin.atomic import atomic_write
     from skin.commands.busargs import default_channel
+    from skin.commands.signals import until_stopped
     from skin.errors import ConfigError
 
     if args.loop is not None and args.loop < 0:
@@ -40,15 +45,14 @@ def _replay(args: argparse.Namespace) -> int:
     with can.cli.create_bus_from_namespace(args) as bus:
         replayer = Replayer(bus, args.file, realtime=not args.fast, passes=passes,
                             skip_s=args.skip, error_frames=args.error_frames,
-                            rate_fps=rate if args.fast else None)
+                            rate_fps=rate if args.fast else None, partial=args.partial)
         try:
-            result = replayer.run(on_pass=progress)
+            with until_stopped() as stopped:
+                replayer.run(on_pass=progress)
         except RecordingError:
             print(f"sent {replayer.sent:,} frames before the damaged one", file=sys.stderr)
             raise
-        except KeyboardInterrupt:
-            print(f"interrupted after {replayer.sent:,} frames", file=sys.stderr)
-            return 130
+    result = replayer.result()  # what was sent, however it ended
     pacing = ", as fast as possible" if rate is None else f", paced to {rate:,.0f} frames/s"
     achieved = result.frames_sent / result.seconds if result.seconds > 0 else 0.0
     print(f"sent {result.frames_sent:,} frames in {result.seconds:.2f} s ({achieved:,.0f} "
@@ -56,13 +60,16 @@ def _replay(args: argparse.Namespace) -> int:
           f"{result.passes} pass{'es' if result.passes != 1 else ''}"
           f"{', original timing' if not args.fast else pacing})"
           + (f"; skipped {result.error_frames_skipped:,} error frames"
-             if result.error_frames_skipped else ""))
+             if result.error_frames_skipped else "")
+          + (f"; stopped by {stopped.signal}" if stopped.signal else ""))
     if args.json:
         record = {"file": args.file, "frames_sent": result.frames_sent,
                   "error_frames_skipped": result.error_frames_skipped,
                   "passes": result.passes, "seconds": result.seconds,
                   "timing": "fast" if args.fast else "original",
-                  "rate_fps": rate if args.fast else None}
+                  "rate_fps": rate if args.fast else None,
+                  "stopped_by": stopped.signal,
+                  "cut": None if replayer.cut is None else str(replayer.cut)}
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
     return 0
@@ -100,6 +107,10 @@ def add_subparser(subparsers: Any) -> None:
                         help="play N times in all; without N, until Ctrl-C")
     parser.add_argument("--skip", type=float, default=60.0, metavar="S",
                         help="cut recorded pauses longer than S seconds to S (default 60)")
+    parser.add_argument("--partial", action="store_true",
+                        help="a recording whose writer was killed: a bad frame at the very "
+                             "end of the file (a cut line or record, an .asc without its "
+                             "footer) ends the replay with a warning instead of an error")
     parser.add_argument("--error-frames", action="store_true",
                         help="also send error frames (most interfaces cannot)")
     parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")

@@ -16,11 +16,14 @@ the host on CPU 3 (see ``skin.commands.cpu``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import gc
 import json
+import logging
 import threading
 import time
+from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -98,13 +101,14 @@ def _wire(bus: can.BusABC) -> Any:
 
 def _run(args: argparse.Namespace) -> int:
     from canbus.master.hostconfig import load_host_config
+    from skin.commands.configpath import find_config
     from skin.commands.cpu import pinned
     from skin.commands.hostbus import resolve
     from skin.errors import ConfigError
 
     if args.status_every is not None and not args.status_every > 0:
         raise ConfigError("--status-every", f"must be > 0 s, got {args.status_every}")
-    config = resolve(load_host_config(args.config), args)
+    config = resolve(load_host_config(find_config(args.config)), args)
     with pinned(args.cpu):  # before the bus and the host start their threads
         return _run_host(args, config)
 
@@ -116,6 +120,7 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     from canbus.tools.recorder import enlarge_receive_buffer
     from skin.atomic import atomic_write
     from skin.commands.hostbus import describe, open_all
+    from skin.commands.signals import until_stopped
 
     started = time.monotonic()
     with ExitStack() as stack:
@@ -128,21 +133,24 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
         gc.collect()  # the object dictionaries are long-lived: keep the collector off them
         gc.freeze()
         stack.callback(gc.unfreeze)
+        stack.enter_context(_host_events_shown())
         n = len(config.patches)
         patches = f"{n} patch{'es' if n > 1 else ''} on {describe(config)}"
-        if host.listen_only:
-            print(f"host (listen-only): {patches}, following the SYNCs on the bus, "
-                  "decoding; nothing is sent; Ctrl-C stops", flush=True)
-        else:
-            forces = ", ".join(f"{p.node_id}->{p.force_node}" for p in config.patches)
-            print(f"host: {patches}, SYNC every {config.sync_period_ms:g} ms, forces "
-                  f"published as nodes {forces}; Ctrl-C stops", flush=True)
-        with host:
-            _hint_if_nobody_answered(host, config)
-            try:
+        # A stop (Ctrl-C, SIGTERM, SIGHUP) from the line that says how to stop on ends the
+        # run as --seconds does: the summary and --json follow.
+        with until_stopped() as stopped:
+            if host.listen_only:
+                print(f"host (listen-only): {patches}, following the SYNCs on the bus, "
+                      "decoding; nothing is sent; Ctrl-C stops", flush=True)
+            else:
+                forces = ", ".join(f"{p.node_id}->{p.force_node}" for p in config.patches)
+                print(f"host: {patches}, SYNC {sync_text(config)}, forces published as "
+                      f"nodes {forces}; Ctrl-C stops", flush=True)
+            with host:
+                _hint_if_nobody_answered(host, config)
                 _follow(host, args.seconds, args.status_every)
-            except KeyboardInterrupt:
-                print("stopping", flush=True)
+        if stopped.signal is not None:
+            print(f"stopped by {stopped.signal}", flush=True)
         stats = host.stats()
         health = host.health()
         buses_stats = host.bus_stats()
@@ -155,13 +163,34 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     if args.json:
         record: dict[str, Any] = {
             "config": config.source, "listen_only": host.listen_only,
-            "seconds": round(elapsed, 3), "stats": stats, "buses": buses_stats,
+            "seconds": round(elapsed, 3), "stopped_by": stopped.signal, "stats": stats,
+            "buses": buses_stats,
             "patches": {str(n): dataclasses.asdict(h) for n, h in health.items()},
             "unknown_nodes": sorted(host.unknown_nodes),
         }
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
     return 0
+
+
+def sync_text(config: HostConfig) -> str:
+    if config.sync == "external":
+        return "from another master (sync = external)"
+    return f"every {config.sync_period_ms:g} ms"
+
+
+@contextlib.contextmanager
+def _host_events_shown() -> Iterator[None]:
+    """The host's own log lines (state changes, lost patches, EMCYs, invalid taxels) at
+    INFO, shown whenever the command's own progress lines are (the default)."""
+    host = logging.getLogger("canbus.master")
+    before = host.level
+    if logging.getLogger("skin.commands").getEffectiveLevel() <= logging.INFO:
+        host.setLevel(min(logging.INFO, host.getEffectiveLevel()))
+    try:
+        yield
+    finally:
+        host.setLevel(before)
 
 
 def _hint_if_nobody_answered(host: HostManager, config: HostConfig) -> None:
@@ -183,7 +212,10 @@ def add_subparser(subparsers: Any) -> None:
     from skin.commands.cpu import add_cpu_argument
 
     parser = subparsers.add_parser("run", help="the host manager on a bus (CONFIG.toml)")
-    parser.add_argument("config", metavar="CONFIG", help="host config (see examples/host.toml)")
+    parser.add_argument("config", metavar="CONFIG", nargs="?", default=None,
+                        help="host config (see examples/host.toml); default: the first of "
+                             "$SKIN_HOST_CONFIG, ./host.toml, ~/.config/canskin/host.toml, "
+                             "/etc/canskin/host.toml")
     parser.add_argument("--seconds", type=float, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C)")
     parser.add_argument("--listen-only", action="store_true",

@@ -1,8 +1,10 @@
 """``skin sim run SCENE``: the scene's patches as CANopen nodes on a bus until stopped.
 
-``--truth F.csv`` also writes the simulator's true forces as reference forces (keyed by
-the SYNC counter each answer answers and the SYNC's time; ``canbus.device.truth``); each
-SYNC then steps the simulator once, so every answer has its own step.
+Ctrl-C, SIGTERM or SIGHUP (or ``--seconds``) ends it normally: the summary, ``--json``,
+exit status 0. ``--truth F.csv`` also writes the simulator's true forces as reference
+forces (keyed by the SYNC counter each answer answers and the SYNC's time;
+``canbus.device.truth``); each SYNC then steps the simulator once, so every answer has its
+own step.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ def _run(args: argparse.Namespace) -> int:
     from sim import Simulator, load_scene
     from skin.atomic import atomic_write
     from skin.commands.busargs import default_channel
+    from skin.commands.signals import until_stopped
 
     scene = load_scene(args.scene)
     default_channel(args)
@@ -44,7 +47,8 @@ def _run(args: argparse.Namespace) -> int:
     try:
         with PatchServer(network, source, event_rate_hz=0.0 if truth else scene.rate_hz) \
                 as server, (truth_log(args.truth, network, truth, server.nodes) if truth
-                            else contextlib.nullcontext()) as log:
+                            else contextlib.nullcontext()) as log, \
+                until_stopped() as stopped:  # from the line that tells how to stop it
             ids = ", ".join(str(n) for n in source.node_ids)
             print(f"scene {scene.name}: nodes {ids} ({server.nodes[0].mode}) on "
                   f"{args.interface}:{args.channel}; Ctrl-C stops", flush=True)
@@ -60,7 +64,8 @@ def _run(args: argparse.Namespace) -> int:
               "over half a SYNC period late: no truth)")
     if args.json:
         record = {"scene": scene.name, "seconds": elapsed, "syncs": server.sync_count,
-                  "frames": server.frames_sent, "cpu_share": cpu}
+                  "frames": server.frames_sent, "cpu_share": cpu,
+                  "stopped_by": stopped.signal}
         if log is not None:
             record.update(truth_samples=log.writer.samples, truth_late=log.late)
         with atomic_write(args.json) as handle:

@@ -6,12 +6,19 @@ sniffer's counters; neither waits for the view. The live view (rich) redraws at 
 it redraws less often (the redraws it skipped are counted) and never costs a frame.
 ``--view lines`` prints one line per frame through a bounded queue (lines it had to drop
 are counted); ``--view none`` prints only the summary.
+
+Ctrl-C, SIGTERM and SIGHUP end a capture normally: the recording is closed complete, the
+summary printed, ``--json`` written, exit status 0. The recording is written as it goes
+(``canbus.tools.recorder``): a capture killed outright keeps every frame but the last
+0.1 s.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -40,8 +47,10 @@ class Capture:
     seconds: float
     cpu_s: float  # this process, all threads
     saved: Path | None
+    files: list[Path]
     recorded: int
     error: BaseException | None
+    stopped_by: str | None
 
 
 def _sniff(args: argparse.Namespace) -> int:
@@ -56,12 +65,15 @@ def _sniff(args: argparse.Namespace) -> int:
 
     if args.record:
         recording_format(args.record)  # refused before the bus is opened
+    elif args.rotate_size is not None or args.rotate_seconds is not None:
+        raise ConfigError("--rotate-size/--rotate-seconds", "rotate a recording: give "
+                          "--record FILE too")
     if args.channel_name is not None:
         check_channel_name(args.channel_name)
-    for name in ("seconds", "refresh"):
+    for name in ("seconds", "refresh", "rotate_seconds"):
         value = getattr(args, name)
         if value is not None and not value > 0:
-            raise ConfigError(f"--{name}", f"must be positive, got {value}")
+            raise ConfigError(f"--{name.replace('_', '-')}", f"must be positive, got {value}")
     assignments: dict[int, str] = {}
     for text in args.eds:
         assignments |= parse_assignment(text)
@@ -92,41 +104,45 @@ def _sniff(args: argparse.Namespace) -> int:
 def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
              printer: LinePrinter | None, stats: ViewStats, view: str,
              args: argparse.Namespace) -> Capture:
-    """Receive until the end; the recording is saved (Ctrl-C included) or discarded."""
+    """Receive until the end (Ctrl-C, SIGTERM, SIGHUP included); the recording is closed
+    complete whatever ends it."""
     import can
 
     from canbus.tools.recorder import Recorder, log_channel_name
+    from skin.commands.signals import until_stopped
 
     name = args.channel_name or log_channel_name(args.channel)
-    recorder = Recorder(args.record, channel=name) if args.record else None
+    header = f"skin sniff {args.interface}:{args.channel}" + \
+        (f" → {args.record}" if args.record else "")
+    started, cpu = time.monotonic(), time.process_time()
+    recorder: Recorder | None = None
+    notifier: can.Notifier | None = None
     try:
-        listeners: list[can.Listener] = [sniffer] if recorder is None else [recorder, sniffer]
-        notifier = can.Notifier(bus, listeners, timeout=_TICK_S)
-        if printer is not None:
-            printer.start()
-        started, cpu = time.monotonic(), time.process_time()
-        header = f"skin sniff {args.interface}:{args.channel}" + \
-            (f" → {args.record}" if args.record else "")
-        try:
+        with until_stopped() as stopped:  # Ctrl-C is how a sniffer is meant to end
+            if args.record:
+                recorder = Recorder(args.record, channel=name, rotate_bytes=args.rotate_size,
+                                    rotate_s=args.rotate_seconds)
+            listeners: list[can.Listener] = [sniffer] if recorder is None else \
+                [recorder, sniffer]
+            notifier = can.Notifier(bus, listeners, timeout=_TICK_S)
+            if printer is not None:
+                printer.start()
             _watch(notifier, recorder, printer, sniffer, shown, stats, view, header, args,
                    started)
-        except KeyboardInterrupt:
-            pass  # Ctrl-C is how a sniffer is meant to end
+    finally:
+        try:
+            if notifier is not None:
+                notifier.stop()  # also stops the recorder: written out, synced, closed
         finally:
-            try:
-                notifier.stop()  # also stops the recorder: written, synced, renamed
-            finally:
-                if printer is not None:
-                    printer.stop()
-        seconds, cpu = time.monotonic() - started, time.process_time() - cpu
-        if recorder is not None:
-            recorder.stop()  # a no-op now, or the writer's error
-    except BaseException:
-        if recorder is not None:
-            recorder.abort()
-        raise
+            if printer is not None:
+                printer.stop()
+            if recorder is not None:
+                with contextlib.suppress(Exception):  # an error is already on its way
+                    recorder.stop()  # keeps what was received: a recording is a stream
+    seconds, cpu = time.monotonic() - started, time.process_time() - cpu
     return Capture(seconds, cpu, recorder.saved if recorder else None,
-                   recorder.written if recorder else 0, notifier.exception)
+                   recorder.files if recorder else [], recorder.written if recorder else 0,
+                   None if notifier is None else notifier.exception, stopped.signal)
 
 
 def _report(snap: Snapshot, capture: Capture, stats: ViewStats, view: str,
@@ -137,12 +153,16 @@ def _report(snap: Snapshot, capture: Capture, stats: ViewStats, view: str,
     for line in summary_lines(snap, capture.seconds, stats):
         print(line, file=out)
     if capture.saved is not None:
-        print(f"recorded {capture.recorded:,} frames to {capture.saved}", file=out)
+        where = str(capture.saved) if len(capture.files) == 1 else \
+            f"{capture.files[0]} .. {capture.files[-1]} ({len(capture.files)} files)"
+        print(f"recorded {capture.recorded:,} frames to {where}", file=out)
     if args.json:
         record = snap.to_dict(capture.seconds) | {
             "cpu_share": capture.cpu_s / max(capture.seconds, 1e-9),
             "recording": None if capture.saved is None else
-            {"path": str(capture.saved), "frames": capture.recorded},
+            {"path": str(capture.saved), "frames": capture.recorded,
+             "files": [str(p) for p in capture.files]},
+            "stopped_by": capture.stopped_by,
             "view": {"mode": view, "redraws": stats.redraws,
                      "redraws_skipped": stats.redraws_skipped, "lines": stats.lines,
                      "lines_dropped": stats.lines_dropped}}
@@ -195,17 +215,22 @@ def _watch(notifier: can.Notifier, recorder: Recorder | None, printer: LinePrint
                            time.monotonic() - started, rows), refresh=True)
 
 
-def _node_id(text: str) -> int:
-    value = int(text, 0)
-    if not 1 <= value <= 127:
-        raise argparse.ArgumentTypeError(f"node-ID must be in 1..127, got {text}")
-    return value
+_SIZE = re.compile(r"(\d+)([kKmMgG]?)[bB]?")
+
+
+def _size(text: str) -> int:
+    """``1000``, ``64k``, ``10M``, ``1G`` (powers of 1024) as bytes."""
+    match = _SIZE.fullmatch(text.strip())
+    if match is None or int(match[1]) == 0:
+        raise argparse.ArgumentTypeError(f"not a positive size in bytes: {text!r} (e.g. "
+                                         "1000000, 64k, 10M, 1G)")
+    return int(match[1]) << 10 * " KMG".index(match[2].upper() or " ")
 
 
 def add_subparser(subparsers: Any) -> None:
     import can.cli
 
-    from skin.commands.busargs import add_rcvbuf_argument
+    from skin.commands.busargs import add_rcvbuf_argument, node_id
 
     parser = subparsers.add_parser(
         "sniff", help="live, EDS-aware bus view; --record to .log/.asc/.blf/.pcap",
@@ -214,12 +239,18 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--eds", action="append", default=[], metavar="NODE=FILE",
                         help="decode node NODE (or FIRST-LAST) with FILE (a path or a shipped "
                              "EDS name); default: 1..64 skin-patch, 65..127 skin-forces")
-    parser.add_argument("--node", action="append", type=_node_id, default=[], metavar="N",
+    parser.add_argument("--node", action="append", type=node_id, default=[], metavar="N",
                         help="show only node N (repeatable); statistics still see every frame")
     parser.add_argument("--service", action="append", choices=SERVICES, default=[],
                         help="show only this service (repeatable)")
     parser.add_argument("--record", metavar="FILE",
                         help="record every frame to FILE: .log (candump -L), .asc, .blf, .pcap")
+    parser.add_argument("--rotate-size", type=_size, default=None, metavar="BYTES",
+                        help="go on in a new file (run.001.log, run.002.log, ...) once one "
+                             "reaches BYTES (k, M, G: powers of 1024); each file is a whole "
+                             "recording")
+    parser.add_argument("--rotate-seconds", type=float, default=None, metavar="S",
+                        help="go on in a new file every S seconds")
     parser.add_argument("--channel-name", default=None, metavar="NAME",
                         help="the interface name a .log recording gives every frame, as "
                              "log2asc and canplayer expect it (default: the bus's channel "

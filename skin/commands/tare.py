@@ -49,22 +49,17 @@ def _tare(args: argparse.Namespace) -> int:
     return 0
 
 
-def _node_id(text: str) -> int:
-    value = int(text, 0)
-    if not 1 <= value <= 127:
-        raise argparse.ArgumentTypeError(f"node-ID must be in 1..127, got {text}")
-    return value
-
-
 def add_subparser(subparsers: Any) -> None:
     import can.cli
+
+    from skin.commands.busargs import node_id
 
     parser = subparsers.add_parser(
         "tare", help="re-zero a patch through its force node (SDO write of 0x2007)",
         description="Re-zero the patch a force node publishes, by an SDO write of 1 to its "
                     "object 0x2007, as any CANopen master can. Refused while the patch is "
                     "loaded.")
-    parser.add_argument("node", type=_node_id, metavar="NODE",
+    parser.add_argument("node", type=node_id, metavar="NODE",
                         help="the force node's node-ID (a patch's is its node-ID + 64 by "
                              "default)")
     parser.add_argument("--timeout", type=float, default=1.0, metavar="S",

@@ -14,6 +14,10 @@ the sniffer's counters and event decoding, the live view and the recording threa
 virtual: sender thread and ``Sniffer`` + ``Recorder`` in this one process on python-can's
 virtual bus (no view): the in-process ceiling, without sockets.
 
+writer: the recorder alone, no bus: ``--seconds x --rate`` frames handed to a
+``Recorder`` as fast as possible, written out and closed; the recorder's frames per
+CPU-second (all its threads), best of three.
+
 Prints one JSON object: sent, recorded, lost, the achieved send rate, and the view's
 redraws and skipped redraws from the sniffer's own ``--json`` summary.
 """
@@ -107,7 +111,7 @@ def bench_udp(args: argparse.Namespace, folder: Path) -> dict[str, object]:
     drain = threading.Thread(target=_drain, args=(master,), daemon=True)
     drain.start()
     deadline = time.monotonic() + 30
-    while not any(p.name.startswith(f".{out.name}.") for p in folder.iterdir()):
+    while not out.exists():
         if time.monotonic() > deadline or sniff.poll() is not None:
             raise SystemExit("skin sniff did not start")
         time.sleep(0.05)
@@ -149,6 +153,26 @@ def bench_virtual(args: argparse.Namespace, folder: Path) -> dict[str, object]:
             "send_rate": len(messages) / took}
 
 
+def bench_writer(args: argparse.Namespace, folder: Path) -> dict[str, object]:
+    from canbus.tools.recorder import Recorder
+
+    out = folder / f"bench.{args.format}"
+    messages = frames(int(args.rate * args.seconds))
+    for k, msg in enumerate(messages):
+        msg.timestamp = 1.7e9 + k / args.rate
+    best = float("inf")
+    for _ in range(3):
+        recorder = Recorder(out)
+        cpu = time.process_time()
+        for msg in messages:
+            recorder.on_message_received(msg)
+        recorder.stop()
+        best = min(best, time.process_time() - cpu)
+    recorded, _ = check(out, messages)
+    return {"interface": "none (writer only)", "format": args.format, "sent": len(messages),
+            "recorded": recorded, "frames_per_cpu_s": len(messages) / best}
+
+
 def _drain(fd: int) -> None:
     try:
         while os.read(fd, 65536):
@@ -166,11 +190,12 @@ def main() -> None:
     parser.add_argument("--refresh", type=float, default=4.0, help="live view redraws/s")
     parser.add_argument("--rcvbuf", type=int, default=4 * 1024 * 1024,
                         help="skin sniff --rcvbuf (0: the system's default)")
-    parser.add_argument("--interface", choices=("udp_multicast", "virtual"),
+    parser.add_argument("--interface", choices=("udp_multicast", "virtual", "writer"),
                         default="udp_multicast")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        run = bench_udp if args.interface == "udp_multicast" else bench_virtual
+        run = {"udp_multicast": bench_udp, "virtual": bench_virtual,
+               "writer": bench_writer}[args.interface]
         print(json.dumps(run(args, Path(tmp)), indent=2))
 
 

@@ -228,3 +228,82 @@ def test_external_sync_and_tare_by_sdo(one: Buses) -> None:
         finally:
             master.sync.stop()
         assert host.stats()["sync_overruns"] == 0 and host.sync.cycle > 0
+
+
+def test_the_sniffer_and_the_view_read_can_fd_forces(fd_bus: Buses) -> None:
+    """A host maps its own force nodes for CAN FD in place, with no SDO on the bus: a tool
+    reading the bus adopts the one-frame mapping when a TPDO 1 arrives as a long FD frame."""
+    from canbus.tools.forcereader import ForceReader
+    from canbus.tools.pdo_names import Dictionary
+    from canbus.tools.services import ServiceDecoder
+
+    load = press({4: (0.3, -0.2, 2.5)})
+    fd_bus.serve("skin", 1, load)
+    reader = ForceReader([65])
+    samples: list = []
+    reader.on_sample(samples.append)
+    watcher = fd_bus.bus("skin")
+    notifier = can.Notifier(watcher, [reader], timeout=0.05)
+    config = HostConfig(patches=(PatchConfig(1),), scan_ms=100,
+                        buses=(BusConfig(name="skin", fd=True),))
+    host, frames = _host(fd_bus, config)
+    try:
+        with host:
+            eventually(lambda: sum(f.complete for f in frames) >= 3, "complete samples")
+            time.sleep(0.1)
+        reader.process()
+    finally:
+        notifier.stop(timeout=1.0)
+        watcher.shutdown()
+    assert reader.samples >= 3
+    want, _ = expected(load)
+    last = [f for f in frames if f.complete][-1]
+    published = [m for m in fd_bus.seen["skin"] if m.arbitration_id == 0x181 + 64]
+    text = ServiceDecoder(Dictionary()).describe_pdo(0x1C1, bytes(published[-1].data),
+                                                      Dictionary().view(65))
+    sent = [v / 1000 for v in np.rint(last.force_N * 1000).reshape(27)]
+    assert f"F4z={sent[14]:+.3f} N" in text and "valid=9/9" in text  # all 27, one frame
+    assert "SYNC counter answered=" in text
+    np.testing.assert_allclose(last.force_N, want, rtol=1e-12)
+    by_counter = {f.sync_counter: f for f in frames}
+    assert samples and all(s.sync_counter is not None for s in samples)  # 0x2006 read
+    for sample in [s for s in samples if s.complete][-3:]:
+        mine = by_counter[sample.sync_counter]  # the host's own sample of that SYNC
+        np.testing.assert_allclose(sample.force_N, np.rint(mine.force_N * 1000) / 1000,
+                                   atol=1e-9)
+
+
+def test_bit_errors_on_a_timed_bus_never_mix_a_sample(request: pytest.FixtureRequest) -> None:
+    """The patches' node hits bit errors (retransmitted, as CAN does): every sample the host
+    publishes complete is the decode of one whole answer; the rest are flagged."""
+    from canbus.device.source import ArraySource
+
+    loads = [press({k % 9: (0.1 * k, -0.05 * k, 0.5 + 0.2 * k)}) for k in range(12)]
+    channel = f"timed-{request.node.name}"
+    host_bus = can.Bus(interface="timed", channel=channel)
+    patch_bus = can.Bus(interface="timed", channel=channel, error_probability=0.05,
+                        error_seed=7)
+    net = canopen.Network(patch_bus)
+    net.NOTIFIER_CYCLE = 0.05
+    net.connect()
+    server = PatchServer(net, ArraySource(np.stack(loads)[:, None], (1,)))
+    server.start()
+    frames: list[ForceFrame] = []
+    try:
+        host = HostManager(host_bus, HostConfig(patches=(PatchConfig(1),), scan_ms=100,
+                                                sync_period_ms=20.0))
+        host.on_forces(frames.append)
+        with host:
+            eventually(lambda: len(frames) >= 40, "forty cycles")
+        wire = host_bus.wire_stats()
+    finally:
+        server.stop()
+        net.disconnect()
+        host_bus.shutdown()
+        patch_bus.shutdown()
+    assert wire.error_frames > 0 and wire.retransmissions > 0  # the errors happened
+    answers = [expected(load)[0] for load in loads]
+    complete = [f for f in frames if f.complete]
+    assert len(complete) > len(frames) // 2
+    for frame in complete:
+        assert any(np.allclose(frame.force_N, a, rtol=1e-12, atol=1e-12) for a in answers)

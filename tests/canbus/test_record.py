@@ -1,4 +1,4 @@
-"""Recorder: every format read back frame for frame; can-utils reads our .log; atomic files."""
+"""Recorder: every format read back frame for frame; can-utils reads our .log; the file."""
 
 from __future__ import annotations
 
@@ -131,36 +131,40 @@ def test_the_readmes_log2asc_line_reads_a_udp_multicast_recording(tmp_path: Path
     assert sum(" Rx " in line or " Tx " in line for line in run.stdout.splitlines()) == len(sent)
 
 
-def test_file_appears_only_when_complete(tmp_path: Path) -> None:
+def test_the_file_is_there_from_the_start_under_its_own_name(tmp_path: Path) -> None:
     target = tmp_path / "rec.pcap"
     recorder = Recorder(target)
+    assert [p.name for p in tmp_path.iterdir()] == ["rec.pcap"]  # no hidden temporary file
     for msg in _frames():
         recorder.on_message_received(msg)
-    assert not target.exists()
-    assert [p.name.startswith(".rec.pcap.") for p in tmp_path.iterdir()] == [True]
     recorder.stop()
     recorder.stop()  # idempotent: python-can's Notifier.stop() calls it too
     assert recorder.written == recorder.received == len(_frames())
+    assert recorder.saved == target and recorder.files == [target]
     assert [p.name for p in tmp_path.iterdir()] == ["rec.pcap"]
     assert target.stat().st_mode & 0o644 == 0o644  # the mode open() would give, not 0600
 
 
-def test_abort_and_writer_errors_leave_nothing(tmp_path: Path,
-                                              monkeypatch: pytest.MonkeyPatch) -> None:
-    recorder = Recorder(tmp_path / "gone.log")
-    recorder.on_message_received(_frames()[0])
-    recorder.abort()
-    assert list(tmp_path.iterdir()) == []
+def test_a_failing_writer_is_reported_and_the_file_keeps_what_came_before(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    real = CandumpLogWriter.on_message_received
+    calls = [0]
 
-    def disk_full(self: object, msg: can.Message) -> None:
-        raise OSError(28, "No space left on device")
+    def disk_full_at_the_fourth(self: CandumpLogWriter, msg: can.Message) -> None:
+        calls[0] += 1
+        if calls[0] == 4:
+            raise OSError(28, "No space left on device")
+        real(self, msg)
 
-    monkeypatch.setattr(CandumpLogWriter, "on_message_received", disk_full)
+    monkeypatch.setattr(CandumpLogWriter, "on_message_received", disk_full_at_the_fourth)
     failing = Recorder(tmp_path / "full.log")
-    failing.on_message_received(_frames()[0])
-    with pytest.raises(OSError, match=r"recording to .*full\.log failed: .*No space left"):
+    for msg in _frames():
+        failing.on_message_received(msg)
+    with pytest.raises(OSError, match=r"recording to .*full\.log failed: .*No space left.*"
+                                      "keeps the frames written before"):
         failing.stop()
-    assert list(tmp_path.iterdir()) == []
+    with Recording(tmp_path / "full.log") as recording:
+        assert [_key(m) for m in recording] == [_key(m) for m in _frames()[:3]]
 
 
 def test_unknown_suffix_is_refused_before_any_file(tmp_path: Path) -> None:

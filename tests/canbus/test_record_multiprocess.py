@@ -38,7 +38,7 @@ def test_sigint_keeps_every_frame(udp_channel: str, udp_port: int, tmp_path: Pat
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 30
-        while not any(p.name.startswith(".udp.log.") for p in tmp_path.iterdir()):
+        while not out.exists():
             assert proc.poll() is None, proc.communicate()[1]
             assert time.monotonic() < deadline, "skin sniff did not start"
             time.sleep(0.02)  # the bus (joined socket) exists before the recording file

@@ -216,11 +216,53 @@ def test_demo_scenes_put_every_load_on_every_patch() -> None:
     assert _scene("indenter", None) is not None and _scene("indenter", 1).node_ids == (1,)
 
 
-def test_skin_demo_on_a_terminal_shows_a_live_table(capsys: pytest.CaptureFixture[str],
+def test_skin_demo_on_a_terminal_shows_the_skin_live(capsys: pytest.CaptureFixture[str],
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     import sys
 
     monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
     assert _in_thread(["demo", "--patches", "1", "--seconds", "0.6"]) == 0
     text = capsys.readouterr().out
-    assert "peak |F| N" in text and "operational" in text and "rmse" in text
+    # skin view's live heat map: the patch, its state, rate and completeness, its taxels
+    assert "skin demo (indenter)" in text and "patch 1" in text and "live" in text
+    assert "complete" in text and "max Fz" in text and "rmse" in text
+
+
+def test_skin_run_with_no_bus_anywhere_says_so_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import can
+
+    monkeypatch.setattr(can.util, "load_config", lambda *a, **k: {})
+    config = tmp_path / "host.toml"
+    config.write_text("[[patches]]\nnode_id = 1\n")
+    assert main(["run", str(config)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("skin: error: no bus: ") and err.count("\n") == 1
+    assert "-i socketcan -c can0" in err
+
+
+def test_skin_run_takes_its_bus_from_the_config_and_finds_the_config(
+        patches: str, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    config = tmp_path / "host.toml"
+    config.write_text(f'[bus]\ninterface = "virtual"\nchannel = "{patches}"\n'
+                      "[[patches]]\nnode_id = 1\n")
+    monkeypatch.setenv("SKIN_HOST_CONFIG", str(config))  # no CONFIG argument: found there
+    out = tmp_path / "run.json"
+    assert _in_thread(["run", "--seconds", "1.0", "--status-every", "0.4", "--json",
+                       str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "patch 1: operational" in text and "status: 1/1 patches operational" in text
+    record = json.loads(out.read_text())
+    assert record["stats"]["complete_samples"] > 0
+    assert record["buses"]["default"]["patches"] == [1]
+
+
+def test_skin_run_refuses_bus_flags_for_a_config_of_several_buses(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = tmp_path / "host.toml"
+    config.write_text('[[buses]]\nname = "a"\ninterface = "virtual"\n[[buses]]\nname = "b"\n'
+                      'interface = "virtual"\n[[patches]]\nnode_id = 1\nbus = "a"\n')
+    assert main(["run", str(config), "-i", "virtual"]) == 1
+    assert "has 2 buses ([[buses]]): set each one in its table" in capsys.readouterr().err

@@ -215,7 +215,9 @@ def test_sniff_summary_and_json(capture: Capture) -> None:
         "missed_sync": 0, "incomplete_samples": 0, "complete_samples": 2 * (SYNCS - 1),
         "heartbeat_gaps": 0, "unknown_frames": 0, "unknown_cob_ids": [], "error_frames": 0}
     assert record["recording"] == {"path": str(capture.folder / "live.pcap"),
-                                   "frames": len(capture.sent)}
+                                   "frames": len(capture.sent),
+                                   "files": [str(capture.folder / "live.pcap")]}
+    assert record["stopped_by"] == "SIGINT"
     assert f"recorded {len(capture.sent)} frames to" in capture.summary
     assert "anomalies: missed SYNC 0, incomplete samples 0 of 10" in capture.summary
 
@@ -306,10 +308,46 @@ def test_bad_arguments_fail_before_the_bus_opens(tmp_path: Path,
         (["--record", str(tmp_path / "x.txt")], "--record: unknown recording format '.txt'"),
         (["--eds", "3=missing.eds"], "eds: no shipped EDS 'missing.eds'"),
         (["--seconds", "0"], "--seconds: must be positive"),
+        (["--rotate-size", "1M"], "--rotate-size/--rotate-seconds: rotate a recording: give "
+                                  "--record FILE too"),
+        (["--record", str(tmp_path / "r.log"), "--rotate-seconds", "0"],
+         "--rotate-seconds: must be positive, got 0.0"),
     ]:
         assert main(["sniff", *argv]) == 1
         assert message in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["sniff", "--record", str(tmp_path / "r.log"), "--rotate-size", "10T"])
+    assert "argument --rotate-size: not a positive size in bytes: '10T'" in \
+        capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_rotated_capture_names_its_files(tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    frames = [can.Message(arbitration_id=0x181, data=k.to_bytes(8, "little"),
+                          is_extended_id=False) for k in range(400)]
+
+    def send() -> None:
+        with can.Bus(interface="virtual", channel="rotate") as bus:
+            time.sleep(0.3)  # the sniffer's bus is open by then
+            for msg in frames:
+                bus.send(msg)
+
+    sender = threading.Thread(target=send)
+    sender.start()
+    out = tmp_path / "r.pcap"
+    code = main(["sniff", "-c", "rotate", "--view", "none", "--seconds", "1.0", "--record",
+                 str(out), "--rotate-size", "4k", "--json", str(tmp_path / "s.json")])
+    sender.join()
+    assert code == 0
+    files = json.loads((tmp_path / "s.json").read_text())["recording"]["files"]
+    assert [Path(f).name for f in files] == ["r.pcap", "r.001.pcap", "r.002.pcap", "r.003.pcap"]
+    counts = []
+    for file in files:
+        with Recording(file) as recording:
+            counts.append(sum(1 for _ in recording))
+    assert counts == [128, 128, 128, 16]  # 24 + 32 x 128 bytes reach 4 KiB
+    assert f"recorded 400 frames to {out} .. {files[-1]} (4 files)" in capsys.readouterr().out
 
 
 def test_line_printer_filters_batches_and_counts_drops(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -175,3 +175,15 @@ def test_nodes_sharing_an_eds_keep_their_own_cob_ids() -> None:
     patch6 = dictionary.view(6)
     assert patch6 is not None and patch6.od is patch5.od  # one parse per EDS
     assert dictionary.view(0) is None and dictionary.view(128) is None
+
+
+def test_a_force_nodes_taxel_status_reads_as_the_decoders_reason() -> None:
+    """0x2004 of a force node is the decoder's reason code, not a patch's pillar bits."""
+    from canbus.tools.pdo_names import Dictionary
+    from decoder.reasons import Reason
+
+    forces, patch = Dictionary().view(65), Dictionary().view(1)
+    assert forces is not None and patch is not None
+    assert forces.named(0x2004, 5, float(Reason.EXTRAPOLATED)).text == "S4=EXTRAPOLATED"
+    assert forces.named(0x2004, 1, 0.0).text == "S0=ok"
+    assert patch.named(0x2004, 1, 1.0).text == "S0=z open"

@@ -1,0 +1,374 @@
+"""Samples out of PDOs: one node's mapped TPDOs of one sample, each once, joined.
+
+A node publishes a sample as a set of TPDOs (7 classic frames for a patch or a force
+node in 3-axis mode; one CAN FD frame can carry a whole sample). :class:`PdoAssembly`
+holds one node's mapping (:class:`~canbus.pdo_codec.TpdoLayout` s, of any length up to
+CAN FD's 64 bytes) and the sample being assembled: each frame's bytes go into a
+preallocated buffer at its PDO's place; when the sample closes, one ``np.frombuffer``
+with a structured dtype reads every mapped variable.
+
+Where a sample begins. A classic PDO carries no cycle number, but a node sends the PDOs
+of one sample together and in a fixed order, and the PDO with the lowest COB-ID comes
+first in both orders a sender may use: TPDO number order (one transmit FIFO, the host's
+force nodes) and ascending COB-ID (queued frames leave a CAN controller by arbitration);
+it is TPDO 1 in the predefined connection set. That PDO, the *first*, begins a sample. So
+a sample closes:
+
+- *complete* when every mapped PDO came once;
+- *partial* when the next first PDO comes (the next sample began), or when a PDO it
+  already holds comes again with other bytes (the next sample's first PDO was lost; the
+  same bytes again right after are a CAN retransmission seen twice: ignored);
+- *partial* when it was open for two sample periods (by bus time: nothing more will come);
+  a sample that lacks its first PDO, for one period's 80 % (a sender holds one sample's
+  PDOs together; this keeps two samples apart even when their first PDOs are both lost).
+
+A sender that is held up mid-sample (a busy host thread) delays its PDOs; they still
+join their own sample, never the next one. A partial sample carries the PDOs that came,
+and says which.
+
+:class:`PdoSampleReader` is the ``can.Listener`` around assemblies of many nodes that the
+force reader and the resistance reader share: the receive thread only appends
+``(COB-ID, bytes, timestamp)`` of the frames it may need to a deque; :meth:`process`
+(a thread of the reader's after :meth:`start`, or the caller) assembles. It follows SDO
+transfers of its nodes (a master that remaps a PDO, or reads the mapping, is followed, as
+the sniffer follows it) and the SYNC period.
+"""
+
+from __future__ import annotations
+
+import itertools
+import statistics
+import threading
+import time
+from collections import deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import can
+import canopen
+import numpy as np
+from numpy.typing import NDArray
+
+from canbus.pdo_codec import TpdoLayout, entry_dtype
+from canbus.tools.pdo_names import Dictionary, EdsChoice, NodeView
+from canbus.tools.services import SdoDecoder
+
+SYNC_COB_ID = 0x080
+DEFAULT_PERIOD_S = 0.01
+"""The sample period assumed until SYNCs are seen: the host's default 100 Hz."""
+HEADLESS_SHARE = 0.8
+"""Of the period: how long a sample without its first PDO may stay open."""
+OPEN_PERIODS = 2.0
+"""Periods after which any open sample closes partial."""
+_SYNC_INTERVALS = 8
+_POLL_S = 0.02
+
+
+@dataclass(frozen=True)
+class Variable:
+    """A mapped object ``index:subindex`` and the PDO (bit in ``arrived``) that carries it."""
+
+    index: int
+    subindex: int
+    pdo: int
+
+
+@dataclass(frozen=True)
+class RawSample:
+    """One node's joined PDOs (read them with :meth:`PdoAssembly.values`)."""
+
+    node_id: int
+    timestamp: float  # bus time of the sample's last PDO
+    payload: bytes  # the PDOs at their places in the assembly's buffer
+    arrived: int  # bit p: PDO p (in ``PdoAssembly.layouts`` order) came
+    complete: bool  # every mapped PDO came, once
+
+
+class PdoAssembly:
+    """One node's TPDO mapping and the sample being assembled (not thread-safe)."""
+
+    def __init__(self, node_id: int, layouts: Sequence[TpdoLayout],
+                 od: canopen.ObjectDictionary) -> None:
+        self.node_id = node_id
+        self.layouts = tuple(layouts)
+        self.slots: dict[int, tuple[int, int, int]] = {}  # COB-ID -> (PDO bit, offset, size)
+        formats: list[np.dtype[np.generic]] = []
+        offsets: list[int] = []
+        variables: list[Variable] = []
+        taken: set[tuple[int, int]] = set()
+        at = 0
+        for bit, layout in enumerate(self.layouts):
+            self.slots[layout.cob_id] = (bit, at, layout.size)
+            offset = at
+            for entry in layout.entries:
+                key = (entry.index, entry.subindex)
+                # index < 0x1000: CiA 301's dummy entries (a data type), padding only
+                if entry.index >= 0x1000 and key not in taken:
+                    taken.add(key)
+                    formats.append(entry_dtype(entry, od))
+                    offsets.append(offset)
+                    variables.append(Variable(entry.index, entry.subindex, bit))
+                offset += entry.bits // 8
+            at += max(8, layout.size)
+        self.variables = tuple(variables)
+        self.size = max(at, 1)
+        self.buffer = bytearray(self.size)
+        by_dtype: dict[np.dtype[np.generic], list[int]] = {}
+        for k, dtype in enumerate(formats):
+            by_dtype.setdefault(dtype, []).append(k)
+        self._groups = [(dtype, np.array(cols, dtype=np.intp),
+                         np.array([offsets[k] + b for k in cols for b in range(dtype.itemsize)],
+                                  dtype=np.intp))
+                        for dtype, cols in by_dtype.items()]
+        self._pdo = np.array([v.pdo for v in variables], dtype=np.int64)
+        self.full = (1 << len(self.layouts)) - 1
+        cob_ids = [layout.cob_id for layout in self.layouts]
+        self.first_pdo = cob_ids.index(min(cob_ids)) if cob_ids else 0
+        self.last_pdo = -1
+        self.seen = 0
+        self.first = 0.0
+        self.last = 0.0
+        self.malformed = 0
+
+    def column(self, index: int, subindex: int) -> int | None:
+        for k, v in enumerate(self.variables):
+            if (v.index, v.subindex) == (index, subindex):
+                return k
+        return None
+
+    def take(self, cob_id: int, data: bytes, timestamp: float,
+             period_s: float) -> list[RawSample]:
+        """One frame of PDO ``cob_id``: the samples it closes (none, one or two)."""
+        bit, offset, size = self.slots[cob_id]
+        out = []
+        if self.seen:
+            if bit == self.first_pdo:
+                out.append(self.close())
+            elif self.seen >> bit & 1:
+                if bit == self.last_pdo and bytes(data[:size]) == \
+                        self.buffer[offset:offset + size]:
+                    return out  # the frame just taken, again: a retransmission seen twice
+                out.append(self.close())
+            elif not self.seen >> self.first_pdo & 1 and \
+                    timestamp - self.first > HEADLESS_SHARE * period_s:
+                out.append(self.close())
+        if len(data) < size:
+            self.malformed += 1  # not trusted: its PDO stays missing
+            return out
+        if not self.seen:
+            self.first = timestamp
+        self.buffer[offset:offset + size] = data[:size]
+        self.seen |= 1 << bit
+        self.last = timestamp
+        self.last_pdo = bit
+        if self.seen == self.full:
+            out.append(self.close())
+        return out
+
+    def expire(self, now: float, period_s: float) -> RawSample | None:
+        """The open sample, closed partial, if it has been open for :data:`OPEN_PERIODS`
+        periods by bus time ``now`` (:data:`HEADLESS_SHARE` of one without its first PDO)."""
+        if not self.seen:
+            return None
+        limit = OPEN_PERIODS if self.seen >> self.first_pdo & 1 else HEADLESS_SHARE
+        if now - self.first > limit * period_s:
+            return self.close()
+        return None
+
+    def close(self) -> RawSample:
+        sample = RawSample(self.node_id, self.last, bytes(self.buffer), self.seen,
+                           self.seen == self.full)
+        self.seen = 0
+        return sample
+
+    def values(self, samples: Sequence[RawSample]) -> NDArray[np.float64]:
+        """``(n, V)`` every mapped variable of ``n`` samples of this assembly, one numpy
+        read; a PDO that did not come reads as the bytes left by the last one that did."""
+        n = len(samples)
+        raw = np.frombuffer(b"".join(s.payload for s in samples), dtype=np.uint8)
+        raw = raw.reshape(n, self.size)
+        out = np.empty((n, len(self.variables)), dtype=np.float64)
+        for dtype, columns, byte_index in self._groups:
+            out[:, columns] = np.ascontiguousarray(raw[:, byte_index]).view(dtype)
+        return out
+
+    def arrived(self, samples: Sequence[RawSample]) -> NDArray[np.bool_]:
+        """``(n, V)`` whether each variable's PDO came."""
+        bits = np.array([s.arrived for s in samples], dtype=np.int64)
+        came: NDArray[np.bool_] = (bits[:, None] >> self._pdo[None, :] & 1).astype(bool)
+        return came
+
+
+Frame = tuple[int, bytes, float]
+
+
+class PdoSampleReader(can.Listener):
+    """Samples of the TPDOs of ``node_ids`` (EDS ``eds``), handed to :meth:`on_raw`.
+
+    ``cob_ids`` pins a node's TPDO COB-IDs (TPDO 1, 2, ... in order; a master that set
+    them without SDO, e.g. a host config's ``force_cob_ids``). ``period_s`` fixes the
+    sample period the closing rules use (module docstring; default: the median of the
+    last SYNC intervals seen, :data:`DEFAULT_PERIOD_S` before two SYNCs).
+    """
+
+    def __init__(self, node_ids: Iterable[int], eds: EdsChoice, *,
+                 cob_ids: dict[int, Sequence[int]] | None = None,
+                 period_s: float | None = None) -> None:
+        self.node_ids = tuple(sorted(set(node_ids)))
+        self.dictionary = Dictionary(dict.fromkeys(self.node_ids, eds))
+        self.fixed_period_s = period_s
+        self.received = 0  # every frame the listener was handed
+        self.frames = 0  # PDO frames of the nodes taken
+        self.malformed = 0  # of which shorter than their mapping
+        self.syncs = 0
+        self.sync_counter: int | None = None
+        self.latest = -np.inf  # the newest bus timestamp processed
+        self._sdo = SdoDecoder()
+        self._sync_times: deque[float] = deque(maxlen=_SYNC_INTERVALS + 1)
+        self._period_s = DEFAULT_PERIOD_S
+        self._pending: deque[Frame] = deque()
+        self._lock = threading.Lock()
+        self._assemblies: dict[int, PdoAssembly] = {}
+        self._table: dict[int, PdoAssembly] = {}
+        self._wanted: frozenset[int] = frozenset()
+        self._thread: threading.Thread | None = None
+        self._stopping = threading.Event()
+        for node in self.node_ids:
+            view = self._view(node)
+            for n, cob in enumerate((cob_ids or {}).get(node, ())):
+                view.observe(0x1800 + n, 1, int(cob).to_bytes(4, "little"))
+            self._rebuild(node)
+
+    # -- receive path -----------------------------------------------------------------
+
+    def on_message_received(self, msg: can.Message) -> None:
+        """Copies the frame if the reader may need it; nothing else."""
+        self.received += 1
+        if msg.arbitration_id in self._wanted and not msg.is_extended_id \
+                and not msg.is_error_frame:
+            self._pending.append((msg.arbitration_id, bytes(msg.data), msg.timestamp))
+
+    # -- processing -------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Process on a thread of the reader's, every 20 ms (a batch per node)."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="pdo-samples", daemon=True)
+            self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the thread (if any) and process what is left; safe to call again."""
+        self._stopping.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join()
+        self.process()
+
+    def _run(self) -> None:
+        while not self._stopping.wait(_POLL_S):
+            self.process()
+
+    def period_s(self) -> float:
+        """The sample period the closing rules use (the class docstring)."""
+        if self.fixed_period_s is not None:
+            return self.fixed_period_s
+        return self._period_s
+
+    def _on_sync(self, data: bytes, timestamp: float) -> None:
+        self.syncs += 1
+        self.sync_counter = data[0] if data else None
+        times = self._sync_times
+        times.append(timestamp)
+        if len(times) >= 2:
+            intervals = [b - a for a, b in itertools.pairwise(times)]
+            self._period_s = statistics.median(intervals)
+
+    def process(self, now: float | None = None) -> None:
+        """Assemble every frame received so far, and close the samples open too long by
+        the newest frame's time or ``now`` (bus time), whichever is later."""
+        with self._lock:
+            pending = self._pending
+            sdo_low, sdo_high = 0x581, 0x67F
+            period = self.period_s()
+            closed: dict[int, tuple[PdoAssembly, list[RawSample]]] = {}
+            while pending:
+                cob_id, data, timestamp = pending.popleft()
+                if timestamp > self.latest:
+                    self.latest = timestamp
+                assembly = self._table.get(cob_id)
+                if assembly is not None and len(data) > 8 and \
+                        self._view(assembly.node_id).fd_frame(cob_id, len(data)):
+                    self._rebuild(assembly.node_id)  # a force node mapped for CAN FD in place
+                    assembly = self._table.get(cob_id)
+                if assembly is not None:
+                    self.frames += 1
+                    before = assembly.malformed
+                    raws = assembly.take(cob_id, data, timestamp, period)
+                    if raws:
+                        closed.setdefault(id(assembly), (assembly, []))[1].extend(raws)
+                    self.malformed += assembly.malformed - before
+                elif cob_id == SYNC_COB_ID:
+                    self._on_sync(data, timestamp)
+                    period = self.period_s()
+                elif sdo_low <= cob_id <= sdo_high:
+                    self._sdo_frame(cob_id, data)
+            until = self.latest if now is None else max(self.latest, now)
+            period = self.period_s()
+            for assembly in self._assemblies.values():
+                expired = assembly.expire(until, period)
+                if expired is not None:
+                    closed.setdefault(id(assembly), (assembly, []))[1].append(expired)
+            for assembly, raws in closed.values():
+                self.on_samples(assembly, raws)
+                time.sleep(0)  # a thread waiting for the GIL (a bus, a host) goes first
+
+    def on_samples(self, assembly: PdoAssembly, raws: list[RawSample]) -> None:
+        """Samples of one node that closed, in order (called with the reader's lock
+        held, once per node and :meth:`process`); subclasses interpret them."""
+
+    # -- mapping ----------------------------------------------------------------------
+
+    def _view(self, node_id: int) -> NodeView:
+        view = self.dictionary.view(node_id)
+        assert view is not None  # node-IDs were checked (1..127) by Dictionary's assignments
+        return view
+
+    def _sdo_frame(self, cob_id: int, data: bytes) -> None:
+        node, request = cob_id & 0x7F, cob_id >= 0x600
+        if node not in self._assemblies:
+            return
+        view = self._view(node)
+        _, observed = self._sdo.decode(node, request, data, view)
+        if observed is None:
+            return
+        self.on_observed(node, *observed)
+        version = self.dictionary.version
+        self.dictionary.observe(node, *observed)
+        if self.dictionary.version != version:
+            self._rebuild(node)
+
+    def on_observed(self, node_id: int, index: int, subindex: int, raw: bytes) -> None:
+        """An object value an SDO transfer of node ``node_id`` carried (lock held)."""
+
+    def _rebuild(self, node_id: int) -> None:
+        """The node's assembly from its current mapping; its open sample is dropped (a
+        mapping change mid-sample: the node's PDOs before it are of the old one)."""
+        view = self._view(node_id)
+        self._assemblies[node_id] = PdoAssembly(node_id, view.tpdo_layouts(), view.od)
+        table = {cob: a for a in self._assemblies.values() for cob in a.slots}
+        self._table = table
+        sdo = {base + n for n in self._assemblies for base in (0x580, 0x600)}
+        self._wanted = frozenset(table) | sdo | {SYNC_COB_ID}
+
+    def assembly(self, node_id: int) -> PdoAssembly:
+        return self._assemblies[node_id]
+
+    def feed(self, messages: Iterable[can.Message]) -> int:
+        """Take ``messages`` (e.g. a recording's) as if received and process them; the count."""
+        count = 0
+        for msg in messages:
+            self.on_message_received(msg)
+            count += 1
+            if count % 1024 == 0:
+                self.process()
+        self.process()
+        return count

@@ -1,0 +1,68 @@
+"""Raw resistances off any bus: the patches' own TPDOs (``eds/skin-patch.eds``).
+
+A patch sends 0x2000, its pillar resistances as UNSIGNED16 codes (taxel*3 + pillar + 1;
+pillars z, x, y; code x LSB = ohms, ``canbus.codes``: 0 short, 0xFFFE saturated, 0xFFFF
+open). :class:`ResistanceReader` reads them by the EDS default mapping (3-axis: 4 codes per
+TPDO in TPDO 1..7, predefined COB-IDs) and every mapping and LSB (0x2001) a master writes
+or reads by SDO, as the force reader reads force nodes. A pillar the mapping does not
+carry (z-only mode) or whose PDO did not come is NaN.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canbus.codes import code_to_resistance
+from canbus.tools.pdo_samples import PdoAssembly, PdoSampleReader, RawSample
+
+RESISTANCES, LSB = 0x2000, 0x2001
+DEFAULT_LSB_OHM = 0.05
+
+
+@dataclass(frozen=True)
+class ResistanceSample:
+    """One patch's pillar resistances at one time."""
+
+    patch: int
+    timestamp: float  # bus time of the sample's last PDO
+    resistance_ohm: NDArray[np.float64]  # (9, 3) pillars z, x, y; NaN: not carried or lost
+    complete: bool  # every mapped PDO came, once
+
+
+class ResistanceReader(PdoSampleReader):
+    """Resistance samples of the patches ``patches`` (node-IDs) on the bus it listens to."""
+
+    def __init__(self, patches: Iterable[int], *, period_s: float | None = None) -> None:
+        self.lsb_ohm = dict.fromkeys(patches, DEFAULT_LSB_OHM)
+        self._callbacks: tuple[Callable[[ResistanceSample], None], ...] = ()
+        super().__init__(self.lsb_ohm, "skin-patch", period_s=period_s)
+
+    def on_sample(self, callback: Callable[[ResistanceSample], None]) -> None:
+        """Call ``callback(sample)`` for every sample, on the processing thread."""
+        self._callbacks = (*self._callbacks, callback)
+
+    def on_samples(self, assembly: PdoAssembly, raws: list[RawSample]) -> None:
+        columns = [k for k, v in enumerate(assembly.variables)
+                   if v.index == RESISTANCES and 1 <= v.subindex <= 27]
+        at = [assembly.variables[k].subindex - 1 for k in columns]
+        values = assembly.values(raws)[:, columns]
+        came = assembly.arrived(raws)[:, columns]
+        ohm = np.full((len(raws), 27), np.nan)
+        ohm[:, at] = np.where(came, code_to_resistance(values, self.lsb_ohm[assembly.node_id]),
+                              np.nan)
+        for i, raw in enumerate(raws):
+            sample = ResistanceSample(raw.node_id, raw.timestamp, ohm[i].reshape(9, 3),
+                                      raw.complete)
+            for callback in self._callbacks:
+                callback(sample)
+
+    def on_observed(self, node_id: int, index: int, subindex: int, raw: bytes) -> None:
+        if (index, subindex) == (LSB, 0) and len(raw) >= 4:
+            lsb = struct.unpack_from("<f", raw)[0]
+            if np.isfinite(lsb) and lsb > 0:
+                self.lsb_ohm[node_id] = float(lsb)

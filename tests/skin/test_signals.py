@@ -1,0 +1,70 @@
+"""SIGTERM and SIGHUP end a command as Ctrl-C does; a finite command leaves nothing half-written."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skin.cli import main
+from skin.commands.signals import Stopped, stop_signals_interrupt, until_stopped
+
+
+def _signal_self(sig: signal.Signals) -> None:
+    os.kill(os.getpid(), sig)
+    time.sleep(1.0)  # the handler runs in the main thread, at the latest when this sleeps
+    raise AssertionError(f"{sig.name} did not interrupt")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_a_stop_signal_interrupts_once_and_the_old_handler_comes_back(
+        sig: signal.Signals) -> None:
+    seen: list[int] = []
+    previous = signal.signal(sig, lambda signum, frame: seen.append(signum))
+    try:
+        with stop_signals_interrupt():
+            with pytest.raises(Stopped) as info:
+                _signal_self(sig)
+            assert isinstance(info.value, KeyboardInterrupt) and info.value.signal == sig
+            os.kill(os.getpid(), sig)  # a second one does not cut the clean stop short
+            time.sleep(0.05)
+        assert seen == []
+        os.kill(os.getpid(), sig)
+        time.sleep(0.05)
+        assert seen == [sig]  # the handler from before is back
+    finally:
+        signal.signal(sig, previous)
+
+
+def test_until_stopped_names_the_signal_and_goes_on() -> None:
+    with until_stopped() as by_ctrl_c:
+        raise KeyboardInterrupt
+    assert by_ctrl_c.signal == "SIGINT"
+    with stop_signals_interrupt(), until_stopped() as by_sighup:
+        _signal_self(signal.SIGHUP)
+    assert by_sighup.signal == "SIGHUP"
+    with until_stopped() as not_stopped:
+        pass
+    assert not_stopped.signal is None
+    with pytest.raises(ValueError, match="not a stop"), until_stopped():
+        raise ValueError("an error is not a stop")
+
+
+def test_sigterm_in_a_finite_command_exits_130_and_leaves_no_file(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    real = np.lib.format.write_array
+
+    def stopped_halfway(*args: object, **kwargs: object) -> None:
+        real(*args, **kwargs)  # type: ignore[arg-type]
+        _signal_self(signal.SIGTERM)  # as systemd stops it, half-way through the file
+
+    monkeypatch.setattr(np.lib.format, "write_array", stopped_halfway)
+    code = main(["sim", "dataset", "paper", "-n", "3", "-o", str(tmp_path / "d.npz")])
+    assert code == 130
+    assert capsys.readouterr().err == "skin: interrupted (SIGTERM)\n"
+    assert list(tmp_path.iterdir()) == []  # neither d.npz nor its temporary file
