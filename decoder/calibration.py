@@ -55,10 +55,29 @@ def default_candidates() -> tuple[str, ...]:
     return tuple(out)
 
 
-def make_decoder(name: str, constants: SensorConstants, *, hidden: int | str | None = None,
+def parse_candidate(spec: str) -> tuple[str, int | str | None]:
+    """``NAME`` or ``NAME:HIDDEN`` (a number of hidden nodes, or ``auto``) -> (name, hidden);
+    the decoder must be registered and, with HIDDEN, take hidden nodes."""
+    name, sep, hidden = spec.partition(":")
+    cls = decoder_class(name)
+    if not sep:
+        return name, None
+    if "hidden" not in getattr(cls, "_params", ()):
+        raise ConfigError("--decoders", f"{spec!r}: decoder {name!r} has no hidden nodes")
+    if hidden == "auto":
+        return name, hidden
+    if not hidden.isdigit() or not 1 <= int(hidden) <= 1000:
+        raise ConfigError("--decoders", f"{spec!r}: hidden nodes must be 1..1000 or auto")
+    return name, int(hidden)
+
+
+def make_decoder(spec: str, constants: SensorConstants, *, hidden: int | str | None = None,
                  seed: int | None = None) -> Decoder:
-    """A fresh decoder ``name`` with the patch's constants (and ``hidden``/``seed`` where it
-    takes them)."""
+    """A fresh decoder for the candidate ``spec`` (``NAME[:HIDDEN]``) with the patch's
+    constants, and ``hidden`` (unless the spec names its own) and ``seed`` where it takes
+    them."""
+    name, own = parse_candidate(spec)
+    hidden = own if own is not None else hidden
     cls = decoder_class(name)
     params: dict[str, Any] = {}
     accepted = getattr(cls, "_params", ())
@@ -235,7 +254,7 @@ def calibrate(x: F64, force: F64, constants: SensorConstants, *,
     normalised readings and ``force`` (n, 9, 3)."""
     names = tuple(names) if names else default_candidates()
     for name in names:
-        decoder_class(name)  # an unknown name fails before any fit
+        parse_candidate(name)  # an unknown name fails before any fit
     if len(set(names)) != len(names):
         raise ConfigError("--decoders", "a decoder is named twice")
     mode = "z" if x.shape[-1] == 1 else "xyz"
@@ -276,7 +295,7 @@ def report(cal: Calibration, tare_ohm: F64 | None, rest_samples: int, rest_N: fl
     best = cal.best
     axes = (2,) if cal.mode == "z" else (0, 1, 2)
     return {
-        "decoder": best.name, "hidden": _hidden(cal.decoder),
+        "decoder": cal.decoder.name, "candidate": best.name, "hidden": _hidden(cal.decoder),
         "heldout_floored_pct": best.heldout_floored_pct,
         "heldout_ave_rel_err_pct": best.heldout_ave_rel_err_pct,
         "rmse_N": best.rmse_N,

@@ -44,8 +44,9 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--check", metavar="MODEL", help="check MODEL against D.npz instead")
     parser.add_argument("--node", type=int, metavar="N",
                         help="the patch, when the dataset holds several")
-    parser.add_argument("--decoders", nargs="+", metavar="NAME",
-                        help="candidates (default: analytic and every registered decoder "
+    parser.add_argument("--decoders", nargs="+", metavar="NAME[:HIDDEN]",
+                        help="candidates, a decoder's name or name:hidden nodes (lm-mlp:8, "
+                             "hybrid:auto) (default: analytic and every registered decoder "
                              "that learns)")
     parser.add_argument("--folds", type=int, default=5, metavar="K",
                         help="k of the k-fold validation (default 5)")
@@ -210,7 +211,7 @@ def _print_fit(args: argparse.Namespace, found: dict[str, Any], cal: Any, tare: 
         print(f"tare: {tare.samples} samples at rest (|F| <= {args.rest_N:g} N): R0 "
               f"{np.min(ratio):.4f}..{np.max(ratio):.4f} x nominal, read noise "
               f"{np.mean(tare.noise_ohm):.3f} ohm")
-    print(f"{'decoder':<10} {'held-out floored %':>18} {'AveRelErr %':>12} {'RMSE N':>8} "
+    print(f"{'candidate':<10} {'held-out floored %':>18} {'AveRelErr %':>12} {'RMSE N':>8} "
           f"{'refused %':>9} {'fit s':>7} {'us/sample':>9}")
     for c in found["candidates"]:
         mark = "" if c["eligible"] else f"  (not chosen: {c['why_not']})"

@@ -51,7 +51,8 @@ def model_meta(report: dict[str, Any], *, node_id: int, dataset: str) -> dict[st
 
     candidates = report["candidates"]
     meta: dict[str, Any] = {
-        "decoder": report["decoder"], "hidden": report["hidden"],
+        "decoder": report["decoder"], "candidate": report["candidate"],
+        "hidden": report["hidden"],
         "heldout_floored_pct": float(report["heldout_floored_pct"]),
         "heldout_ave_rel_err_pct": _finite(report["heldout_ave_rel_err_pct"]),
         "rmse_N": float(report["rmse_N"]),

@@ -15,6 +15,8 @@ from decoder.calibration import (
     choose,
     default_candidates,
     folds_of,
+    make_decoder,
+    parse_candidate,
     report,
 )
 from decoder.metrics import evaluate
@@ -125,3 +127,16 @@ def test_the_default_candidates_learn_and_unknown_names_fail_first(
     r, f = data
     with pytest.raises(ConfigError, match="unknown decoder 'nope'"):
         calibrate(r, f, DEFAULT_CONSTANTS, names=["deconv", "nope"])
+
+
+def test_a_candidate_may_name_its_hidden_nodes() -> None:
+    assert parse_candidate("lm-mlp:8") == ("lm-mlp", 8)
+    assert parse_candidate("hybrid:auto") == ("hybrid", "auto")
+    assert parse_candidate("deconv") == ("deconv", None)
+    lm = make_decoder("lm-mlp:7", DEFAULT_CONSTANTS, hidden=12)
+    assert getattr(lm, "hidden", None) == 7  # the spec's own, over --hidden
+    assert getattr(make_decoder("lm-mlp", DEFAULT_CONSTANTS, hidden=12), "hidden", None) == 12
+    for spec, message in (("deconv:4", "has no hidden nodes"), ("lm-mlp:0", "1..1000 or auto"),
+                          ("lm-mlp:x", "1..1000 or auto"), ("nope:3", "unknown decoder")):
+        with pytest.raises(ConfigError, match=message):
+            parse_candidate(spec)
