@@ -147,6 +147,9 @@ def _fit(args: argparse.Namespace) -> int:
     pillars = r.shape[-1]
     r0 = nominal_r0(constants, pillars)
     tare = tare_at_rest(r, f, args.rest_N)
+    if tare is None and args.write_node:
+        raise ConfigError("--write-node", f"{args.dataset} has fewer than 10 samples at rest "
+                          f"(|F| <= {args.rest_N:g} N): no tare to write to the patch")
     rest = tare.rest_ohm if tare is not None else r0
     x = normalise(r, rest, r0)
     console = Console(stderr=True)
@@ -178,10 +181,7 @@ def _fit(args: argparse.Namespace) -> int:
             handle.write(text.encode())
     _print_fit(args, found, cal, tare, node, r0)
     written = 0
-    if args.write_node:
-        if tare is None:
-            raise ConfigError("--write-node", "no tare (too few samples at rest): nothing to "
-                              "write to the patch")
+    if args.write_node and tare is not None:
         written = write_rest_to_node(args, node, tare.rest_ohm)
         print(f"wrote {written} rest values to patch {node}'s 0x2002 on "
               f"{args.interface}:{args.channel}; an active host reads them when it next "
