@@ -13,12 +13,12 @@ Mapping changes follow CiA 301: invalidate the PDO (COB-ID bit 31), write sub-in
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from canopen.objectdictionary import ODVariable
 from canopen.sdo.exceptions import SdoAbortedError
-from numpy.typing import NDArray
 
 from canbus.device.object_store import ObjectStore
 from canbus.pdo_codec import (
@@ -65,6 +65,12 @@ class TpdoTable:
                             for layout in layouts]
         return self._codec
 
+    @property
+    def transmission_types(self) -> tuple[int, ...]:
+        """The transmission type of each valid PDO, in ``codec.layouts`` order."""
+        _ = self.codec
+        return tuple(trans for trans, _, _ in self._params)
+
     def reset(self) -> None:
         self._codec = None
         self._last_sent.clear()
@@ -74,19 +80,20 @@ class TpdoTable:
         if TPDO_COMM <= index < TPDO_COMM + self.count or TPDO_MAP <= index < TPDO_MAP + self.count:
             self._codec = None
 
-    def due_on_sync(self, counter: int, payloads: NDArray[np.uint8]) -> list[int]:
-        """Positions (in ``codec.layouts``) of the PDOs that SYNC number ``counter`` sends."""
-        codec = self.codec
+    def due_on_sync(self, counter: int, payloads: Sequence[bytes]) -> list[int]:
+        """Positions (in ``codec.layouts``) of the PDOs that SYNC number ``counter`` sends;
+        ``payloads``: each PDO's bytes, for type 0 (sent when they changed)."""
+        _ = self.codec
         due = []
         for p, (trans, _, _) in enumerate(self._params):
             cyclic = 1 <= trans <= 240 and counter % trans == 0
-            if cyclic or (trans == 0 and self._changed(p, payloads[p, :codec.sizes[p]].tobytes())):
+            if cyclic or (trans == 0 and self._changed(p, payloads[p])):
                 due.append(p)
         return due
 
-    def due_on_event(self, now: float, payloads: NDArray[np.uint8]) -> list[int]:
+    def due_on_event(self, now: float, payloads: Sequence[bytes]) -> list[int]:
         """Positions of the event-driven PDOs due at ``now`` (seconds, monotonic)."""
-        codec = self.codec
+        _ = self.codec
         due = []
         for p, (trans, inhibit_100us, timer_ms) in enumerate(self._params):
             if trans not in EVENT_DRIVEN:
@@ -96,7 +103,7 @@ class TpdoTable:
                 fire = now - last >= timer_ms / 1000.0
             else:
                 fire = (now - last >= inhibit_100us / 10_000.0
-                        and self._changed(p, payloads[p, :codec.sizes[p]].tobytes()))
+                        and self._changed(p, payloads[p]))
             if fire:
                 due.append(p)
         for p in due:
