@@ -16,15 +16,20 @@ that node anew; a mapping other than "every PDO on every SYNC" (types 0, 2..240)
 
 canopen's machinery (the LocalNode object store, SDO server, NMT, heartbeat, EMCY) stays for
 the management plane; TPDOs never pass through it. On a bus that hands a process its own
-frames back (udp_multicast), the nodes' own COB-IDs are claimed (``canbus.own_frames``): the
+frames back (udp_multicast), the nodes' own COB-IDs are claimed (``canbus.rxfilter``): the
 kernel drops their echoes, or, where it cannot, a gate in front of canopen's listener does.
+``accept_only_consumed``: the server owns its buses and, as a device's CAN controller's
+acceptance filter does, lets through only what its nodes consume (NMT, SYNC, SDO requests to
+them): another host's force PDOs never wake it (in the kernel on udp_multicast).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -44,7 +49,7 @@ from canbus.device.patch_node import (
     pack_payloads,
 )
 from canbus.device.source import ResistanceSource
-from canbus.own_frames import OwnFrameGate, OwnFrames, own_frames
+from canbus.rxfilter import OwnFrameGate, ReceiveFilter, receive_filter
 from canbus.txmessage import TxMessage
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 
@@ -71,8 +76,13 @@ class _Bus:
     nodes: list[PatchNode]
     syncs: int = 0
     frames_sent: int = 0
+    last_sync: float = -math.inf
+    """``time.monotonic()`` of its last SYNC, and of the end of its last answer:"""
+    answered_at: float = -math.inf
+    answer_s: deque[float] = field(default_factory=lambda: deque(maxlen=1 << 17))
+    """Per answered SYNC: from the SYNC's receive stamp to the return of the last send."""
     send_lock: threading.Lock = field(default_factory=threading.Lock)
-    own: OwnFrames | None = None
+    own: ReceiveFilter | None = None
     gate: OwnFrameGate | None = None
     on_sync: SyncCallback | None = None
 
@@ -84,7 +94,7 @@ class PatchServer:
     def __init__(self, network: canopen.Network | Sequence[canopen.Network],
                  source: ResistanceSource, *, mode: str | None = None,
                  constants: SensorConstants = DEFAULT_CONSTANTS,
-                 event_rate_hz: float = 0.0) -> None:
+                 event_rate_hz: float = 0.0, accept_only_consumed: bool = False) -> None:
         networks = [network] if isinstance(network, canopen.Network) else list(network)
         if not networks:
             raise ValueError("no network to serve the patches on")
@@ -113,7 +123,9 @@ class PatchServer:
         self.samples = 0
         self._prepared: dict[int, _Prepared] = {}
         self._lock = threading.Lock()
+        self._quiet = threading.Condition()
         self._event_rate_hz = event_rate_hz
+        self._accept_only_consumed = accept_only_consumed
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -157,11 +169,29 @@ class PatchServer:
 
     def on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         """One SYNC on the first bus: its nodes' synchronous TPDOs."""
-        self._answer(self.buses[0], data[0] if data else 0)
+        self._answer(self.buses[0], data[0] if data else 0, timestamp)
+
+    def answer_ms(self) -> tuple[float, float]:
+        """p50 and p99 over every bus of the time from a SYNC's receive stamp (the bus's
+        timestamp) to the return of its answer's last ``send``, in ms (NaN: no answer)."""
+        times = np.fromiter((t for bus in self.buses for t in bus.answer_s), dtype=np.float64)
+        if not times.size:
+            return math.nan, math.nan
+        p50, p99 = np.percentile(1e3 * times, [50, 99])
+        return float(p50), float(p99)
+
+    def answer(self, bus: int = 0) -> list[can.Message]:
+        """The messages a SYNC on bus ``bus`` would send now, of nodes that send every valid
+        TPDO on every SYNC (the default mapping), in the order it would send them."""
+        prepared = self._prepared
+        return [msg for node in self.buses[bus].nodes
+                if node.nmt.state == OPERATIONAL and node.node_id in prepared
+                and prepared[node.node_id].plan.every_sync
+                for msg in prepared[node.node_id].messages]
 
     def _sync_handler(self, bus: _Bus) -> SyncCallback:
         def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
-            self._answer(bus, data[0] if data else 0)
+            self._answer(bus, data[0] if data else 0, timestamp)
         return on_sync
 
     # --- samples ----------------------------------------------------------------------
@@ -177,8 +207,21 @@ class PatchServer:
             self._stop.wait(max(0.0, deadline - time.monotonic()))
             if self._stop.is_set():
                 break
+            self._wait_quiet(deadline, period)
             self._tick()
             self._send_events(time.monotonic())
+
+    def _wait_quiet(self, since: float, period: float) -> None:
+        """While SYNCs come, wait (at most a period) until every bus that has them answered
+        after ``since``: a sample is taken in the quiet right after the answers, never
+        during one, where an answer's sends would wait for the GIL the step holds."""
+        def answered() -> bool:
+            now = time.monotonic()
+            return all(bus.answered_at >= since for bus in self.buses
+                       if now - bus.last_sync < 2 * period)
+
+        with self._quiet:
+            self._quiet.wait_for(answered, timeout=period)
 
     def _tick(self) -> None:
         """The next sample, read outside the lock (the SYNCs go on meanwhile)."""
@@ -241,7 +284,8 @@ class PatchServer:
 
     # --- answers ----------------------------------------------------------------------
 
-    def _answer(self, bus: _Bus, sync_byte: int) -> None:
+    def _answer(self, bus: _Bus, sync_byte: int, received: float) -> None:
+        bus.last_sync = time.monotonic()
         with self._lock:
             self.sync_count += 1
             bus.syncs += 1
@@ -268,6 +312,11 @@ class PatchServer:
                 messages += [TxMessage.frame(plan.cob_ids[p], payloads[p])
                              for p in plan.order if p in due]
         self._send(bus, messages)
+        if messages and received > 0:
+            bus.answer_s.append(time.time() - received)
+        with self._quiet:
+            bus.answered_at = time.monotonic()
+            self._quiet.notify_all()
 
     def _send_events(self, now: float) -> None:
         """Event-driven TPDOs (types 254/255) due at ``now``, from the latest sample."""
@@ -304,13 +353,21 @@ class PatchServer:
 
     # --- own frames -------------------------------------------------------------------
 
+    def consumed_cob_ids(self, bus: int = 0) -> set[int]:
+        """What the nodes of bus ``bus`` receive: NMT, SYNC and their SDO requests."""
+        return {0x000, SYNC_COB_ID} | {int(node.store.sdo.rx_cobid)
+                                       for node in self.buses[bus].nodes}
+
     def _claim(self, bus: _Bus) -> None:
-        """Claim the COB-IDs the bus's nodes send, where the bus echoes them."""
+        """Claim the COB-IDs the bus's nodes send, where the bus echoes them (and accept
+        only what they consume, if asked)."""
         network_bus = bus.network.bus
         if network_bus is None:
             return
         if bus.own is None:
-            bus.own = own_frames(network_bus)
+            bus.own = receive_filter(network_bus)
+            if self._accept_only_consumed:
+                bus.own.accept_only(self.consumed_cob_ids(self.buses.index(bus)))
         if not bus.own.echoes:
             return
         bus.own.claim(bus, {c for node in bus.nodes for c in node.transmitted_cob_ids()})
@@ -326,12 +383,15 @@ class PatchServer:
         if bus.own is None:
             return
         bus.own.release(bus)
+        if self._accept_only_consumed:
+            bus.own.accept_only(None)
         notifier = bus.network.notifier
         if bus.gate is not None and notifier is not None:
             listeners = notifier.listeners
             if bus.gate in listeners:
                 listeners[listeners.index(bus.gate)] = bus.gate.listener
         bus.gate = None
+        bus.own = None
 
 
 def _answered(ready: _Prepared, sync_byte: int) -> list[bytes]:

@@ -1,28 +1,29 @@
-"""Own frames: the frames a process sent, handed back to it by its own bus.
+"""What a bus hands this process: without the echoes of its own frames, and, where the
+process owns the bus, only the frames it consumes, dropped at the cheapest point there is.
 
-python-can's ``udp_multicast`` loops every frame back to every socket of its group on the
-machine, the sender's own included (IP multicast loopback, which the other processes on the
-machine need; python-can refuses ``receive_own_messages=True`` and cannot turn the echo off).
-So on that transport a process pays for each frame it sends twice: once to send it, once to
-receive, unpack and dispatch its echo (about as much CPU again), and counts it among what
-others sent. ``virtual``, ``timed`` and ``socketcan`` hand a bus its own frames only when it
-asks (``receive_own_messages``), and then it wants them.
+**Own frames.** python-can's ``udp_multicast`` loops every frame back to every socket of its
+group on the machine, the sender's own included (IP multicast loopback, which the other
+processes on the machine need; python-can refuses ``receive_own_messages=True`` and cannot
+turn the echo off). So on that transport a process pays for each frame it sends twice: once
+to send it, once to receive, unpack and dispatch its echo (about as much CPU again), and
+counts it among what others sent. ``virtual``, ``timed`` and ``socketcan`` hand a bus its
+own frames only when it asks (``receive_own_messages``), and then it wants them, so nothing
+is dropped there. Each sender of a process claims the COB-IDs it alone sends
+(:meth:`ReceiveFilter.claim`); a COB-ID has one transmitter in CiA 301, and NMT commands,
+which any master may send, are never claimed.
 
-:func:`own_frames` gives the one :class:`OwnFrames` of a bus: the COB-IDs its process alone
-sends there, claimed by each sender of the process (:meth:`OwnFrames.claim`). Where the bus
-echoes them unasked, they are dropped at the cheapest point there is:
+**Consumed frames.** A device's CAN controller takes only the identifiers its acceptance
+filter lets through; a process that owns a bus may do the same
+(:meth:`ReceiveFilter.accept_only`: python-can's receive filters, which socketcan applies in
+the kernel and the other interfaces in ``recv``).
 
-* ``udp_multicast`` on Linux: in the kernel, by a classic BPF socket filter on the bus's
-  socket that reads the COB-ID out of python-can's msgpack datagram (no wake-up, no copy,
-  no unpacking; :attr:`OwnFrames.in_kernel`). The filter passes anything it cannot read
-  (another python-can's layout, a 29-bit id, a remote or error frame), so it never drops
-  a frame that is not one of the claimed data frames;
-* anywhere else, and behind the kernel filter as a second line: :meth:`OwnFrames.is_own` (one
-  set lookup) in front of the process's listeners, e.g. :class:`OwnFrameGate` around
-  canopen's listener.
-
-A COB-ID is claimed only if no other node sends it (CiA 301 gives every COB-ID one
-transmitter; NMT commands, which any master may send, are never claimed).
+**Where they are dropped.** ``udp_multicast`` on Linux: in the kernel, by a classic BPF
+socket filter on the bus's socket that reads the COB-ID out of python-can's msgpack datagram
+(no wake-up, no copy, no unpacking; :attr:`ReceiveFilter.in_kernel`). It passes what it
+cannot read (another python-can's layout, a 29-bit id, a remote or error frame), so it never
+drops a frame that is neither claimed nor outside an acceptance list. Anywhere else, and
+behind the kernel filter as a second line: :meth:`ReceiveFilter.is_own` (one set lookup) in
+front of a listener, e.g. :class:`OwnFrameGate` around canopen's, and python-can's filters.
 """
 
 from __future__ import annotations
@@ -56,26 +57,35 @@ def echoes_own_frames(bus: can.BusABC) -> bool:
     return isinstance(bus, UdpMulticastBus)
 
 
-class OwnFrames:
-    """The COB-IDs a process alone sends on one bus, and where their echoes are dropped."""
+def _cob_ids(cob_ids: Iterable[int]) -> frozenset[int]:
+    ids = frozenset(int(c) for c in cob_ids)
+    bad = [c for c in ids if not 0 <= c <= 0x7FF]
+    if bad:
+        raise ValueError(f"not an 11-bit COB-ID: {bad[0]:#x}")
+    return ids
+
+
+class ReceiveFilter:
+    """What one bus passes to this process: claims of own COB-IDs, an acceptance list."""
 
     def __init__(self, bus: can.BusABC) -> None:
         self._bus = weakref.ref(bus)
         self.echoes = echoes_own_frames(bus)
         self.in_kernel = False
-        """The bus's socket drops the claimed frames itself (udp_multicast on Linux)."""
+        """The bus's socket drops the frames itself (udp_multicast on Linux)."""
         self._claims: dict[int, frozenset[int]] = {}
         self._owners: dict[int, weakref.ref[object] | None] = {}
         self._lock = threading.Lock()
         self.cob_ids: frozenset[int] = frozenset()
-        """Every claimed COB-ID (11-bit data frames)."""
+        """Every claimed COB-ID: 11-bit data frames this process alone sends."""
+        self.accepted: frozenset[int] | None = None
+        """The acceptance list (None: every frame)."""
 
     def claim(self, owner: object, cob_ids: Iterable[int]) -> None:
         """``owner`` sends ``cob_ids`` on this bus (replacing what it claimed before)."""
-        ids = frozenset(int(c) for c in cob_ids)
-        bad = [c for c in ids if not 0 < c <= 0x7FF]
-        if bad:
-            raise ValueError(f"not an 11-bit COB-ID other than NMT's 0x000: {bad[0]:#x}")
+        ids = _cob_ids(cob_ids)
+        if 0 in ids:
+            raise ValueError("NMT's 0x000 is sent by any master: it cannot be claimed")
         with self._lock:
             self._claims[id(owner)] = ids
             self._owners[id(owner)] = _weak(owner)
@@ -86,6 +96,19 @@ class OwnFrames:
         with self._lock:
             self._claims.pop(id(owner), None)
             self._owners.pop(id(owner), None)
+            self._update()
+
+    def accept_only(self, cob_ids: Iterable[int] | None) -> None:
+        """Pass only these 11-bit data frames to the process (None: all again). For the
+        owner of the bus: it applies to every listener of the bus."""
+        bus = self._bus()
+        ids = None if cob_ids is None else _cob_ids(cob_ids)
+        with self._lock:
+            self.accepted = ids
+            if bus is not None:
+                bus.set_filters(None if ids is None else
+                                [{"can_id": c, "can_mask": 0x7FF, "extended": False}
+                                 for c in sorted(ids)])
             self._update()
 
     def is_own(self, msg: can.Message) -> bool:
@@ -99,12 +122,10 @@ class OwnFrames:
             self._claims.pop(key, None)
             self._owners.pop(key, None)
         self.cob_ids = frozenset().union(*self._claims.values())
-        if not self.echoes:
-            return
         bus = self._bus()
-        if bus is None:
-            return
-        self.in_kernel = _install(bus, self.cob_ids)
+        if bus is None or not echoes_own_frames(bus):
+            return  # socketcan filters in its kernel already; the others have no socket
+        self.in_kernel = _install(bus, self.cob_ids, self.accepted)
 
 
 def _weak(owner: object) -> weakref.ref[object] | None:
@@ -114,23 +135,23 @@ def _weak(owner: object) -> weakref.ref[object] | None:
         return None
 
 
-_REGISTRY: weakref.WeakKeyDictionary[can.BusABC, OwnFrames] = weakref.WeakKeyDictionary()
+_REGISTRY: weakref.WeakKeyDictionary[can.BusABC, ReceiveFilter] = weakref.WeakKeyDictionary()
 _REGISTRY_LOCK = threading.Lock()
 
 
-def own_frames(bus: can.BusABC) -> OwnFrames:
-    """The one :class:`OwnFrames` of ``bus`` (every sender of the process shares it)."""
+def receive_filter(bus: can.BusABC) -> ReceiveFilter:
+    """The one :class:`ReceiveFilter` of ``bus`` (every user of the bus shares it)."""
     with _REGISTRY_LOCK:
         found = _REGISTRY.get(bus)
         if found is None:
-            found = _REGISTRY[bus] = OwnFrames(bus)
+            found = _REGISTRY[bus] = ReceiveFilter(bus)
         return found
 
 
 class OwnFrameGate(can.Listener):
     """Passes every frame to ``listener`` except the echoes of the bus's own frames."""
 
-    def __init__(self, listener: can.Listener, own: OwnFrames) -> None:
+    def __init__(self, listener: can.Listener, own: ReceiveFilter) -> None:
         self.listener = listener
         self.own = own
         self.dropped = 0
@@ -211,16 +232,17 @@ def _ranges(cob_ids: Iterable[int]) -> list[tuple[int, int]]:
     return [(lo, hi) for lo, hi in out]
 
 
-def compile_filter(cob_ids: Iterable[int]) -> list[bytes]:
-    """A classic BPF program that drops python-can udp_multicast datagrams of 11-bit data
-    frames whose COB-ID is in ``cob_ids`` and passes every other datagram."""
+def compile_filter(drop: Iterable[int], accept: Iterable[int] | None = None) -> list[bytes]:
+    """A classic BPF program for python-can udp_multicast datagrams: an 11-bit data frame
+    whose COB-ID is in ``drop``, or not in ``accept`` (when given), is dropped; every other
+    datagram passes."""
     p = _Program()
     at_id = 1 + len(_KEYS["timestamp"]) + 9 + len(_KEYS["arbitration_id"])
     # The layout: map of 11, "timestamp": float64, "arbitration_id": ...; else pass.
     for offset, byte in ((0, 0x8B), (1 + len(_KEYS["timestamp"]), 0xCB),
                          (at_id - len(_KEYS["arbitration_id"]), _KEYS["arbitration_id"][0])):
         p.op(_LD_B, _UDP_HEADER + offset)
-        p.op(_JEQ, byte, 0, "accept")
+        p.op(_JEQ, byte, 0, "pass")
     # The id as a uint16 (0xCD), a uint8 (0xCC) or a positive fixint; else (29 bits) pass.
     p.op(_LD_B, _UDP_HEADER + at_id)
     p.op(_JEQ, 0xCD, 0, "not16")
@@ -229,15 +251,26 @@ def compile_filter(cob_ids: Iterable[int]) -> list[bytes]:
     p.op(_JEQ, 0xCC, 0, "not8")
     _load_id(p, _LD_B, at_id + 1, at_id + 2)
     p.label("not8")
-    p.op(_JGE, 0x80, "accept", 0)
+    p.op(_JGE, 0x80, "pass", 0)
     _load_id(p, _LD_B, at_id, at_id + 1)
+    p.label("pass")  # near every conditional jump to it: they reach 255 instructions only
+    p.op(_RET, _ACCEPT)
     p.label("check")
-    for lo, hi in _ranges(cob_ids):
+    for lo, hi in _ranges(drop):
         if lo == hi:
             p.op(_JEQ, lo, 0, 1)
         else:
             p.op(_JGE, lo, 0, 2)
             p.op(_JGT, hi, 1, 0)
+        p.op(_RET, _DROP)
+    if accept is not None:
+        for lo, hi in _ranges(accept):
+            if lo == hi:
+                p.op(_JEQ, lo, 0, 1)
+            else:
+                p.op(_JGE, lo, 0, 2)
+                p.op(_JGT, hi, 1, 0)
+            p.op(_JA, "accept")
         p.op(_RET, _DROP)
     p.label("accept")
     p.op(_RET, _ACCEPT)
@@ -253,7 +286,7 @@ def _load_id(p: _Program, load: int, value_at: int, flags_at: int) -> None:
     for key in ("is_extended_id", "is_remote_frame", "is_error_frame"):
         at += len(_KEYS[key])
         p.op(_LD_B, _UDP_HEADER + at)
-        p.op(_JEQ, _FALSE, 0, "accept")
+        p.op(_JEQ, _FALSE, 0, "pass")
         at += 1
     p.op(_TXA)
     p.op(_JA, "check")
@@ -262,9 +295,9 @@ def _load_id(p: _Program, load: int, value_at: int, flags_at: int) -> None:
 _LAYOUT_KNOWN: bool | None = None
 
 
-def _install(bus: can.BusABC, cob_ids: frozenset[int]) -> bool:
-    """Put the filter of ``cob_ids`` on the bus's socket (none: remove it); True if the
-    kernel now drops them."""
+def _install(bus: can.BusABC, drop: frozenset[int], accept: frozenset[int] | None) -> bool:
+    """Put the filter on the bus's socket (none when it would pass everything); True if the
+    kernel now filters."""
     global _LAYOUT_KNOWN
     if not sys.platform.startswith("linux"):
         return False
@@ -272,7 +305,7 @@ def _install(bus: can.BusABC, cob_ids: frozenset[int]) -> bool:
         _LAYOUT_KNOWN = layout_known()
         if not _LAYOUT_KNOWN:
             logger.info("python-can's udp_multicast layout is not the one the kernel filter "
-                        "reads: own frames are dropped in user space")
+                        "reads: frames are dropped in user space")
     try:
         fd = bus.fileno()
     except (NotImplementedError, OSError):
@@ -281,11 +314,11 @@ def _install(bus: can.BusABC, cob_ids: frozenset[int]) -> bool:
         return False
     sock = socket.socket(fileno=os.dup(fd))
     try:
-        if not cob_ids or not _LAYOUT_KNOWN:
+        if (not drop and accept is None) or not _LAYOUT_KNOWN:
             with contextlib.suppress(OSError):  # OSError: none was attached
                 sock.setsockopt(socket.SOL_SOCKET, SO_DETACH_FILTER, 0)
             return False
-        program = compile_filter(cob_ids)
+        program = compile_filter(drop, accept)
         if len(program) > BPF_MAXINSNS:
             return False
         code = ctypes.create_string_buffer(b"".join(program))
@@ -293,7 +326,7 @@ def _install(bus: can.BusABC, cob_ids: frozenset[int]) -> bool:
                         struct.pack("HL", len(program), ctypes.addressof(code)))
         return True
     except OSError as err:
-        logger.info("no kernel filter for own frames (%s): dropped in user space", err)
+        logger.info("no kernel receive filter (%s): frames are dropped in user space", err)
         return False
     finally:
         sock.close()
