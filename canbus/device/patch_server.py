@@ -81,6 +81,10 @@ class _Bus:
     answered_at: float = -math.inf
     answer_s: deque[float] = field(default_factory=lambda: deque(maxlen=1 << 17))
     """Per answered SYNC: from the SYNC's receive stamp to the return of the last send."""
+    late: int = 0
+    """Answers that ended after the next SYNC was due (one SYNC interval after theirs):
+    more traffic than this process sends in a cycle."""
+    last_received: float = 0.0
     send_lock: threading.Lock = field(default_factory=threading.Lock)
     own: ReceiveFilter | None = None
     gate: OwnFrameGate | None = None
@@ -170,6 +174,11 @@ class PatchServer:
     def on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         """One SYNC on the first bus: its nodes' synchronous TPDOs."""
         self._answer(self.buses[0], data[0] if data else 0, timestamp)
+
+    @property
+    def late_answers(self) -> int:
+        """Answers, on every bus, that ended after the next SYNC was due."""
+        return sum(bus.late for bus in self.buses)
 
     def answer_ms(self) -> tuple[float, float]:
         """p50 and p99 over every bus of the time from a SYNC's receive stamp (the bus's
@@ -313,7 +322,11 @@ class PatchServer:
                              for p in plan.order if p in due]
         self._send(bus, messages)
         if messages and received > 0:
-            bus.answer_s.append(time.time() - received)
+            took = time.time() - received
+            bus.answer_s.append(took)
+            if 0 < received - bus.last_received < took:
+                bus.late += 1
+        bus.last_received = received
         with self._quiet:
             bus.answered_at = time.monotonic()
             self._quiet.notify_all()

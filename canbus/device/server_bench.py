@@ -7,8 +7,9 @@ the nodes by NMT, sends SYNC (with its counter) at the rate, and reads every fra
 kernel receive time. Each round has two phases of the same length on the same bus:
 
 * **serve**: the server answers every SYNC; CPU = ``time.process_time()`` of this process
-  (every thread: the bus's receive thread, the sample thread, heartbeats) over the phase,
-  per TPDO sent;
+  (every thread: the bus's receive thread, the sample thread with the simulator, heartbeats)
+  over the phase, per TPDO sent; the source's own share (the simulator's steps) is kept
+  apart too (``source_us_per_frame``, part of ``cpu_us_per_frame``);
 * **send**: the server stopped, the very messages of one of its answers are sent again with
   the bus's own ``send`` at the same rate, with the same receive side in place (the
   notifier running, the same own frames dropped), per frame.
@@ -16,12 +17,14 @@ kernel receive time. Each round has two phases of the same length on the same bu
 The master checks every answer: each SYNC's frames, in the order they arrived, must be every
 patch's TPDOs once, in COB-ID order, patches in node-ID order; ``answer_ms`` is from the
 SYNC's receive time to the answer's last TPDO's, both stamped by the master's kernel.
-``patches_per_core_at_100hz`` scales the serve phase's CPU share linearly to one core (the
-per-SYNC work is per patch too).
+``patches_per_core_at_100hz`` is one core's second over what a patch costs per second at
+100 Hz (7 TPDOs per SYNC at the serve phase's CPU per frame): a linear scale, since the
+work of a SYNC (the sample, the packing, the sends) is per patch too.
 """
 
 from __future__ import annotations
 
+import gc
 import math
 import multiprocessing as mp
 import os
@@ -79,23 +82,45 @@ def run_server_benchmark(make_source: Callable[[], ResistanceSource], *, channel
     return _summary(results, patches, rate_hz, seconds, channel, port, load_before)
 
 
+class _TimedSource:
+    """A source that keeps the CPU time of its reads (the simulator's share)."""
+
+    def __init__(self, source: ResistanceSource) -> None:
+        self.source = source
+        self.node_ids = source.node_ids
+        self.pillars = source.pillars
+        self.cpu_s = 0.0
+
+    def read(self) -> np.ndarray:
+        start = time.thread_time()
+        sample = self.source.read()
+        self.cpu_s += time.thread_time() - start
+        return sample
+
+
 def _round(network: canopen.Network, source: ResistanceSource, master: Connection,
            cycles: int) -> dict[str, Any]:
-    server = PatchServer(network, source, event_rate_hz=1.0 / PERIOD_S,
+    timed = _TimedSource(source)
+    server = PatchServer(network, timed, event_rate_hz=1.0 / PERIOD_S,
                          accept_only_consumed=True)
+    gc.collect()  # as skin sim run: the object dictionaries out of the collector's way
+    gc.freeze()
     server.start()
     try:
         master.send(("start",))
         master.recv()
         sent0, cpu0, wall0 = server.frames_sent, time.process_time(), time.monotonic()
+        source0 = timed.cpu_s
         master.send(("serve", cycles, expected_answer(server)))
         checked = master.recv()
         cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
+        source_cpu = timed.cpu_s - source0
         sent = server.frames_sent - sent0
         answer = server.answer()
         owned = {c for node in server.nodes for c in node.transmitted_cob_ids()}
     finally:
         server.stop()
+        gc.unfreeze()
     bus = network.bus
     assert bus is not None
     own, sender = receive_filter(bus), object()
@@ -104,7 +129,8 @@ def _round(network: canopen.Network, source: ResistanceSource, master: Connectio
         send_cpu, send_frames = _send_phase(bus, answer, cycles)
     finally:
         own.release(sender)
-    return {"cpu_s": cpu, "wall_s": wall, "frames_sent": sent, "send_cpu_s": send_cpu,
+    return {"cpu_s": cpu, "wall_s": wall, "frames_sent": sent, "source_cpu_s": source_cpu,
+            "send_cpu_s": send_cpu,
             "send_frames": send_frames, "syncs": server.sync_count, **checked}
 
 
@@ -139,6 +165,7 @@ def _summary(results: list[dict[str, Any]], patches: int, rate_hz: float, second
         send_us = 1e6 * r["send_cpu_s"] / max(r["send_frames"], 1)
         share = r["cpu_s"] / r["wall_s"]
         rounds.append({"cpu_us_per_frame": cpu_us, "send_us_per_frame": send_us,
+                       "source_us_per_frame": 1e6 * r["source_cpu_s"] / max(r["frames_sent"], 1),
                        "ratio": cpu_us / send_us if send_us else math.inf,
                        "cpu_share": share, "frames_sent": r["frames_sent"],
                        "syncs": r["syncs"], "answers_complete": r["complete"],
@@ -155,9 +182,11 @@ def _summary(results: list[dict[str, Any]], patches: int, rate_hz: float, second
         "cpu_us_per_frame": statistics.median(r["cpu_us_per_frame"] for r in rounds),
         "send_us_per_frame": statistics.median(r["send_us_per_frame"] for r in rounds),
         "ratio": statistics.median(r["ratio"] for r in rounds),
+        "source_us_per_frame": statistics.median(r["source_us_per_frame"] for r in rounds),
         "answer_ms": {"p50": p50, "p99": p99,
                       "max": float(latencies.max()) if latencies.size else math.nan},
-        "patches_per_core_at_100hz": patches * (rate_hz / 100.0) / share if share else math.inf,
+        "patches_per_core_at_100hz": 1e6 / (statistics.median(r["cpu_us_per_frame"]
+                                                              for r in rounds) * 7 * 100.0),
         "cpu_share": share,
         "answers_complete": sum(r["answers_complete"] for r in rounds),
         "answers_checked": sum(r["answers_checked"] for r in rounds),
