@@ -307,5 +307,7 @@ def answer_plan(node: PatchNode) -> AnswerPlan:
     codec = node.tpdo.codec
     plan = _PLANS.get(codec)
     if plan is None:
-        plan = _PLANS[codec] = AnswerPlan(codec, node.tpdo.transmission_types)
+        codec, types = node.tpdo.mapping()
+        plan = _PLANS.get(codec) or AnswerPlan(codec, types)
+        _PLANS[codec] = plan
     return plan

@@ -77,14 +77,16 @@ class _Bus:
     syncs: int = 0
     frames_sent: int = 0
     last_sync: float = -math.inf
-    """``time.monotonic()`` of its last SYNC, and of the end of its last answer:"""
+    """``time.monotonic()`` of its last SYNC."""
     answered_at: float = -math.inf
+    """``time.monotonic()`` of the end of its last answer."""
     answer_s: deque[float] = field(default_factory=lambda: deque(maxlen=1 << 17))
     """Per answered SYNC: from the SYNC's receive stamp to the return of the last send."""
     late: int = 0
     """Answers that ended after the next SYNC was due (one SYNC interval after theirs):
     more traffic than this process sends in a cycle."""
     last_received: float = 0.0
+    """The receive stamp of its last SYNC."""
     send_lock: threading.Lock = field(default_factory=threading.Lock)
     own: ReceiveFilter | None = None
     gate: OwnFrameGate | None = None

@@ -47,12 +47,12 @@ def main(rounds: int) -> None:
         for k in range(rounds):
             echoed = cpu_per_frame(network)
             own.claim(owner, {m.arbitration_id for m in FRAMES})
+            where = "in the kernel" if own.in_kernel else "before the listener"
             dropped = cpu_per_frame(network)
             own.release(owner)
             print(f"round {k + 1}: {echoed:.1f} us of CPU per frame sent with its echo "
-                  f"received, {dropped:.1f} us with the echo dropped in the kernel "
-                  f"(in_kernel={own.in_kernel or 'released'}); {echoed / dropped:.2f}x; load "
-                  f"{os.getloadavg()[0]:.1f}", flush=True)
+                  f"received, {dropped:.1f} us with the echo dropped {where}; "
+                  f"{echoed / dropped:.2f}x; load {os.getloadavg()[0]:.1f}", flush=True)
     finally:
         network.disconnect()
 
