@@ -182,3 +182,20 @@ def test_the_gate_drops_own_frames_where_the_kernel_cannot(
     gate.on_message_received(can.Message(arbitration_id=0x181, is_extended_id=True))
     own.release(owner)
     assert seen == [0x182, 0x181] and gate.dropped == 1
+
+
+def test_the_sniffer_leaves_its_own_process_echoes_out_of_its_counts(
+        udp_pair: tuple[can.BusABC, can.BusABC]) -> None:
+    from canbus.tools.sniffer import Sniffer
+
+    a, _ = udp_pair
+    own, owner = receive_filter(a), object()
+    own.claim(owner, [0x181])
+    sniffer = Sniffer(own=own)
+    for cob_id in (0x181, 0x182, 0x181):
+        sniffer.on_message_received(can.Message(arbitration_id=cob_id, is_extended_id=False,
+                                                data=bytes(8), timestamp=1.0))
+    own.release(owner)
+    snap = sniffer.snapshot()
+    assert (snap.frames, sniffer.own_frames) == (1, 2)
+    assert [row.cob_id for row in snap.rows] == [0x182]
