@@ -58,6 +58,17 @@ class LocalDevice:
             self.nmt.boot(network)
             self.heartbeat.start(network, int(self.store.value(0x1017)), self.nmt.state)
 
+    def transmitted_cob_ids(self) -> set[int]:
+        """The COB-IDs this device sends from: boot-up and heartbeat, EMCY, SDO responses
+        and its valid TPDOs (as mapped now)."""
+        out = {0x700 + self.node_id, int(self.store.sdo.tx_cobid)}
+        if 0x1014 in self.store.object_dictionary:
+            emcy = int(self.store.value(0x1014))
+            if not emcy & 0x8000_0000:
+                out.add(emcy & 0x7FF)
+        out.update(int(c) for c in self.tpdo.codec.cob_ids.tolist())
+        return out
+
     def detach(self) -> None:
         with self.lock:
             self.heartbeat.stop()
