@@ -2,12 +2,9 @@
 processes on udp_multicast for 10 s; prints the share of complete samples, per run.
 
     python tests/canbus/bench_two_process.py [--runs 3] [--seconds 10] [--pin]
-                                             [--host skin-run|drop-own]
 
-``--host skin-run`` runs `skin run examples/host8.toml` as it is; ``drop-own`` runs the same
-host with its own frames dropped in the kernel first (``canbus.rxfilter``: its SYNC and its
-force nodes' frames, the change docs/canbus.md proposes for the host), so the two can be
-compared on one machine. ``--pin`` puts the patches on CPU 0 and the host on CPU 1
+The host is `skin run examples/host8.toml` as it is (it drops the echoes of its own frames in
+the kernel: docs/host.md). ``--pin`` puts the patches on CPU 0 and the host on CPU 1
 (``--cpu``). Each run has its own multicast group and port.
 """
 
@@ -25,32 +22,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "examples" / "host8.toml"
 
-DROP_OWN_HOST = """
-import json, sys, time, can
-from canbus.master.host import HostManager
-from canbus.master.hostconfig import load_host_config, predefined_tpdo_cob_ids
-from canbus.rxfilter import receive_filter
-from canbus.tools.recorder import DEFAULT_RCVBUF, enlarge_receive_buffer
-from skin.commands.cpu import pinned
-group, port, seconds, cpu, out = sys.argv[1:6]
-config = load_host_config(sys.argv[6])
-with pinned(cpu), can.Bus(interface="udp_multicast", channel=group, port=int(port)) as bus:
-    enlarge_receive_buffer(bus, DEFAULT_RCVBUF)
-    own = {0x080}
-    for p in config.patches:
-        f = p.force_node
-        own |= set(p.force_cob_ids or predefined_tpdo_cob_ids(f))
-        own |= {0x700 + f, 0x080 + f, 0x580 + f, 0x600 + p.node_id}
-    receive_filter(bus).claim(config, own)
-    with HostManager(bus, config) as host:
-        time.sleep(float(seconds))
-        stats = host.stats()
-with open(out, "w") as handle:
-    json.dump({"stats": stats}, handle)
-"""
 
-
-def one_run(k: int, seconds: float, host: str, pin: bool) -> dict[str, float]:
+def one_run(k: int, seconds: float, pin: bool) -> dict[str, float]:
     group, port = f"239.74.{os.getpid() % 250}.{200 + k}", 32000 + (os.getpid() % 500) * 8 + k
     bus = ["-i", "udp_multicast", "-c", group, "--bus-kwargs", f"port={port}"]
     with tempfile.TemporaryDirectory() as tmp:
@@ -61,12 +34,8 @@ def one_run(k: int, seconds: float, host: str, pin: bool) -> dict[str, float]:
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         time.sleep(2.5)
         load = os.getloadavg()[0]
-        if host == "skin-run":
-            cmd = [sys.executable, "-m", "skin.cli", "run", str(CONFIG), *bus, "--seconds",
-                   str(seconds), "--json", str(out), "--cpu", "1" if pin else "all"]
-        else:
-            cmd = [sys.executable, "-c", DROP_OWN_HOST, group, str(port), str(seconds),
-                   "1" if pin else "all", str(out), str(CONFIG)]
+        cmd = [sys.executable, "-m", "skin.cli", "run", str(CONFIG), *bus, "--seconds",
+               str(seconds), "--json", str(out), "--cpu", "1" if pin else "all"]
         subprocess.run(cmd, capture_output=True, text=True, check=True, timeout=seconds + 60)
         served, _ = patches.communicate(timeout=30)
         stats = json.loads(out.read_text())["stats"]
@@ -81,11 +50,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--seconds", type=float, default=10.0)
-    parser.add_argument("--host", choices=("skin-run", "drop-own"), default="skin-run")
     parser.add_argument("--pin", action="store_true")
     args = parser.parse_args()
     for k in range(args.runs):
-        result = one_run(k, args.seconds, args.host, args.pin)
+        result = one_run(k, args.seconds, args.pin)
         print(f"run {k + 1}: {result['complete_pct']:.2f} % of {result['samples']} samples "
               f"complete; late frames {result['late_frames']}, unknown {result['unknown_frames']}"
               f", SYNC overruns {result['sync_overruns']}; load {result['load_average']:.1f}; "
