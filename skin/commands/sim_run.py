@@ -27,7 +27,6 @@ import contextlib
 import copy
 import gc
 import json
-import math
 import os
 import sys
 import threading
@@ -51,26 +50,15 @@ AHEAD_S = 0.1
 def scene_on_patches(name: str, patches: int | None) -> Scene:
     """The scene, or its loads and effects on ``patches`` patches at node-IDs 1..N (a grid
     5 cm apart), every load on every patch."""
-    from sim import load_scene, scene_from_dict
+    from sim import load_scene, on_patches
     from skin.errors import ConfigError
 
     scene = load_scene(name)
-    if patches is None or (patches == len(scene.patches)
-                           and scene.node_ids == tuple(range(1, patches + 1))):
+    if patches is None:
         return scene
     if not 1 <= patches <= 127:
         raise ConfigError("--patches", f"must be in 1..127 (CANopen node-IDs), got {patches}")
-    data = scene.to_dict()
-    side = math.ceil(math.sqrt(patches))
-    data["patches"] = [{"node_id": k + 1, "position_m": [SPACING_M * (k % side),
-                                                         SPACING_M * (k // side)]}
-                       for k in range(patches)]
-    for load in data["loads"]:
-        load["patches"] = list(range(1, patches + 1))
-    faults = data["effects"].get("faults")
-    if faults is not None:
-        faults["pillars"] = [p for p in faults["pillars"] if p["node_id"] <= patches]
-    return scene_from_dict(data)
+    return on_patches(scene, patches, SPACING_M)
 
 
 def bus_namespaces(args: argparse.Namespace, buses: int) -> list[argparse.Namespace]:
