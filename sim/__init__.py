@@ -1,7 +1,15 @@
 """The simulator: scenes -> loads -> pillar resistances, through the listed effects."""
 
 from sim.dataset import generate_dataset
-from sim.scene import LoadSpec, PatchSpec, Scene, load_scene, scene_from_dict, shipped_scenes
+from sim.scene import (
+    LoadSpec,
+    PatchSpec,
+    Scene,
+    load_scene,
+    on_patches,
+    scene_from_dict,
+    shipped_scenes,
+)
 from sim.simulator import Frame, Simulator
 
 __all__ = [
@@ -12,6 +20,7 @@ __all__ = [
     "Simulator",
     "generate_dataset",
     "load_scene",
+    "on_patches",
     "scene_from_dict",
     "shipped_scenes",
 ]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib.resources
+import math
 import os
 import tomllib
 from collections.abc import Mapping
@@ -208,4 +209,25 @@ def load_scene(name_or_path: str | os.PathLike[str]) -> Scene:
         data = tomllib.loads(content)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(source, f"malformed TOML: {err}") from err
+    return scene_from_dict(data)
+
+
+def on_patches(scene: Scene, patches: int, spacing_m: float = 0.05) -> Scene:
+    """``scene``'s loads and effects on ``patches`` patches at node-IDs 1..N, on a square
+    grid ``spacing_m`` apart, every load on every patch (faults kept on the patches that
+    remain): how one scene stands for a skin of any size."""
+    if not 1 <= patches <= 127:
+        raise ConfigError("patches", f"must be in 1..127 (CANopen node-IDs), got {patches}")
+    if patches == len(scene.patches) and scene.node_ids == tuple(range(1, patches + 1)):
+        return scene
+    data = scene.to_dict()
+    side = math.ceil(math.sqrt(patches))
+    data["patches"] = [{"node_id": k + 1, "position_m": [spacing_m * (k % side),
+                                                         spacing_m * (k // side)]}
+                       for k in range(patches)]
+    for load in data["loads"]:
+        load["patches"] = list(range(1, patches + 1))
+    faults = data["effects"].get("faults")
+    if faults is not None:
+        faults["pillars"] = [p for p in faults["pillars"] if p["node_id"] <= patches]
     return scene_from_dict(data)

@@ -57,3 +57,14 @@ class RecordingError(SkinError, ValueError):
         self.problem = problem
         where = f"{source}: frame {frame}" if frame is not None else source
         super().__init__(f"{where}: {problem}")
+
+
+class ReferenceFileError(SkinError, ValueError):
+    """A reference-force file (CSV or .npz) is malformed; names the file and the row."""
+
+    def __init__(self, source: str, row: int | None, problem: str) -> None:
+        self.source = source
+        self.row = row
+        self.problem = problem
+        where = f"{source}: row {row}" if row is not None else source
+        super().__init__(f"{where}: {problem}")

@@ -11,6 +11,7 @@ then calls ``super().__init__``, and provides ``_read_live`` (live object values
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import canopen
@@ -36,6 +37,8 @@ class LocalDevice:
         self.nmt = NmtSlave(node_id, on_reset=self._reset, on_state=self._on_state)
         self.network: canopen.Network | None = None
         self.lock = threading.RLock()
+        self.on_cob_ids_changed: Callable[[], None] | None = None
+        """Called after a write or reset that may change :meth:`transmitted_cob_ids`."""
         self.store.add_read_callback(self._read_live)
         self.store.add_write_callback(self._written)
         self._apply_defaults()
@@ -57,6 +60,17 @@ class LocalDevice:
             network.subscribe(0, self._on_nmt)
             self.nmt.boot(network)
             self.heartbeat.start(network, int(self.store.value(0x1017)), self.nmt.state)
+
+    def transmitted_cob_ids(self) -> set[int]:
+        """The COB-IDs this device sends from: boot-up and heartbeat, EMCY, SDO responses
+        and its valid TPDOs (as mapped now)."""
+        out = {0x700 + self.node_id, int(self.store.sdo.tx_cobid)}
+        if 0x1014 in self.store.object_dictionary:
+            emcy = int(self.store.value(0x1014))
+            if not emcy & 0x8000_0000:
+                out.add(emcy & 0x7FF)
+        out.update(int(c) for c in self.tpdo.codec.cob_ids.tolist())
+        return out
 
     def detach(self) -> None:
         with self.lock:
@@ -91,6 +105,12 @@ class LocalDevice:
         if index == 0x1017:
             with self.lock:  # after attach() started the heartbeat: never two tasks at once
                 self.heartbeat.set_period(int(self.store.value(0x1017)))
+        elif index in (0x1014, 0x1200) or 0x1800 <= index <= 0x19FF:
+            self._cob_ids_changed()
+
+    def _cob_ids_changed(self) -> None:
+        if self.on_cob_ids_changed is not None:
+            self.on_cob_ids_changed()
 
     def _reset(self, application: bool) -> None:
         with self.lock:
@@ -99,3 +119,4 @@ class LocalDevice:
                 self._clear_application()
             self._apply_defaults()
             self.heartbeat.stop()
+        self._cob_ids_changed()

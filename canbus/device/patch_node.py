@@ -10,32 +10,35 @@ drives many nodes from one source on one bus.
 
 from __future__ import annotations
 
+import math
 import threading
 import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
+from canopen.sdo.exceptions import SdoAbortedError
 from numpy.typing import ArrayLike, NDArray
 
 from canbus import codes
 from canbus.device.emcy import REGISTER_FAULT, FaultReporter
 from canbus.device.local_device import TPDO_COUNT, LocalDevice
 from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL
+from canbus.device.tpdo import EVENT_DRIVEN
 from canbus.pdo_codec import TPDO_COMM, TPDO_MAP, PdoCodec
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.errors import ConfigError
 
 RESISTANCES, LSB, NOMINAL, CONSTANTS, STATUS = 0x2000, 0x2001, 0x2002, 0x2003, 0x2004
 ANSWERED = 0x2006
+INVALID_VALUE, ABOVE_LIMIT, BELOW_LIMIT = 0x0609_0030, 0x0609_0031, 0x0609_0032
 """The counter byte of the SYNC the TPDOs answer (0: none): mapped into a CAN FD answer, it
 tells the master which cycle the answer belongs to."""
 _CONSTANT_FIELDS = ("youngs_modulus_pa", "resistivity_ohm_m", "length_m", "area_m2",
                     "max_strain", "full_scale_force_N", "taxel_pitch_m")
 Frame = tuple[int, bytes]
-Due = Callable[["PatchNode", NDArray[np.uint8]], list[int]]
-# A node's row: codes 0x2000 (27), status 0x2004 (9), 0x1001, 0x2006.
-_ERROR_REGISTER_COLUMN, _ANSWERED_COLUMN = 36, 37
+Due = Callable[["PatchNode", Sequence[bytes]], list[int]]
 
 
 def z_only_mapping() -> list[list[int]]:
@@ -59,15 +62,30 @@ class PatchNode(LocalDevice):
         self.faults = FaultReporter()
         self.answered = 0  # 0x2006
         super().__init__(node_id, "skin-patch")
+        self.store.validators.append(self._check_rest)
+
+    def _check_rest(self, index: int, subindex: int, value: Any) -> None:
+        """A master may write the patch's rest resistances (0x2002, a calibration's tare):
+        each must be a finite resistance the ADC can read."""
+        if index != NOMINAL or not subindex:
+            return
+        ohm = float(value)
+        if not math.isfinite(ohm):
+            raise SdoAbortedError(INVALID_VALUE)
+        if ohm <= 0.0:
+            raise SdoAbortedError(BELOW_LIMIT)
+        if ohm >= codes.SATURATED * float(self.store.value(LSB)):
+            raise SdoAbortedError(ABOVE_LIMIT)
 
     def update(self, resistance_ohm: ArrayLike) -> None:
         """Take the patch's resistances, shape ``(9, P)``: codes, taxel status, EMCY."""
         batch_update([self], np.asarray(resistance_ohm, dtype=np.float64).reshape(1, 9, -1))
 
-    def _adopt(self, new_codes: NDArray[np.uint16], status: NDArray[np.uint8],
+    def adopt(self, new_codes: NDArray[np.uint16], status: NDArray[np.uint8],
                changed: bool) -> None:
         """Take one sample's codes ``(9, 3)`` and taxel status (``changed``: it differs
-        from the node's); EMCY for every taxel whose status changed."""
+        from the node's); EMCY for every taxel whose status changed. What :meth:`update`
+        does after the conversion, for callers that convert many nodes at once."""
         with self.lock:
             self.codes[...] = new_codes
             if not changed:
@@ -92,8 +110,8 @@ class PatchNode(LocalDevice):
 
     def _on_state(self, state: int) -> None:
         super()._on_state(state)
-        if state == OPERATIONAL:  # pack once now, not first in the first SYNC's answer
-            _frames_locked([self], lambda node, payloads: [], 0)
+        if state == OPERATIONAL:  # plan now, not first in the first SYNC's answer
+            answer_plan(self)
 
     def _read_live(self, index: int, subindex: int, **_: Any) -> int | None:
         if index == RESISTANCES and subindex:
@@ -151,7 +169,7 @@ def batch_update(nodes: Sequence[PatchNode], resistance_ohm: NDArray[np.float64]
         changed = (status != np.stack([node.faults.status for node in group])).any(axis=1)
         for node, node_codes, node_status, node_changed in zip(group, full, status,
                                                                changed.tolist(), strict=True):
-            node._adopt(node_codes, node_status, node_changed)
+            node.adopt(node_codes, node_status, node_changed)
 
 
 def batch_frames_on_sync(nodes: Sequence[PatchNode], counter: int,
@@ -169,75 +187,144 @@ def batch_frames_on_event(nodes: Sequence[PatchNode], now: float) -> list[Frame]
 
 
 def batch_frames(nodes: Sequence[PatchNode], due: Due, sync_byte: int = 0) -> list[Frame]:
-    """The TPDO frames that ``due(node, payloads)`` selects, of every OPERATIONAL node.
+    """The TPDO frames that ``due(node, payloads)`` selects, of every OPERATIONAL node, each
+    node's in ascending COB-ID order (as a CAN controller sends its queued frames).
 
-    Nodes whose TPDOs are mapped alike are packed by one ``PdoCodec.pack`` call; every
-    node's lock is held throughout, so each sees one consistent sample and mapping.
+    Every node's lock is held throughout, so each sees one consistent sample and mapping.
     """
+    with locked(nodes):
+        for node in nodes:
+            node.answered = sync_byte
+        live = [node for node in nodes if node.nmt.state == OPERATIONAL]
+        out: list[Frame] = []
+        for node, payloads in zip(live, pack_payloads(live), strict=True):
+            plan = answer_plan(node)
+            chosen = set(due(node, payloads))
+            out += [(plan.cob_ids[p], payloads[p]) for p in plan.order if p in chosen]
+        return out
+
+
+@contextmanager
+def locked(nodes: Sequence[PatchNode]) -> Iterator[None]:
+    """Hold every node's lock (in order) for the block."""
     held: list[threading.RLock] = []
     try:
         for node in nodes:
             node.lock.acquire()
             held.append(node.lock)
-        for node in nodes:
-            node.answered = sync_byte
-        return _frames_locked([node for node in nodes if node.nmt.state == OPERATIONAL], due,
-                              sync_byte)
+        yield
     finally:
         for lock in reversed(held):
             lock.release()
 
 
-def _frames_locked(live: list[PatchNode], due: Due, sync_byte: int) -> list[Frame]:
-    if not live:
+# A node's row of bytes, from which every mapping of skin-patch.eds is gathered: the codes
+# 0x2000 (27 x UNSIGNED16, little-endian), the taxel status 0x2004 (9 x UNSIGNED8), the
+# error register 0x1001 and 0x2006 (the answered SYNC's counter byte).
+_ROW = {RESISTANCES: (0, 2), STATUS: (54, 1), 0x1001: (63, 1), ANSWERED: (64, 1)}
+_ROW_BYTES = 65
+
+
+def pack_payloads(nodes: Sequence[PatchNode], codes: NDArray[np.uint16] | None = None,
+                  status: NDArray[np.uint8] | None = None) -> list[list[bytes]]:
+    """Every valid TPDO payload of each node (in its codec's order), from its codes ``(9, 3)``,
+    taxel status and 0x2006: one numpy gather per mapping shape for all nodes mapped alike.
+    ``codes`` ``(n, 9, 3)`` and ``status`` ``(n, 9)``: the nodes' own, already stacked.
+
+    The caller holds the nodes' locks (or owns them) so that sample and mapping agree.
+    """
+    n = len(nodes)
+    if not n:
         return []
-    n = len(live)
-    status = np.stack([node.faults.status for node in live])
-    error_register = np.where(status.any(axis=1), REGISTER_FAULT, 0)  # FaultReporter's 0x1001
-    rows = np.concatenate([np.stack([node.codes for node in live]).reshape(n, 27), status,
-                           error_register[:, None], np.full((n, 1), sync_byte)], axis=1,
-                          dtype=np.int64)
-    groups: dict[_Layout, list[int]] = {}
-    for i, node in enumerate(live):
-        groups.setdefault(_layout(node.tpdo.codec), []).append(i)
-    out: list[list[Frame]] = [[] for _ in live]
-    for layout, members in groups.items():
+    if codes is None:
+        codes = np.stack([node.codes for node in nodes])
+    if status is None:
+        status = np.stack([node.faults.status for node in nodes])
+    rows = np.empty((n, _ROW_BYTES), dtype=np.uint8)
+    rows[:, :54] = codes.reshape(n, 27).astype("<u2", copy=False).view(np.uint8)
+    rows[:, 54:63] = status
+    rows[:, 63] = np.where(status.any(axis=1), REGISTER_FAULT, 0)  # FaultReporter's 0x1001
+    rows[:, 64] = [node.answered for node in nodes]
+    plans = [answer_plan(node) for node in nodes]
+    layout = plans[0].layout
+    if all(plan.layout is layout for plan in plans):  # the usual case: one shape
+        groups = [list(range(n))]
+    else:
+        by_shape: dict[int, list[int]] = {}
+        for i, plan in enumerate(plans):
+            by_shape.setdefault(id(plan.layout), []).append(i)
+        groups = list(by_shape.values())
+    out: list[list[bytes]] = [[] for _ in nodes]
+    for members in groups:
+        layout = plans[members[0]].layout
         chosen = rows if len(members) == n else rows[members]
-        payloads = live[members[0]].tpdo.codec.pack(chosen[:, layout.gather])
-        width = payloads.shape[2]
-        blob, stride, sizes = payloads.tobytes(), width * len(layout.sizes), layout.sizes
+        blob = chosen[:, layout.gather].tobytes()
+        total, spans = layout.total, layout.spans
         for m, i in enumerate(members):
-            cob_ids = live[i].tpdo.codec.cob_ids.tolist()
-            at = m * stride
-            out[i] = [(cob_ids[p], blob[at + width * p:at + width * p + sizes[p]])
-                      for p in sorted(due(live[i], payloads[m]), key=cob_ids.__getitem__)]
-    return [frame for frames in out for frame in frames]
+            at = m * total
+            out[i] = [blob[at + a:at + b] for a, b in spans]
+    return out
 
 
-class _Layout:
-    """A TPDO mapping shape: codecs mapped alike share one (by identity)."""
+class AnswerLayout:
+    """A mapping shape: where each byte of each PDO comes from in a node's row. Codecs
+    mapped alike share one (and so one gather for all their nodes)."""
 
-    __slots__ = ("__weakref__", "gather", "sizes")
+    __slots__ = ("answered", "gather", "spans", "total")
 
     def __init__(self, codec: PdoCodec) -> None:
-        self.sizes = tuple(int(size) for size in codec.sizes)
-        columns = {RESISTANCES: 0, STATUS: 27}
-        single = {0x1001: _ERROR_REGISTER_COLUMN, ANSWERED: _ANSWERED_COLUMN}
-        self.gather = np.array([columns[i] + s - 1 if i in columns else single[i]
-                                for i, s in codec.variables], dtype=np.intp)
+        gather: list[int] = []
+        spans: list[tuple[int, int]] = []
+        answered: list[tuple[int, int]] = []
+        for p, layout in enumerate(codec.layouts):
+            start = len(gather)
+            for entry in layout.entries:
+                if entry.index not in _ROW:
+                    raise ConfigError("pdo mapping", f"0x{entry.index:04X} is not mappable on "
+                                                     "a patch")
+                base, width = _ROW[entry.index]
+                if entry.index == ANSWERED:
+                    answered.append((p, len(gather) - start))
+                sub = 0 if entry.index in (0x1001, ANSWERED) else entry.subindex - 1
+                gather += range(base + width * sub, base + width * sub + width)
+            spans.append((start, len(gather)))
+        self.gather = np.array(gather, dtype=np.intp)
+        self.spans = tuple(spans)
+        self.total = len(gather)
+        self.answered = tuple(answered)
+        """(PDO position, byte offset) of every mapped 0x2006."""
 
 
-_LAYOUTS: weakref.WeakKeyDictionary[PdoCodec, _Layout] = weakref.WeakKeyDictionary()
-_SHAPES: dict[tuple[Any, ...], _Layout] = {}
+class AnswerPlan:
+    """How a node answers with one codec: COB-IDs, the answer's order, what is sent when."""
 
+    __slots__ = ("__weakref__", "cob_ids", "codec", "event", "every_sync", "layout", "order")
 
-def _layout(codec: PdoCodec) -> _Layout:
-    """The codec's mapping shape, computed once per codec and shared by equal mappings."""
-    layout = _LAYOUTS.get(codec)
-    if layout is None:
+    def __init__(self, codec: PdoCodec, types: Sequence[int]) -> None:
+        self.codec = codec
         key = tuple(lay.entries for lay in codec.layouts)
         layout = _SHAPES.get(key)
         if layout is None:
-            layout = _SHAPES[key] = _Layout(codec)
-        _LAYOUTS[codec] = layout
-    return layout
+            layout = _SHAPES[key] = AnswerLayout(codec)
+        self.layout = layout
+        self.cob_ids: tuple[int, ...] = tuple(int(c) for c in codec.cob_ids.tolist())
+        self.order = tuple(sorted(range(len(self.cob_ids)), key=self.cob_ids.__getitem__))
+        """PDO positions in ascending COB-ID order: the order of an answer on the bus."""
+        self.every_sync = all(t == 1 for t in types)
+        """Every valid PDO goes out on every SYNC (type 1): the answer is all of them."""
+        self.event = any(t in EVENT_DRIVEN for t in types)
+
+
+_SHAPES: dict[tuple[Any, ...], AnswerLayout] = {}
+_PLANS: weakref.WeakKeyDictionary[PdoCodec, AnswerPlan] = weakref.WeakKeyDictionary()
+
+
+def answer_plan(node: PatchNode) -> AnswerPlan:
+    """The node's plan for its current mapping (computed once per codec)."""
+    codec = node.tpdo.codec
+    plan = _PLANS.get(codec)
+    if plan is None:
+        codec, types = node.tpdo.mapping()
+        plan = _PLANS.get(codec) or AnswerPlan(codec, types)
+        _PLANS[codec] = plan
+    return plan

@@ -1,74 +1,170 @@
-"""Many patch nodes on one bus, fed by one signal source.
+"""Many patch nodes on one or several buses, fed by one signal source, at the cost of the bus.
 
-One SYNC subscription for all nodes: each SYNC hands each node its patch of the current
-sample and sends the TPDOs that are due. Without ``event_rate_hz`` every SYNC reads the
-next sample from the source; with it, a thread reads the source at that rate (the
-source's own clock, which also serves event-driven TPDOs) and SYNC sends the latest
-sample, so the source never runs faster than its rate. TPDO frames go straight to the
-python-can bus (the data plane); canopen handles only NMT and SDO.
+A sample is taken in one place: with ``event_rate_hz`` a thread reads the source at that
+rate (the source's own clock, which also serves event-driven TPDOs) and a SYNC picks up the
+latest sample; without it every SYNC reads the next sample (one bus only). Taking a sample
+does all the work there is per sample, for every patch at once: one read of the source (one
+vectorised simulator step), one code and status conversion, one numpy gather per mapping
+shape for all the TPDO payloads (:func:`pack_payloads`), and the ``can.Message`` of every
+TPDO. A SYNC then only picks up those messages of its bus's OPERATIONAL nodes and hands them
+to the bus's ``send``: each patch's TPDOs in ascending COB-ID order (as a CAN controller
+sends its queued frames), the patches in node-ID order, as fast as the interface takes them.
+On a bus whose ``send`` waits for room (the timed bus's transmit queue), the wire, not the
+server, sets the pace. A SYNC that finds a node remapped since the sample was packed packs
+that node anew; a mapping other than "every PDO on every SYNC" (types 0, 2..240), and 0x2006
+(the answered SYNC's counter, CAN FD), take the general path.
+
+canopen's machinery (the LocalNode object store, SDO server, NMT, heartbeat, EMCY) stays for
+the management plane; TPDOs never pass through it. On a bus that hands a process its own
+frames back (udp_multicast), the nodes' own COB-IDs are claimed (``canbus.rxfilter``): the
+kernel drops their echoes, or, where it cannot, a gate in front of canopen's listener does.
+``accept_only_consumed``: the server owns its buses and, as a device's CAN controller's
+acceptance filter does, lets through only what its nodes consume (NMT, SYNC, SDO requests to
+them): another host's force PDOs never wake it (in the kernel on udp_multicast).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import can
 import canopen
 import numpy as np
 
+from canbus import codes
+from canbus.busload import spread
+from canbus.device.nmt_slave import OPERATIONAL
 from canbus.device.patch_node import (
+    AnswerPlan,
     PatchNode,
-    batch_frames_on_event,
-    batch_frames_on_sync,
-    batch_update,
+    answer_plan,
+    locked,
+    pack_payloads,
 )
 from canbus.device.source import ResistanceSource
+from canbus.rxfilter import OwnFrameGate, ReceiveFilter, receive_filter
 from canbus.txmessage import TxMessage
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 
 logger = logging.getLogger(__name__)
 
 SYNC_COB_ID = 0x080
+SyncCallback = Callable[[int, bytearray, float], None]
+
+
+class _Prepared(NamedTuple):
+    """A node's TPDOs for one sample: the plan they were packed with, each payload (codec
+    order) and the messages of the whole answer (COB-ID order)."""
+
+    plan: AnswerPlan
+    payloads: list[bytes]
+    messages: list[can.Message]
+
+
+@dataclass(eq=False)
+class _Bus:
+    """One bus of the server: its network, its nodes in node-ID order, its SYNC count."""
+
+    network: canopen.Network
+    nodes: list[PatchNode]
+    syncs: int = 0
+    frames_sent: int = 0
+    last_sync: float = -math.inf
+    """``time.monotonic()`` of its last SYNC."""
+    answered_at: float = -math.inf
+    """``time.monotonic()`` of the end of its last answer."""
+    answer_s: deque[float] = field(default_factory=lambda: deque(maxlen=1 << 17))
+    """Per answered SYNC: from the SYNC's receive stamp to the return of the last send."""
+    late: int = 0
+    """Answers that ended after the next SYNC was due (one SYNC interval after theirs):
+    more traffic than this process sends in a cycle."""
+    last_received: float = 0.0
+    """The receive stamp of its last SYNC."""
+    send_lock: threading.Lock = field(default_factory=threading.Lock)
+    own: ReceiveFilter | None = None
+    gate: OwnFrameGate | None = None
+    on_sync: SyncCallback | None = None
 
 
 class PatchServer:
-    """The source's patches as :class:`PatchNode` s on ``network``; use as a context manager."""
+    """The source's patches as :class:`PatchNode` s on ``network`` (or spread in node order
+    over several networks, as ``skin plan --buses`` spreads them); a context manager."""
 
-    def __init__(self, network: canopen.Network, source: ResistanceSource, *,
-                 mode: str | None = None, constants: SensorConstants = DEFAULT_CONSTANTS,
-                 event_rate_hz: float = 0.0) -> None:
-        self.network = network
+    def __init__(self, network: canopen.Network | Sequence[canopen.Network],
+                 source: ResistanceSource, *, mode: str | None = None,
+                 constants: SensorConstants = DEFAULT_CONSTANTS,
+                 event_rate_hz: float = 0.0, accept_only_consumed: bool = False) -> None:
+        networks = [network] if isinstance(network, canopen.Network) else list(network)
+        if not networks:
+            raise ValueError("no network to serve the patches on")
+        if len(networks) > 1 and event_rate_hz <= 0:
+            raise ValueError("patches on several buses need event_rate_hz > 0: the source "
+                             "runs on its own clock, and each bus's SYNC picks up its sample")
+        if len(networks) > len(source.node_ids):
+            raise ValueError(f"{len(networks)} buses for {len(source.node_ids)} patches")
+        self.networks = networks
+        self.network = networks[0]
         self.source = source
         mode = mode or ("z" if source.pillars == 1 else "xyz")
         self.nodes = [PatchNode(n, mode=mode, constants=constants, serial=n)
                       for n in source.node_ids]
+        self._codes = np.stack([node.codes for node in self.nodes])
+        for node, node_codes in zip(self.nodes, self._codes, strict=True):
+            node.codes = node_codes  # a view: one copy updates every node's codes
+        self._lsb = constants.resistance_lsb_ohm
+        self._no_fault = np.zeros((len(self.nodes), 9), dtype=np.uint8)
+        self._faulty = False  # some node's status is not all zero
+        by_id = {node.node_id: node for node in self.nodes}
+        self.buses = [_Bus(net, [by_id[n] for n in group])
+                      for net, group in zip(networks, spread(sorted(by_id), len(networks)),
+                                            strict=True)]
         self.sync_count = 0
         self.samples = 0
-        self.frames_sent = 0
+        self._prepared: dict[int, _Prepared] = {}
         self._lock = threading.Lock()
+        self._quiet = threading.Condition()
         self._event_rate_hz = event_rate_hz
+        self._accept_only_consumed = accept_only_consumed
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
+    @property
+    def frames_sent(self) -> int:
+        return sum(bus.frames_sent for bus in self.buses)
+
     def start(self) -> None:
+        self._stop.clear()
         self._tick()  # nodes hold a real sample before anyone can read them
-        for node in self.nodes:
-            node.attach(self.network)
-        self.network.subscribe(SYNC_COB_ID, self.on_sync)
+        for bus in self.buses:
+            for node in bus.nodes:
+                node.attach(bus.network)
+            self._claim(bus)
+            bus.on_sync = self._sync_handler(bus)
+            bus.network.subscribe(SYNC_COB_ID, bus.on_sync)
         if self._event_rate_hz > 0:
-            self._thread = threading.Thread(target=self._event_loop, daemon=True,
-                                            name="patch-events")
+            self._thread = threading.Thread(target=self._sample_loop, daemon=True,
+                                            name="patch-samples")
             self._thread.start()
 
     def stop(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
-        self.network.unsubscribe(SYNC_COB_ID, self.on_sync)
-        for node in self.nodes:
-            node.detach()
+            self._thread = None
+        for bus in self.buses:
+            if bus.on_sync is not None:
+                bus.network.unsubscribe(SYNC_COB_ID, bus.on_sync)
+                bus.on_sync = None
+            for node in bus.nodes:
+                node.detach()
+            self._release(bus)
 
     def __enter__(self) -> PatchServer:
         self.start()
@@ -78,38 +174,249 @@ class PatchServer:
         self.stop()
 
     def on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        """One SYNC: a new sample, then every node's synchronous TPDOs."""
-        with self._lock:
-            self.sync_count += 1
-            if self._thread is None:
-                self._tick()
-            self._send(batch_frames_on_sync(self.nodes, self.sync_count, data[0] if data else 0))
+        """One SYNC on the first bus: its nodes' synchronous TPDOs."""
+        self._answer(self.buses[0], data[0] if data else 0, timestamp)
 
-    def _tick(self) -> None:
-        sample = np.asarray(self.source.read(), dtype=np.float64)
-        if len(sample) != len(self.nodes):
-            raise ValueError(f"the source gave {len(sample)} patches, "
-                             f"the server has {len(self.nodes)}")
-        self.samples += 1
-        batch_update(self.nodes, sample.reshape(len(self.nodes), 9, -1))
+    @property
+    def late_answers(self) -> int:
+        """Answers, on every bus, that ended after the next SYNC was due."""
+        return sum(bus.late for bus in self.buses)
 
-    def _event_loop(self) -> None:
+    def answer_ms(self) -> tuple[float, float]:
+        """p50 and p99 over every bus of the time from a SYNC's receive stamp (the bus's
+        timestamp) to the return of its answer's last ``send``, in ms (NaN: no answer)."""
+        times = np.fromiter((t for bus in self.buses for t in bus.answer_s), dtype=np.float64)
+        if not times.size:
+            return math.nan, math.nan
+        p50, p99 = np.percentile(1e3 * times, [50, 99])
+        return float(p50), float(p99)
+
+    def answer(self, bus: int = 0) -> list[can.Message]:
+        """The messages a SYNC on bus ``bus`` would send now, of nodes that send every valid
+        TPDO on every SYNC (the default mapping), in the order it would send them."""
+        prepared = self._prepared
+        return [msg for node in self.buses[bus].nodes
+                if node.nmt.state == OPERATIONAL and node.node_id in prepared
+                and prepared[node.node_id].plan.every_sync
+                for msg in prepared[node.node_id].messages]
+
+    def _sync_handler(self, bus: _Bus) -> SyncCallback:
+        def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
+            self._answer(bus, data[0] if data else 0, timestamp)
+        return on_sync
+
+    # --- samples ----------------------------------------------------------------------
+
+    def _sample_loop(self) -> None:
         period = 1.0 / self._event_rate_hz
         deadline = time.monotonic()
         while not self._stop.is_set():
             deadline += period
+            late = time.monotonic() - deadline
+            if late > period:  # a stall (a busy machine): carry on from now, do not catch up
+                deadline += late
             self._stop.wait(max(0.0, deadline - time.monotonic()))
-            now = time.monotonic()
-            with self._lock:
-                self._tick()
-                self._send(batch_frames_on_event(self.nodes, now))
+            if self._stop.is_set():
+                break
+            self._wait_quiet(deadline, period)
+            self._tick()
+            self._send_events(time.monotonic())
 
-    def _send(self, frames: list[tuple[int, bytes]]) -> None:
-        bus = self.network.bus
-        assert bus is not None, "the network is not connected"
-        for cob_id, payload in frames:
-            try:
-                bus.send(TxMessage.frame(cob_id, payload))
-            except can.CanError as err:
-                logger.warning("TPDO 0x%03X not sent: %s", cob_id, err)
-        self.frames_sent += len(frames)
+    def _wait_quiet(self, since: float, period: float) -> None:
+        """While SYNCs come, wait (at most a period) until every bus that has them answered
+        after ``since``: a sample is taken in the quiet right after the answers, never
+        during one, where an answer's sends would wait for the GIL the step holds."""
+        def answered() -> bool:
+            now = time.monotonic()
+            return all(bus.answered_at >= since for bus in self.buses
+                       if now - bus.last_sync < 2 * period)
+
+        with self._quiet:
+            self._quiet.wait_for(answered, timeout=period)
+
+    def _tick(self) -> None:
+        """The next sample, read outside the lock (the SYNCs go on meanwhile)."""
+        sample = self._read()
+        with self._lock:
+            remapped = self._take(sample)
+        if remapped:
+            for bus in self.buses:
+                self._claim(bus)
+
+    def _read(self) -> np.ndarray:
+        sample = np.asarray(self.source.read(), dtype=np.float64)
+        if len(sample) != len(self.nodes):
+            raise ValueError(f"the source gave {len(sample)} patches, "
+                             f"the server has {len(self.nodes)}")
+        return sample.reshape(len(self.nodes), 9, -1)
+
+    def _take(self, resistance: np.ndarray) -> bool:
+        """Codes, status and EMCY of every node, and their TPDOs packed (lock held); True
+        when a node's mapping changed since the last sample."""
+        self.samples += 1
+        width = resistance.shape[2]
+        new = codes.resistance_to_code(resistance, self._lsb)
+        nodes = self.nodes
+        measured = min(width, nodes[0].pillars)
+        with locked(nodes):
+            self._codes[:, :, :width] = new
+            status = self._status_of(measured)
+            payloads = pack_payloads(nodes, self._codes, status)
+            plans = [answer_plan(node) for node in nodes]
+        prepared = {}
+        for node, plan, node_payloads in zip(nodes, plans, payloads, strict=True):
+            messages: list[can.Message] = [TxMessage.frame(plan.cob_ids[p], node_payloads[p])
+                                           for p in plan.order]
+            prepared[node.node_id] = _Prepared(plan, node_payloads, messages)
+        last, self._prepared = self._prepared, prepared
+        return bool(last) and any(last[n].plan is not p.plan for n, p in prepared.items())
+
+    def _status_of(self, measured: int) -> np.ndarray:
+        """Every node's taxel status from the codes, EMCY where it changed. A sample with no
+        reserved code (short, saturated, open) on a skin with no fault costs two reductions."""
+        read = self._codes[:, :, :measured]
+        if not self._faulty and read.min() > codes.SHORT and read.max() < codes.SATURATED:
+            return self._no_fault
+        status = codes.taxel_status(self._codes, measured)
+        before = np.stack([node.faults.status for node in self.nodes])
+        for i in np.flatnonzero((status != before).any(axis=1)).tolist():
+            self.nodes[i].adopt(self._codes[i], status[i], True)  # EMCY
+        self._faulty = bool(status.any())
+        return status
+
+    @staticmethod
+    def _prepare(node: PatchNode) -> _Prepared:
+        """One node's TPDOs packed from its current sample and mapping."""
+        with locked([node]):
+            payloads = pack_payloads([node])[0]
+            plan = answer_plan(node)
+        return _Prepared(plan, payloads,
+                         [TxMessage.frame(plan.cob_ids[p], payloads[p]) for p in plan.order])
+
+    # --- answers ----------------------------------------------------------------------
+
+    def _answer(self, bus: _Bus, sync_byte: int, received: float) -> None:
+        bus.last_sync = time.monotonic()
+        with self._lock:
+            self.sync_count += 1
+            bus.syncs += 1
+            counter = bus.syncs
+            if self._thread is None:  # every SYNC reads the next sample
+                remapped = self._take(self._read())
+            prepared = self._prepared
+        if self._thread is None and remapped:
+            self._claim(bus)
+        messages: list[can.Message] = []
+        for node in bus.nodes:
+            node.answered = sync_byte
+            if node.nmt.state != OPERATIONAL:
+                continue
+            ready = prepared.get(node.node_id)
+            if ready is None or ready.plan.codec is not node.tpdo.codec:
+                ready = self._prepare(node)  # remapped since the sample
+            plan = ready.plan
+            if plan.every_sync and not plan.layout.answered:
+                messages += ready.messages
+            else:
+                payloads = _answered(ready, sync_byte)
+                due = set(node.tpdo.due_on_sync(counter, payloads))
+                messages += [TxMessage.frame(plan.cob_ids[p], payloads[p])
+                             for p in plan.order if p in due]
+        self._send(bus, messages)
+        if messages and received > 0:
+            took = time.time() - received
+            bus.answer_s.append(took)
+            if 0 < received - bus.last_received < took:
+                bus.late += 1
+        bus.last_received = received
+        with self._quiet:
+            bus.answered_at = time.monotonic()
+            self._quiet.notify_all()
+
+    def _send_events(self, now: float) -> None:
+        """Event-driven TPDOs (types 254/255) due at ``now``, from the latest sample."""
+        prepared = self._prepared
+        for bus in self.buses:
+            messages: list[can.Message] = []
+            for node in bus.nodes:
+                ready = prepared.get(node.node_id)
+                if ready is None or not ready.plan.event or node.nmt.state != OPERATIONAL:
+                    continue
+                if ready.plan.codec is not node.tpdo.codec:
+                    continue  # remapped since the sample: the next one has the new mapping
+                payloads = _answered(ready, node.answered)
+                due = set(node.tpdo.due_on_event(now, payloads))
+                messages += [TxMessage.frame(ready.plan.cob_ids[p], payloads[p])
+                             for p in ready.plan.order if p in due]
+            if messages:
+                self._send(bus, messages)
+
+    def _send(self, bus: _Bus, messages: list[can.Message]) -> None:
+        network_bus = bus.network.bus
+        assert network_bus is not None, "the network is not connected"
+        send = network_bus.send
+        sent = 0
+        with bus.send_lock:
+            for msg in messages:
+                try:
+                    send(msg)
+                except can.CanError as err:
+                    logger.warning("TPDO 0x%03X not sent: %s", msg.arbitration_id, err)
+                else:
+                    sent += 1
+            bus.frames_sent += sent
+
+    # --- own frames -------------------------------------------------------------------
+
+    def consumed_cob_ids(self, bus: int = 0) -> set[int]:
+        """What the nodes of bus ``bus`` receive: NMT, SYNC and their SDO requests."""
+        return {0x000, SYNC_COB_ID} | {int(node.store.sdo.rx_cobid)
+                                       for node in self.buses[bus].nodes}
+
+    def _claim(self, bus: _Bus) -> None:
+        """Claim the COB-IDs the bus's nodes send, where the bus echoes them (and accept
+        only what they consume, if asked)."""
+        network_bus = bus.network.bus
+        if network_bus is None:
+            return
+        if bus.own is None:
+            bus.own = receive_filter(network_bus)
+            if self._accept_only_consumed:
+                bus.own.accept_only(self.consumed_cob_ids(self.buses.index(bus)))
+        if not bus.own.echoes:
+            return
+        bus.own.claim(bus, {c for node in bus.nodes for c in node.transmitted_cob_ids()})
+        notifier = bus.network.notifier
+        if bus.own.in_kernel or notifier is None or bus.gate is not None:
+            return
+        for k, listener in enumerate(notifier.listeners):
+            if isinstance(listener, canopen.network.MessageListener):
+                bus.gate = OwnFrameGate(listener, bus.own)
+                notifier.listeners[k] = bus.gate
+
+    def _release(self, bus: _Bus) -> None:
+        if bus.own is None:
+            return
+        bus.own.release(bus)
+        if self._accept_only_consumed:
+            bus.own.accept_only(None)
+        notifier = bus.network.notifier
+        if bus.gate is not None and notifier is not None:
+            listeners = notifier.listeners
+            if bus.gate in listeners:
+                listeners[listeners.index(bus.gate)] = bus.gate.listener
+        bus.gate = None
+        bus.own = None
+
+
+def _answered(ready: _Prepared, sync_byte: int) -> list[bytes]:
+    """The payloads with 0x2006 set to ``sync_byte`` wherever it is mapped."""
+    answered = ready.plan.layout.answered
+    if not answered:
+        return ready.payloads
+    payloads = list(ready.payloads)
+    for p, at in answered:
+        payload = bytearray(payloads[p])
+        payload[at] = sync_byte
+        payloads[p] = bytes(payload)
+    return payloads

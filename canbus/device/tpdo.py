@@ -13,12 +13,13 @@ Mapping changes follow CiA 301: invalidate the PDO (COB-ID bit 31), write sub-in
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from canopen.objectdictionary import ODVariable
 from canopen.sdo.exceptions import SdoAbortedError
-from numpy.typing import NDArray
 
 from canbus.device.object_store import ObjectStore
 from canbus.pdo_codec import (
@@ -47,8 +48,8 @@ class TpdoTable:
         self.max_bytes = 8
         """The longest PDO the node sends: 8 on a classic bus, 64 on a CAN FD bus (CiA 1301:
         up to 64 mapped bytes, in one CAN FD frame)."""
-        self._codec: PdoCodec | None = None
-        self._params: list[tuple[int, int, int]] = []
+        self._built: tuple[PdoCodec, list[tuple[int, int, int]]] | None = None
+        self._build_lock = threading.Lock()
         self._last_sent: dict[int, float] = {}
         self._last_payload: dict[int, bytes] = {}
         store.validators.append(self.validate)
@@ -56,37 +57,64 @@ class TpdoTable:
 
     @property
     def codec(self) -> PdoCodec:
-        if self._codec is None:
-            layouts = read_layouts(lambda i, s: int(self.store.value(i, s)), self.count)
-            self._codec = PdoCodec(layouts, self.store.object_dictionary)
-            self._params = [(int(self.store.value(TPDO_COMM + layout.number - 1, 2)),
-                             int(self.store.value(TPDO_COMM + layout.number - 1, 3)),
-                             int(self.store.value(TPDO_COMM + layout.number - 1, 5)))
-                            for layout in layouts]
-        return self._codec
+        """The codec of the current mapping, built on first use after a change."""
+        return self._current()[0]
+
+    @property
+    def _params(self) -> list[tuple[int, int, int]]:
+        """(transmission type, inhibit time, event timer) of each valid PDO."""
+        return self._current()[1]
+
+    def _current(self) -> tuple[PdoCodec, list[tuple[int, int, int]]]:
+        built = self._built
+        if built is not None:
+            return built
+        # Built under the lock that invalidation takes: a write that lands while another
+        # thread (a patch server's sample thread) reads the mapping invalidates after the
+        # build, never before it, so no codec of a half-written mapping outlives the write.
+        with self._build_lock:
+            if self._built is None:
+                value = self.store.value
+                layouts = read_layouts(lambda i, s: int(value(i, s)), self.count)
+                self._built = (PdoCodec(layouts, self.store.object_dictionary),
+                               [(int(value(TPDO_COMM + lay.number - 1, 2)),
+                                 int(value(TPDO_COMM + lay.number - 1, 3)),
+                                 int(value(TPDO_COMM + lay.number - 1, 5))) for lay in layouts])
+            return self._built
+
+    @property
+    def transmission_types(self) -> tuple[int, ...]:
+        """The transmission type of each valid PDO, in ``codec.layouts`` order."""
+        return self.mapping()[1]
+
+    def mapping(self) -> tuple[PdoCodec, tuple[int, ...]]:
+        """The codec and the transmission types of one and the same mapping."""
+        codec, params = self._current()
+        return codec, tuple(trans for trans, _, _ in params)
 
     def reset(self) -> None:
-        self._codec = None
+        with self._build_lock:
+            self._built = None
         self._last_sent.clear()
         self._last_payload.clear()
 
     def _invalidate(self, index: int, **_: Any) -> None:
         if TPDO_COMM <= index < TPDO_COMM + self.count or TPDO_MAP <= index < TPDO_MAP + self.count:
-            self._codec = None
+            with self._build_lock:
+                self._built = None
 
-    def due_on_sync(self, counter: int, payloads: NDArray[np.uint8]) -> list[int]:
-        """Positions (in ``codec.layouts``) of the PDOs that SYNC number ``counter`` sends."""
-        codec = self.codec
+    def due_on_sync(self, counter: int, payloads: Sequence[bytes]) -> list[int]:
+        """Positions (in ``codec.layouts``) of the PDOs that SYNC number ``counter`` sends;
+        ``payloads``: each PDO's bytes, for type 0 (sent when they changed)."""
         due = []
         for p, (trans, _, _) in enumerate(self._params):
             cyclic = 1 <= trans <= 240 and counter % trans == 0
-            if cyclic or (trans == 0 and self._changed(p, payloads[p, :codec.sizes[p]].tobytes())):
+            if cyclic or (trans == 0 and self._changed(p, payloads[p])):
                 due.append(p)
         return due
 
-    def due_on_event(self, now: float, payloads: NDArray[np.uint8]) -> list[int]:
+    def due_on_event(self, now: float, payloads: Sequence[bytes]) -> list[int]:
         """Positions of the event-driven PDOs due at ``now`` (seconds, monotonic)."""
-        codec = self.codec
         due = []
         for p, (trans, inhibit_100us, timer_ms) in enumerate(self._params):
             if trans not in EVENT_DRIVEN:
@@ -96,7 +124,7 @@ class TpdoTable:
                 fire = now - last >= timer_ms / 1000.0
             else:
                 fire = (now - last >= inhibit_100us / 10_000.0
-                        and self._changed(p, payloads[p, :codec.sizes[p]].tobytes()))
+                        and self._changed(p, payloads[p]))
             if fire:
                 due.append(p)
         for p in due:

@@ -40,6 +40,7 @@ from canbus.master.patch_setup import (
 )
 from canbus.master.records import PatchRecord
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM
+from canbus.rxfilter import receive_filter
 from skin.errors import BusError, SkinError
 
 if TYPE_CHECKING:
@@ -48,6 +49,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 NMT_START, NMT_PRE_OPERATIONAL = 0x01, 0x80
+SYNC_COB_ID, SDO_REQUEST = 0x080, 0x600
 OPERATIONAL_STATE, STOPPED_STATE = 0x05, 0x04
 
 
@@ -79,6 +81,7 @@ class ActiveMaster:
         host = self.host
         jobs = self._discover() if host.config.scan else []
         self._start_force_nodes()
+        self._claim_own_frames()
         wait(jobs)
         for link in host.links.values():
             if link.dataplane is not None:
@@ -93,7 +96,10 @@ class ActiveMaster:
         host = self.host
         if host.executor is not None:
             host.executor.shutdown(wait=True, cancel_futures=True)
+        for link in host.links.values():
+            receive_filter(link.bus).release(link)
         for patch in host.patches.values():
+            patch.force_node.on_cob_ids_changed = None
             patch.force_node.detach()
             network = patch.link.network
             if patch.node.id in network.nodes:
@@ -158,6 +164,25 @@ class ActiveMaster:
                 _set_tpdo_cob_ids(force, patch.config.force_cob_ids)
             force.on_tare = functools.partial(self.host.tare, patch.node_id)
             force.start()
+            force.on_cob_ids_changed = self._claim_own_frames  # another master remapped it
+
+    def _claim_own_frames(self) -> None:
+        """What the host alone sends on each bus (the SYNC it produces, its force nodes'
+        frames, its SDO requests to its patches) is claimed: on a bus that hands a process
+        its own frames back (udp_multicast) their echoes are dropped in the kernel, before
+        they cost a wake-up (``canbus.rxfilter``); elsewhere nothing changes."""
+        host = self.host
+        producing_sync = not host.config.sync_following
+        for link in host.links.values():
+            own: set[int] = set()
+            if producing_sync and link.dataplane is not None:
+                own.add(SYNC_COB_ID)
+            for patch in host.patches.values():
+                if patch.force_link is link:
+                    own |= patch.force_node.cob_ids()
+                if patch.link is link:
+                    own.add(SDO_REQUEST + patch.node_id)
+            receive_filter(link.bus).claim(link, own)
 
     def _submit(self, job: Callable[[int], None], node_id: int) -> Future[None] | None:
         executor = self.host.executor

@@ -21,6 +21,7 @@ from canbus.master.dataplane import DataPlane, PdoRouter
 from canbus.master.discovery import BootListener
 from canbus.master.liveness import HeartbeatMonitor
 from canbus.master.sync_producer import SyncFollower, SyncProducer
+from canbus.rxfilter import OwnFrameGate, receive_filter
 from skin.errors import BusError
 
 NOTIFIER_CYCLE_S = 0.05  # canopen's notifier recv() timeout: stop() joins within one cycle
@@ -72,6 +73,9 @@ class BusLink:
             others.append(follower)
         listeners: list[can.Listener] = [PdoRouter(dataplane, others)] if dataplane is not None \
             else others
+        own = receive_filter(self.bus)
+        if own.echoes:  # what the kernel filter cannot drop (canbus.rxfilter) stops here
+            listeners = [OwnFrameGate(listener, own) for listener in listeners]
         self.boots.start()
         if self.joined:
             notifier = self.network.notifier

@@ -21,6 +21,14 @@ Anomalies:
 - unknown COB-IDs: frames outside the predefined connection set, 29-bit ids, and PDOs that
   no node's mapping (EDS defaults plus SDO values seen) explains;
 - error frames.
+
+Own frames: a sniffer counts what crosses the bus. Given the ``ReceiveFilter`` of its bus
+(``own=``, ``canbus.rxfilter``), it leaves out the echoes of frames other parts of its own
+process sent through that same bus object (on udp_multicast, which hands a process its own
+frames back; counted in :attr:`Sniffer.own_frames`), so its counts are the same on every
+interface: python-can's virtual, timed and socketcan buses do not return a bus's own frames
+either. ``skin sniff`` runs in a process of its own and sends nothing: it counts every frame
+of the bus once.
 """
 
 from __future__ import annotations
@@ -36,6 +44,7 @@ from typing import Any
 import can
 
 from canbus.busload import classic_frame_bits, fd_frame_time_s, fd_length
+from canbus.rxfilter import ReceiveFilter
 from canbus.tools.services import Decoded, Route, Service, ServiceDecoder, route
 
 _MANAGEMENT = frozenset((Service.NMT, Service.EMCY, Service.SDO, Service.TIME, Service.LSS))
@@ -190,9 +199,12 @@ class Sniffer(can.Listener):
 
     def __init__(self, decoder: ServiceDecoder | None = None, *, bitrate: int = 1_000_000,
                  data_bitrate: int | None = None, events: int = 200,
-                 on_frame: Callable[[can.Message, Route, Decoded | None], None] | None = None
-                 ) -> None:
+                 on_frame: Callable[[can.Message, Route, Decoded | None], None] | None = None,
+                 own: ReceiveFilter | None = None) -> None:
         self.decoder = decoder or ServiceDecoder()
+        self.own = own
+        self.own_frames = 0
+        """Echoes of this process's own frames, left out of every count."""
         self.bitrate = bitrate
         self.data_bitrate = data_bitrate
         self.on_frame = on_frame
@@ -219,6 +231,9 @@ class Sniffer(can.Listener):
         self._states: dict[int | None, int] = {}
 
     def on_message_received(self, msg: can.Message) -> None:
+        if self.own is not None and self.own.is_own(msg):
+            self.own_frames += 1
+            return
         where = route(msg)
         decoded = None
         service = where.service

@@ -1,6 +1,7 @@
-"""``skin bench [decoders|cross|sim|dataplane]``: decoders' speed against error and the paper's
-Table 1, decoders trained on one scene and tested on others, the simulator's speed, or the CAN
-data plane against canopen's PdoMap callbacks."""
+"""``skin bench [decoders|cross|sim|dataplane|server]``: decoders' speed against error and the
+paper's Table 1, decoders trained on one scene and tested on others, the simulator's speed, the
+CAN data plane against canopen's PdoMap callbacks, or the patch server against python-can's own
+send."""
 
 from __future__ import annotations
 
@@ -25,8 +26,12 @@ def add_subparser(subparsers: Any) -> None:
                     "cross: every decoder trained on one scene and tested on the others. "
                     "sim: the simulator's speed. dataplane: 16 patches' TPDOs absorbed, "
                     "decoded and republished as force TPDOs, against the same work through "
-                    "canopen's PdoMap callbacks.")
-    parser.add_argument("target", nargs="?", choices=("decoders", "cross", "sim", "dataplane"),
+                    "canopen's PdoMap callbacks. server: N simulated patches served on "
+                    "udp_multicast to a master in another process, the server's CPU per "
+                    "frame against python-can's own send of the same frames in the same run, "
+                    "SYNC to the last TPDO, patches per core.")
+    parser.add_argument("target", nargs="?",
+                        choices=("decoders", "cross", "sim", "dataplane", "server"),
                         default="decoders")
     parser.add_argument("--quick", action="store_true",
                         help="one seed, smaller batches and sets (about a minute or less)")
@@ -36,6 +41,9 @@ def add_subparser(subparsers: Any) -> None:
                              "function) or on the mapminmax-scaled outputs")
     parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     parser.add_argument("--plot", metavar="FILE.png", help="draw speed against error")
+    from skin.commands.bench_server import add_arguments
+
+    add_arguments(parser)
     parser.set_defaults(func=run)
 
 
@@ -182,6 +190,14 @@ def run(args: argparse.Namespace) -> int:
         print_dataplane(figures)
         if args.json:
             _write_json(args.json, figures)
+        return 0
+    if args.target == "server":
+        from skin.commands.bench_server import print_server, run_server
+
+        result = run_server(args)
+        print_server(result)
+        if args.json:
+            _write_json(args.json, result)
         return 0
     if args.target == "cross":
         from skin.commands.bench_cross import print_cross, run_cross

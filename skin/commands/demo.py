@@ -51,26 +51,15 @@ BUS_KINDS = ("timed", "virtual")
 
 def _scene(name: str, patches: int | None) -> Scene:
     """The scene, or its loads and effects on ``patches`` patches at node-IDs 1..N."""
-    from sim import load_scene, scene_from_dict
+    from sim import load_scene, on_patches
     from skin.errors import ConfigError
 
     scene = load_scene(name)
-    if patches is None or (patches == len(scene.patches)
-                           and scene.node_ids == tuple(range(1, patches + 1))):
+    if patches is None:
         return scene
     if not 1 <= patches <= 63:
         raise ConfigError("--patches", f"must be in 1..63 (force nodes at +64), got {patches}")
-    data = scene.to_dict()
-    side = math.ceil(math.sqrt(patches))
-    data["patches"] = [{"node_id": k + 1, "position_m": [SPACING_M * (k % side),
-                                                         SPACING_M * (k // side)]}
-                       for k in range(patches)]
-    for load in data["loads"]:
-        load["patches"] = list(range(1, patches + 1))
-    faults = data["effects"].get("faults")
-    if faults is not None:
-        faults["pillars"] = [p for p in faults["pillars"] if p["node_id"] <= patches]
-    return scene_from_dict(data)
+    return on_patches(scene, patches, SPACING_M)
 
 
 @dataclass

@@ -122,3 +122,39 @@ def test_batch_frames_on_event_follow_each_node_schedule() -> None:
     assert first == [_reference_frames(node)[0] for node in nodes]
     assert batch_frames_on_event(nodes, 1.005) == []
     assert len(batch_frames_on_event(nodes, 1.010)) == len(nodes)
+
+
+def test_a_mapping_written_while_another_thread_builds_the_codec_is_not_lost(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A patch server's sample thread may build a node's codec while a master's SDO write
+    changes the mapping on the bus's thread: the write must win, not the stale build."""
+    import threading
+    import time
+
+    from canbus.device import tpdo as tpdo_module
+
+    node = PatchNode(1)
+    assert len(node.tpdo.codec.layouts) == 7
+    node.tpdo.reset()
+    read, started, go = tpdo_module.read_layouts, threading.Event(), threading.Event()
+
+    def slow_read(*args: object, **kwargs: object) -> object:
+        layouts = read(*args, **kwargs)  # type: ignore[arg-type]
+        started.set()
+        go.wait(5.0)
+        return layouts
+
+    monkeypatch.setattr(tpdo_module, "read_layouts", slow_read)
+    builder = threading.Thread(target=lambda: node.tpdo.codec)
+    builder.start()
+    assert started.wait(5.0)
+    cob = int(node.store.value(0x1806, 1))
+    writer = threading.Thread(target=lambda: node.store.set_data(
+        0x1806, 1, struct.pack("<I", cob | 0x8000_0000)))  # TPDO 7 invalid, as a master does
+    writer.start()
+    time.sleep(0.1)  # the write has landed and waits to invalidate
+    go.set()
+    builder.join(5.0)
+    writer.join(5.0)
+    monkeypatch.setattr(tpdo_module, "read_layouts", read)
+    assert len(node.tpdo.codec.layouts) == 6

@@ -59,3 +59,81 @@ def test_sim_run_serves_the_scene_until_the_time_is_up(request: pytest.FixtureRe
     record = json.loads(out.read_text())
     assert record["syncs"] == 1 and record["frames"] == 7
     assert SECONDS <= record["seconds"] < wall
+
+
+def test_sim_run_spreads_the_patches_over_buses_each_answering_its_sync(
+        request: pytest.FixtureRequest, tmp_path: Path) -> None:
+    """--patches 5 --buses 2 on virtual: channels CHANNEL0 and CHANNEL1, patches 1-3 and
+    4-5, each bus's SYNC answered by its own patches only, in COB-ID then node-ID order."""
+    channel = f"sim-buses-{request.node.name}"
+    raws = [can.Bus(interface="virtual", channel=f"{channel}{k}", receive_own_messages=True)
+            for k in range(2)]
+    queues: list[queue.Queue[can.Message]] = [queue.Queue(), queue.Queue()]
+    notifiers = [can.Notifier(raw, [q.put], timeout=0.05) for raw, q in zip(raws, queues,
+                                                                              strict=True)]
+    out = tmp_path / "run.json"
+    exit_code: list[int] = []
+    argv = ["sim", "run", "indenter", "--patches", "5", "--buses", "2", "--seconds", "1.5",
+            "-i", "virtual", "-c", channel, "--json", str(out)]
+    runner = threading.Thread(target=lambda: exit_code.append(main(argv)))
+    try:
+        runner.start()
+        for q, count in zip(queues, (3, 2), strict=True):  # the boot-ups
+            assert sorted(q.get(timeout=10.0).arbitration_id for _ in range(count))[0] == \
+                (0x701 if count == 3 else 0x704)
+        for raw in raws:
+            raw.send(can.Message(arbitration_id=0, data=[1, 0], is_extended_id=False))
+        time.sleep(0.2)
+        for raw in raws:
+            raw.send(can.Message(arbitration_id=0x080, data=[1], is_extended_id=False))
+        runner.join(timeout=10.0)
+        assert not runner.is_alive()
+    finally:
+        runner.join()
+        for notifier, raw in zip(notifiers, raws, strict=True):
+            notifier.stop(timeout=1.0)
+            raw.shutdown()
+    assert exit_code == [0]
+    for q, nodes in zip(queues, ([1, 2, 3], [4, 5]), strict=True):
+        seen = _drain(q)
+        after_sync = seen[seen.index(0x080) + 1:]
+        tpdos = [c for c in after_sync if 0x180 <= c < 0x500]
+        assert tpdos == [base + n for n in nodes for base in
+                         (0x180, 0x200, 0x280, 0x300, 0x380, 0x400, 0x480)]
+    record = json.loads(out.read_text())
+    assert [b["nodes"] for b in record["buses"]] == [[1, 2, 3], [4, 5]]
+    assert record["syncs"] == 2 and record["frames"] == 35
+
+
+def _drain(q: queue.Queue[can.Message]) -> list[int]:
+    out = []
+    while not q.empty():
+        out.append(q.get_nowait().arbitration_id)
+    return out
+
+
+def test_sim_run_warns_when_one_bus_cannot_carry_the_skin(capsys: pytest.CaptureFixture[str],
+                                                         request: pytest.FixtureRequest) -> None:
+    channel = f"sim-plan-{request.node.name}"
+    assert main(["sim", "run", "skin64-xyz", "--seconds", "0.01", "-i", "virtual", "-c",
+                 channel]) == 0
+    err = capsys.readouterr().err
+    assert "warning: 1 bus of CAN 1,000,000 bit/s cannot carry 64 patches x 100 Hz (xyz)" in err
+    assert "use --buses" in err and "(skin plan)" in err
+    assert main(["sim", "run", "indenter", "--patches", "2", "--seconds", "0.01", "-i",
+                 "virtual", "-c", channel]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--buses", "3"], "--buses: must be in 1..1"),
+    (["--patches", "0"], "--patches: must be in 1..127"),
+    (["--patches", "4", "--buses", "2", "-c", "a,b,c"], "--channel: 3 channels for --buses 2"),
+    (["--patches", "2", "--buses", "2", "-i", "socketcan", "-c", "can0"],
+     "--buses: name the 2 channels of socketcan"),
+])
+def test_sim_run_refuses_bad_buses_in_one_line(argv: list[str], message: str,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["sim", "run", "indenter", "--seconds", "0.01", *argv]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]

@@ -147,3 +147,25 @@ def test_overstrain_by_shear_names_shear_field() -> None:
         Simulator(scene_from_dict(data))
     assert info.value.field == "loads[0].shear_max_N"
     assert isinstance(info.value.__cause__, Exception)
+
+
+def test_a_scene_on_n_patches_puts_every_load_on_every_patch() -> None:
+    from sim import on_patches
+
+    hard = load_scene("hard")
+    assert any(p["node_id"] == 2 for p in hard.to_dict()["effects"]["faults"]["pillars"])
+    one = on_patches(hard, 1, spacing_m=0.1)
+    assert one.node_ids == (1,) and all(load.patches == (1,) for load in one.loads)
+    assert {p["node_id"] for p in one.to_dict()["effects"]["faults"]["pillars"]} == {1}
+    four = on_patches(hard, 4, spacing_m=0.1)
+    assert [tuple(p.position_m) for p in four.patches] == [(0.0, 0.0), (0.1, 0.0), (0.0, 0.1),
+                                                           (0.1, 0.1)]
+    assert all(load.patches == (1, 2, 3, 4) for load in four.loads)
+    nine = on_patches(load_scene("indenter"), 9)
+    assert nine.node_ids == tuple(range(1, 10)) and max(p.position_m[1] for p in nine.patches) \
+        == pytest.approx(0.1)
+    frame = Simulator(nine).run(300)
+    assert frame.resistance_ohm.shape[1] == 9
+    assert (frame.force_N[..., 2].max(axis=(0, 2)) > 0.1).all()  # every patch is pressed
+    with pytest.raises(ConfigError, match="patches"):
+        on_patches(hard, 128)

@@ -1,0 +1,166 @@
+"""``skin calibrate``: the model and its report, the host-config snippet, ``--check`` and its
+exit status, and the rest values written to a patch by SDO, which an active host reads."""
+
+from __future__ import annotations
+
+import json
+import struct
+import tomllib
+from pathlib import Path
+
+import can
+import canopen
+import numpy as np
+import pytest
+
+from canbus.device.patch_server import PatchServer
+from canbus.device.source import ArraySource
+from canbus.master.host import HostManager
+from canbus.master.hostconfig import HostConfig, PatchConfig, host_config_from_dict
+from decoder.modelfile import read_model
+from decoder.registry import load_decoder
+from decoder.tare import nominal_r0, normalise
+from sim import generate_dataset, load_scene
+from skin.cli import main
+from skin.constants import DEFAULT_CONSTANTS
+from skin.dataset import Dataset, read_dataset, write_dataset
+from tests.canbus.recording_rig import scene
+
+FAST = ["--decoders", "analytic", "deconv"]
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Two datasets of the calibration scene, one of the plain indenter, and a model."""
+    path = tmp_path_factory.mktemp("calibrate")
+    write_dataset(path / "d1.npz", generate_dataset(load_scene("calibration"), 300, 1))
+    write_dataset(path / "d2.npz", generate_dataset(load_scene("calibration"), 300, 2))
+    write_dataset(path / "indenter.npz", generate_dataset(load_scene("indenter"), 300, 3))
+    assert main(["calibrate", str(path / "d1.npz"), "-o", str(path / "m.msgpack"), *FAST,
+                 "--report", str(path / "r.json"), "--json", str(path / "j.json"),
+                 "--config-snippet", str(path / "patch.toml")]) == 0
+    return path
+
+
+def test_the_model_carries_its_report(folder: Path) -> None:
+    report, summary = (json.loads((folder / n).read_text()) for n in ("r.json", "j.json"))
+    for doc in (report, summary):
+        assert doc["decoder"] == "deconv" and doc["hidden"] is None
+        assert 0 < doc["heldout_floored_pct"] < 10
+        assert doc["tare"]["samples"] >= 10 and doc["folds"] == 5 and doc["node_id"] == 1
+    assert summary["seconds"] > 0 and len(report["candidates"]) == 2
+    assert len(report["per_taxel_floored_pct"]) == 9 and set(report["rmse_axis_N"]) == \
+        {"Fx", "Fy", "Fz"}
+    meta = read_model(folder / "m.msgpack").meta["calibration"]
+    assert meta["decoder"] == "deconv"
+    assert meta["heldout_floored_pct"] == pytest.approx(report["heldout_floored_pct"])
+    np.testing.assert_array_equal(meta["tare"]["rest_ohm"], report["tare"]["rest_ohm"])
+    assert meta["candidates"]["names"] == "analytic deconv"
+    assert read_model(folder / "m.msgpack").meta["crosstalk"]["model"] in ("kernel", "full")
+
+
+def test_the_snippet_is_a_host_config_and_the_model_decodes_in_its_frame(folder: Path) -> None:
+    text = (folder / "patch.toml").read_text()
+    table = tomllib.loads("[host]\nlisten_only = true\n" + text)
+    config = host_config_from_dict(table, base=folder)
+    patch = config.patch(1)
+    assert patch.decoder == "deconv" and patch.r0_ohm is not None and patch.mode == "xyz"
+    report = json.loads((folder / "r.json").read_text())
+    np.testing.assert_array_equal(np.reshape(patch.r0_ohm, (9, 3)), report["tare"]["rest_ohm"])
+    # decoded in the host's frame, a second run of the scene is as good as held out
+    ds = read_dataset(folder / "d2.npz")
+    model = load_decoder(folder / "m.msgpack")
+    x = normalise(ds.resistance_ohm[:, 0], np.reshape(patch.r0_ohm, (9, 3)),
+                  nominal_r0(DEFAULT_CONSTANTS, 3))
+    out = model.decode(x)
+    from decoder.metrics import evaluate
+
+    e = evaluate(ds.force_N[:, 0], out.force_N, out.valid, mode="xyz")
+    assert e.ave_rel_err_floored_pct < 1.25 * report["heldout_floored_pct"] + 0.1
+
+
+def _check(folder: Path, data: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, dict]:
+    out = folder / "check.json"
+    code = main(["calibrate", "--check", str(folder / "m.msgpack"), str(data), "--json",
+                 str(out)])
+    capsys.readouterr()
+    return code, json.loads(out.read_text())
+
+
+def test_check_says_whether_the_model_still_fits(folder: Path, tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    code, doc = _check(folder, folder / "d2.npz", capsys)
+    assert code == 0 and doc["verdict"] == "fits" and doc["now"]["fits"]
+    # the rest drifted 1 % (a temperature change): a tare restores the fit
+    ds = read_dataset(folder / "d2.npz")
+    drifted = tmp_path / "drifted.npz"
+    write_dataset(drifted, Dataset(ds.resistance_ohm * 1.01, ds.force_N, ds.meta))
+    code, doc = _check(folder, drifted, capsys)
+    assert code == 4 and not doc["now"]["fits"] and doc["after_tare"]["fits"]
+    # another patch (the shipped crosstalk and R0): no tare helps, recalibrate
+    code, doc = _check(folder, folder / "indenter.npz", capsys)
+    assert code == 3 and not doc["now"]["fits"] and not doc["after_tare"]["fits"]
+    assert doc["limit_pct"] == pytest.approx(1.25 * doc["own_heldout_floored_pct"] + 0.1)
+
+
+def test_bad_use_is_one_line(folder: Path, tmp_path: Path,
+                             capsys: pytest.CaptureFixture[str]) -> None:
+    two = tmp_path / "two.npz"
+    write_dataset(two, generate_dataset(scene("xyz", nodes=(3, 5)), 40, 1))  # type: ignore[arg-type]
+    plain = tmp_path / "plain.msgpack"
+    assert main(["train", "deconv", "--data", str(folder / "d1.npz"), "-o", str(plain)]) == 0
+    capsys.readouterr()
+    for argv, message in (
+            ([str(folder / "d1.npz")], "-o: give the model file"),
+            ([str(two), "-o", str(tmp_path / "m.msgpack")], "--node: " + str(two) +
+             " holds patches 3, 5: name one"),
+            ([str(two), "-o", str(tmp_path / "m.msgpack"), "--node", "4"], "holds no patch 4"),
+            ([str(folder / "d1.npz"), "-o", str(tmp_path / "m.msgpack"), "--decoders", "x"],
+             "unknown decoder 'x'"),
+            (["--check", str(plain), str(folder / "d2.npz")], "has no calibration report"),
+            (["--check", str(folder / "m.msgpack"), str(folder / "d2.npz"), "-o", "x"],
+             "-o and --write-node do not apply")):
+        assert main(["calibrate", *argv]) == 1, argv
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and message in err, err
+    assert not (tmp_path / "m.msgpack").exists()
+
+
+def test_write_node_sets_the_rest_an_active_host_reads(folder: Path, tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str],
+                                                       request: pytest.FixtureRequest) -> None:
+    channel = f"calibrate-{request.node.name}"
+    device = canopen.Network()
+    device.NOTIFIER_CYCLE = 0.05
+    device.connect(interface="virtual", channel=channel)
+    rest = np.tile(DEFAULT_CONSTANTS.nominal_resistance_ohm * 1.03, (9, 1))
+    bus = can.Bus(interface="virtual", channel=channel)
+    try:
+        with PatchServer(device, ArraySource(rest[None, None], (1,))) as server:
+            assert main(["calibrate", str(folder / "d1.npz"), "-o", str(tmp_path / "m.msgpack"),
+                         *FAST, "--write-node", "-i", "virtual", "-c", channel]) == 0
+            assert "wrote 27 rest values to patch 1's 0x2002" in capsys.readouterr().out
+            report = json.loads((folder / "r.json").read_text())
+            want = np.array(report["tare"]["rest_ohm"])
+            store = server.nodes[0].store
+            got = np.array([store.value(0x2002, s) for s in range(1, 28)]).reshape(9, 3)
+            np.testing.assert_array_equal(got, np.float32(want))
+            # an active host reads them when it configures the patch: its rest is the tare
+            with HostManager(bus, HostConfig(patches=(PatchConfig(1),), scan_ms=50)) as host:
+                assert host.wait_operational(timeout=10.0)
+                baseline = host.dataplane.channel(1).baseline
+                assert baseline is not None
+                np.testing.assert_array_equal(baseline.baseline, want)
+            raw = struct.pack("<f", float("nan"))
+            master = canopen.Network(can.Bus(interface="virtual", channel=channel))
+            master.connect()
+            try:
+                od = server.nodes[0].store.object_dictionary
+                node = master.add_node(canopen.RemoteNode(1, od))
+                with pytest.raises(canopen.SdoAbortedError, match="0x06090030"):
+                    node.sdo.download(0x2002, 1, raw)
+            finally:
+                master.disconnect()
+    finally:
+        device.disconnect()
+        bus.shutdown()
