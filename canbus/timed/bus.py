@@ -78,11 +78,11 @@ class TimedBus(can.BusABC):
     :param node_name: the node's name in the statistics (default ``node<k>``).
     :param stats_window_s: span of the windowed load of :meth:`wire_stats` (the first bus
         of a channel sets it; default 1 s).
-    :param resolution_s: real time: the least time between two timed wake-ups of the wire's
-        thread (default 0.0005 s; the first bus of a channel sets it). Frames that end
-        closer together are delivered together, each stamped with its own end; a frame
-        after an idle spell is delivered at its end. 0 wakes at every frame's end, at
-        about 15 us of CPU per wake-up.
+    :param resolution_s: real time: the least time between two timed wake-ups of the
+        readers that run the wire (default 0.0005 s; the first bus of a channel sets it).
+        Frames that end closer together are delivered together, each stamped with its own
+        end; a frame after an idle spell is delivered at its end. 0 wakes a reader at every
+        frame's end, at about 15 us of CPU per wake-up.
     """
 
     def __init__(self, channel: Channel = "skin0", can_filters: Any = None, *,

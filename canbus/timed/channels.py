@@ -33,7 +33,7 @@ def join(channel: Hashable, *, bitrate: int, data_bitrate: int | None, fd: bool,
 
     ``data_bitrate`` None: the wire's, or 5 Mbit/s for the first CAN FD bus. ``node``: the
     keyword arguments of :meth:`Wire.add_node`. The first bus sets the statistics window and
-    the thread's resolution.
+    the real-time resolution.
     """
     with _wires_lock:
         wire = _wires.get(channel)

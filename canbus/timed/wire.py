@@ -19,13 +19,17 @@ Real time (the default): the clock is ``time.time()``, and whoever waits for the
 it: a reader blocked in ``recv`` sleeps until the end of the next frame that may reach it
 (wake-ups at least ``resolution_s`` apart), then carries out every event whose time has
 passed (delivering each frame, stamped with its own end, to every receiver, and waking the
-readers it reached) and sleeps again. Every other call (send, statistics) first carries out
-what fell due. No thread of its own: a reader is woken once for the frames it gets, not once
-by a wire thread and again by the hand-over (each wake-up of a thread costs more CPU than
-carrying a frame). Simulated time (``realtime=False``): the clock starts at ``time.time()``
-and moves only as frames cross the wire (or by :meth:`Wire.advance`); a ``recv`` runs the
-wire until its node has a frame, frames submitted meanwhile are stamped with the simulated
-time.
+readers it reached) and sleeps again. Every other call (send, statistics, a node joining,
+leaving or changing, a sender waiting for room) first carries out what fell due, so a frame
+that ended before a node joined never reaches it, one that ended before a node stopped
+acknowledging stays acknowledged, and a process that only sends, or whose readers come
+later, still gets every frame at its own time. No thread of its own: a reader is woken once
+for the frames it gets, not once by a wire thread and again by the hand-over (each wake-up
+of a thread costs more CPU than carrying a frame).
+
+Simulated time (``realtime=False``): the clock starts at ``time.time()`` and moves only as
+frames cross the wire (or by :meth:`Wire.advance`); a ``recv`` runs the wire until its node
+has a frame, frames submitted meanwhile are stamped with the simulated time.
 """
 from __future__ import annotations
 
@@ -370,10 +374,24 @@ class Wire:
     # ---------------------------------------------------------------- the engine
 
     def _event(self) -> float:
-        """Something outside the wire happens now: settle a stuck retry loop. Lock held."""
-        now = time.time() - self.started if self.realtime else self.sim_now
-        if self.stuck is not None:
-            self._unstick(now)
+        """Something outside the wire happens now: in real time, first carry out everything
+        that fell due (a node joining, leaving or changing must not touch a frame that ended
+        before, even if nobody ran the wire since); then settle a stuck retry loop, which
+        the event may end. Lock held."""
+        if not self.realtime:
+            if self.stuck is not None:
+                self._unstick(self.sim_now)
+                self._signal()
+            return self.sim_now
+        now = time.time() - self.started
+        unstuck = False
+        while True:
+            self._process(now)
+            if self.stuck is None:
+                break
+            self._unstick(now)  # its last attempt (begun by now) goes on; the wire runs on
+            unstuck = True
+        if unstuck:
             self._signal()
         return now
 
@@ -384,6 +402,9 @@ class Wire:
                 self._rouse(node)
         else:
             self.wake.notify_all()
+        for node in self.nodes:
+            if node.room_waiters:
+                node.room.notify_all()
 
     def _process(self, until: float, stop: Callable[[], bool] | None = None) -> float | None:
         """Carry out every event up to ``until`` (or until ``stop()``). Lock held.
