@@ -17,10 +17,9 @@ import pytest
 
 from canbus.framebits import frame_bits
 from canbus.timed import TimedBus
+from tests.canbus.timed.stamps import STAMP, check_starts
 
 OpenBus = Callable[..., TimedBus]
-US = 1e-6
-STAMP = 5e-7  # a float time.time() near 1.8e9 s resolves 0.24 us: timestamps are that exact
 ZEROS_8_BITS = 127  # an 8-byte all-zero frame with id 0 (hand-counted in test_framebits.py)
 
 
@@ -67,22 +66,6 @@ def _until(readers: list[Reader], total: int, seconds: float = 10.0) -> None:
         reader.join(5.0)
 
 
-def _check_starts(stamps: list[float], sent: list[tuple[float, float]], bits: int,
-                  bitrate: int) -> None:
-    """Frames of one node on an otherwise quiet wire, ``sent`` the wire clock just before
-    and after each send: each starts at its submission or, if the wire was taken, right
-    after the previous frame's intermission; its stamp is its start plus its bits (less
-    the intermission). Exact, however late the sends or the reader ran."""
-    ifs = 3 / bitrate
-    for k, (stamp, (before, after)) in enumerate(zip(stamps, sent, strict=True)):
-        start = stamp - bits / bitrate + ifs
-        free = stamps[k - 1] + ifs if k else -1.0
-        if after <= free:  # queued while the previous one was on the wire: back to back
-            assert start == pytest.approx(free, abs=STAMP)
-        else:
-            assert max(before, free) - STAMP <= start <= after + STAMP
-
-
 def _blocked(reader: Reader) -> None:
     reader.start()
     reader.started_at.wait()
@@ -108,7 +91,7 @@ def test_a_blocked_reader_gets_frames_sent_from_another_thread_after_their_end(
     got = reader.got
     assert len(got) == 40
     # mostly back to back, 127 bits apart, whatever the wake-ups
-    _check_starts([m.timestamp for m, _ in got], sent, ZEROS_8_BITS, bitrate)
+    check_starts([m.timestamp for m, _ in got], sent, ZEROS_8_BITS, bitrate)
     assert all(arrived >= msg.timestamp for msg, arrived in got)  # never before its end
     # each came soon after its end (0.5 ms resolution; a loaded machine adds to it), not
     # when the reader's 10 s recv ran out: the reader timed its wait by the wire
@@ -290,7 +273,7 @@ def test_frames_go_out_on_time_while_nobody_reads(open_bus: OpenBus) -> None:
     stats = silent.wire_stats()  # statistics carry out what fell due
     assert stats.frames == 10 and silent.node_stats().received == 10
     stamps = [m.timestamp for m in (silent.recv(0) for _ in range(10)) if m]
-    _check_starts(stamps, sent, ZEROS_8_BITS, 1_000_000)
+    check_starts(stamps, sent, ZEROS_8_BITS, 1_000_000)
 
 
 def test_frames_carried_late_keep_the_order_their_submission_times_give(
@@ -400,3 +383,37 @@ def test_a_full_receive_queue_loses_frames_in_real_time(open_bus: OpenBus) -> No
     assert (stats.received, stats.lost_overflow) == (3, 7)
     assert [m.arbitration_id for m in (small.recv(0) for _ in range(3)) if m] == [
         0x180, 0x181, 0x182]
+
+
+def test_bus_off_and_recovery_in_real_time(open_bus: OpenBus) -> None:
+    # every attempt hit by a bit error until the sender is bus off; then no more errors:
+    # after 128 x 11 recessive bits it is back and its frame, kept queued, goes out
+    bitrate = 10_000  # an attempt takes a few ms, the recovery 141 ms: time to look
+    sender = open_bus(realtime=True, bitrate=bitrate, error_probability=1.0, error_seed=3)
+    listener = open_bus(realtime=True, bitrate=bitrate, receive_error_frames=True)
+    reader = Reader(listener, 10**6, seconds=10.0, timeout=0.2)
+    _blocked(reader)
+    sent = frame(0x100, b"\x01")
+    sender.send(sent)
+    deadline = time.monotonic() + 5.0
+    while sender.node_stats().state != can.BusState.ERROR and time.monotonic() < deadline:
+        time.sleep(0.002)
+    assert sender.state == can.BusState.ERROR
+    sender.error_probability = 0.0
+    while not any(not m.is_error_frame for m, _ in reader.got) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    _until([reader], 0)
+    errors = [m for m, _ in reader.got if m.is_error_frame]
+    (data,) = [m for m, _ in reader.got if not m.is_error_frame]
+    # TEC 256 after 32 errors (64 if this thread looked too late, after a recovery)
+    bus_offs = len(errors) // 32
+    assert len(errors) == 32 * bus_offs and bus_offs >= 1 and reader.got[-1][0] is data
+    assert data.data == b"\x01" and sender.state == can.BusState.ACTIVE
+    assert [b.timestamp for b in errors] == sorted(b.timestamp for b in errors)
+    # the frame starts right after the recovery: the last error frame's intermission, then
+    # 128 x 11 idle bits; its stamp is its end
+    gap = (128 * 11 + frame_bits(0x100, b"\x01").total) / bitrate
+    assert data.timestamp - errors[-1].timestamp == pytest.approx(gap, abs=STAMP)
+    stats = sender.node_stats()
+    assert (stats.sent, stats.errors, stats.bus_off_count, stats.tec) == (
+        1, len(errors), bus_offs, 0)
