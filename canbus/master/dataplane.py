@@ -409,6 +409,14 @@ class DataPlane(can.Listener):
                     self.stats.late_frames += 1
         self._publish_now()
 
+    def answered(self) -> bool:
+        """No cycle is open, or every patch that can still answer it has: a whole answer,
+        or one broken off (offline and inactive channels answer nothing)."""
+        with self._lock:
+            return self._cycle is None or all(
+                slot.done or slot.ended or not slot.active or not slot.online
+                for slot in self._slots.values())
+
     def flush(self) -> None:
         """Close the current cycle now and publish everything queued before returning."""
         with self._lock:

@@ -33,6 +33,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
+import time
 from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
@@ -69,6 +70,7 @@ __all__ = ["STATES", "ForceFrame", "HostManager", "PatchHealth", "PatchLoadedErr
 logger = logging.getLogger(__name__)
 
 EMCY_LOG_KEPT = 256
+ANSWER_POLL_S = 0.0005  # on stop, how often the last cycle's answers are looked at
 """EMCYs of a patch kept in canopen's ``EmcyConsumer.log`` (trimmed to this many once it
 holds twice as many): a long-running host with a flapping taxel must not grow without
 bound. ``emcy.active`` is canopen's own, cleared by each error reset."""
@@ -186,8 +188,7 @@ class HostManager:
         for link in self.links.values():
             link.stop_sync()
         if any(link.sync is not None and link.sync.cycle for link in self.links.values()):
-            # the last cycle's PDOs arrive within its window: wait for them
-            threading.Event().wait(self.config.sync_window_ms / 1000.0)
+            self._await_last_answers()
         for link in self.links.values():
             if link.dataplane is not None:
                 link.dataplane.flush()
@@ -196,6 +197,17 @@ class HostManager:
             link.close()
         self.taxel_log.flush()
         self.fanout.close()
+
+    def _await_last_answers(self) -> None:
+        """The last cycle's answers: until every patch has answered it, for at most a SYNC
+        period (a frame stamped inside the window may be handed over a little after it, on
+        a busy machine or a bus that keeps time)."""
+        dataplanes = [link.dataplane for link in self.links.values()
+                      if link.dataplane is not None]
+        deadline = time.monotonic() + max(self.config.sync_window_ms,
+                                          self.config.sync_period_ms) / 1000.0
+        while not all(dp.answered() for dp in dataplanes) and time.monotonic() < deadline:
+            time.sleep(ANSWER_POLL_S)
 
     @property
     def running(self) -> bool:

@@ -235,3 +235,21 @@ def test_the_property_is_not_vacuous_on_a_clean_bus() -> None:
             np.testing.assert_allclose(sample.force_N, want, rtol=1e-12)
     finally:
         host.close()
+
+
+def test_a_cycle_is_answered_when_every_patch_that_can_answer_has(host: Host) -> None:
+    """What the host waits for on stop: every online patch's whole answer, or one broken off."""
+    a, b = host.patches
+    assert host.plane.answered()  # no cycle open
+    host.sync(1)
+    assert not host.plane.answered()
+    frames, _ = _answer(a, 1, 1.0, host)
+    host.feed(_at(frames, sync_time(1) + 1e-4))
+    assert not host.plane.answered()  # b has not answered
+    other, _ = _answer(b, 1, 1.0, host)
+    host.feed(_at([other[0], other[2]], sync_time(1) + 2e-3))  # one skipped: broken off
+    assert host.plane.answered()
+    host.sync(2)
+    host.plane.set_online(2, False)  # a lost patch answers nothing
+    host.feed(_at(_answer(a, 2, 1.0, host)[0], sync_time(2) + 1e-4))
+    assert host.plane.answered()
