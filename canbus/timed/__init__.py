@@ -1,6 +1,6 @@
 """A bit-timed CAN / CAN FD bus: python-can's interface ``timed`` (docs/timedbus.md).
 
-Modules: ``wire`` (the shared wire of a channel and its thread), ``channels`` (the
+Modules: ``wire`` (the shared wire of a channel, run by whoever waits on it), ``channels`` (the
 registry of this process's wires), ``bus`` (``TimedBus``, the
 python-can interface), ``node`` (a bus instance's queues and error counters), ``faults``
 (fault confinement and injected bit errors), ``stats`` (the statistics API), ``message``

@@ -78,11 +78,11 @@ class TimedBus(can.BusABC):
     :param node_name: the node's name in the statistics (default ``node<k>``).
     :param stats_window_s: span of the windowed load of :meth:`wire_stats` (the first bus
         of a channel sets it; default 1 s).
-    :param resolution_s: real time: the least time between two timed wake-ups of the wire's
-        thread (default 0.0005 s; the first bus of a channel sets it). Frames that end
-        closer together are delivered together, each stamped with its own end; a frame
-        after an idle spell is delivered at its end. 0 wakes at every frame's end, at
-        about 15 us of CPU per wake-up.
+    :param resolution_s: real time: the least time between two timed wake-ups of the
+        readers that run the wire (default 0.0005 s; the first bus of a channel sets it).
+        Frames that end closer together are delivered together, each stamped with its own
+        end; a frame after an idle spell is delivered at its end. 0 wakes a reader at every
+        frame's end, at about 15 us of CPU per wake-up.
     """
 
     def __init__(self, channel: Channel = "skin0", can_filters: Any = None, *,
@@ -130,19 +130,20 @@ class TimedBus(can.BusABC):
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         """Queue ``msg`` for the wire (FIFO); wait up to ``timeout`` s for room in the queue."""
-        self._check_open()
+        if self._is_shutdown:
+            raise TimedBusError("Cannot operate on a closed bus")
         self._wire.submit(self._node, self._pending(msg), timeout)
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         """The next frame that passes the filters, waiting up to ``timeout`` seconds.
 
-        In simulated time the timeout is simulated time while the wire has frames to carry,
+        In real time a reader waiting here runs the wire (see ``canbus.timed.wire``). In
+        simulated time the timeout is simulated time while the wire has frames to carry,
         real time while it waits for another thread to send.
         """
-        if self._wire.realtime:
-            return super().recv(timeout)
         self._check_open()
-        msg = self._wire.receive(self._node, timeout, self._matches_filters)
+        msg = self._wire.receive(self._node, timeout,
+                                 None if self._filters is None else self._matches_filters)
         if msg is None:
             self._check_open()  # a bus shut down while its reader waited says so
         return msg
@@ -230,6 +231,16 @@ class TimedBus(can.BusABC):
             raise TimedBusError("Cannot operate on a closed bus")
 
     def _pending(self, msg: can.Message) -> Pending:
+        can_id, dlc = msg.arbitration_id, msg.dlc
+        if not (msg.is_extended_id or msg.is_remote_frame or msg.is_fd or msg.is_error_frame):
+            data = bytes(msg.data or b"")  # the frame sent most: a base-format classic data frame
+            if 0 <= can_id <= 0x7FF and len(data) <= 8:
+                return Pending(message.copy(msg, data, self.channel_id, 0.0, True, dlc),
+                               can_id, 0, len(data), data, can_id << 21)
+        return self._checked(msg)
+
+    def _checked(self, msg: can.Message) -> Pending:
+        """Any other frame, checked (the error names what is wrong)."""
         if msg.is_error_frame:
             raise TimedBusError("a controller cannot send an error frame")
         if msg.is_fd and not self._fd:
@@ -244,7 +255,7 @@ class TimedBus(can.BusABC):
         try:
             if msg.is_fd:
                 data += bytes(framebits.FD_LENGTHS[framebits.fd_dlc(len(data))] - len(data))
-            framebits.bits_for(msg.arbitration_id, flags, dlc, data)  # validates the frame
+            framebits.check(msg.arbitration_id, len(data), flags, dlc)
         except ValueError as err:
             raise TimedBusError(f"cannot send frame 0x{msg.arbitration_id:X}: {err}") from err
         key = framebits.arbitration_key(msg.arbitration_id, extended=msg.is_extended_id,

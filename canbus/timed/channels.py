@@ -33,7 +33,7 @@ def join(channel: Hashable, *, bitrate: int, data_bitrate: int | None, fd: bool,
 
     ``data_bitrate`` None: the wire's, or 5 Mbit/s for the first CAN FD bus. ``node``: the
     keyword arguments of :meth:`Wire.add_node`. The first bus sets the statistics window and
-    the thread's resolution.
+    the real-time resolution.
     """
     with _wires_lock:
         wire = _wires.get(channel)
@@ -48,13 +48,11 @@ def join(channel: Hashable, *, bitrate: int, data_bitrate: int | None, fd: bool,
 
 
 def leave(wire: Wire, node: Node) -> None:
-    """The node leaves its wire; the last one closes the channel and ends the wire's thread."""
+    """The node leaves its wire; the last one closes the channel."""
     with _wires_lock:
         last = wire.remove_node(node)
         if last and _wires.get(wire.channel) is wire:
             del _wires[wire.channel]
-    if last:
-        wire.join_thread()
 
 
 def close_all() -> list[Hashable]:

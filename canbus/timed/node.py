@@ -2,15 +2,41 @@
 
 from __future__ import annotations
 
-import queue
 import threading
 from collections import deque
 from dataclasses import dataclass, field
 
 import can
 
+from canbus.framebits import FrameBits
 from canbus.timed.faults import BUS_OFF_ABOVE, PASSIVE_ABOVE, BitErrors
 from canbus.timed.stats import NodeStats
+
+
+class Waiter:
+    """A thread waiting on a wire: a lock of its own, held until someone lets it go."""
+
+    __slots__ = ("alarm", "roused", "timed")
+
+    def __init__(self) -> None:
+        self.alarm = threading.Lock()
+        self.alarm.acquire()
+        self.timed = False
+        """It sleeps until a set time (the end of a frame), not only until woken."""
+        self.roused = False
+        """Someone released its lock (and took it off the node's list)."""
+
+
+_local = threading.local()
+
+
+def waiter() -> Waiter:
+    """The calling thread's waiter (a thread waits for one thing at a time)."""
+    try:
+        me: Waiter = _local.waiter
+    except AttributeError:
+        me = _local.waiter = Waiter()
+    return me
 
 
 @dataclass(eq=False, slots=True)
@@ -28,6 +54,8 @@ class Pending:
     """Arbitration key: the smallest wins."""
     submitted: float = 0.0
     attempts: int = 0
+    bits: FrameBits | None = None
+    """Its bits, counted when it first goes on the wire."""
 
 
 @dataclass(eq=False)
@@ -46,8 +74,13 @@ class Node:
     errors: BitErrors
     room: threading.Condition
     """Notified when the transmit queue shrinks (shares the wire's lock)."""
+    room_waiters: int = 0
+    """Senders waiting on :attr:`room` (none: no notification needed)."""
     tx: deque[Pending] = field(default_factory=deque)
-    rx: queue.SimpleQueue[can.Message | None] = field(default_factory=queue.SimpleQueue)
+    rx: deque[can.Message] = field(default_factory=deque)
+    """Frames delivered and not yet read (the wire's lock guards it)."""
+    waiters: list[Waiter] = field(default_factory=list)
+    """Readers blocked in ``recv`` on this node."""
     open: bool = True
     tec: int = 0
     rec: int = 0
@@ -77,13 +110,6 @@ class Node:
     def understands(self, fd: bool) -> bool:
         """Receives (and acknowledges) a frame of this kind: open, not bus off, FD if needed."""
         return self.open and not self.bus_off and (self.fd or not fd)
-
-    def sent_ok(self) -> None:
-        self.sent += 1
-        self.tec = max(0, self.tec - 1)
-
-    def received_ok(self) -> None:
-        self.rec = PASSIVE_ABOVE if self.rec > PASSIVE_ABOVE else max(0, self.rec - 1)
 
     def transmit_error(self, *, ack_error: bool, at: float) -> None:
         """Error frame on its frame; bus off past TEC 255, recovery counted from ``at``."""

@@ -1,4 +1,4 @@
-"""The shared wire of a timed channel: arbitration, exact frame times, delivery, its thread.
+"""The shared wire of a timed channel: arbitration, exact frame times, delivery.
 
 Every bus opened on a channel in this process is a node on that channel's :class:`Wire`. A
 node's frames leave in the order it sent them (a FIFO transmit queue, the default of most
@@ -12,22 +12,28 @@ the previous frame)``; it occupies the wire for its exact bits (``canbus.framebi
 receivers get it at the end of its EOF, stamped with that time, and the next frame starts
 after the 3-bit intermission. The arbitration at the end of a frame is among the frames
 submitted before its EOF ended (a frame submitted during the 3 intermission bits waits for
-the next arbitration unless the wire has nothing else to send): so a late wake-up of the
-wire's thread never changes the order or the timestamps.
+the next arbitration unless the wire has nothing else to send): so the order and the
+timestamps depend only on when frames were submitted, never on when the wire is run.
 
-Real time (the default): the clock is ``time.time()``; the wire's thread sleeps until the
-end of the frame on the wire (timed wake-ups at least ``resolution_s`` apart), delivers
-every frame whose end has passed, each stamped with its own end, decides the next
-arbitrations and sleeps again. Simulated time (``realtime=False``): no thread; the clock
-starts at ``time.time()`` and moves only as frames cross the wire (or by
-:meth:`Wire.advance`); the readers drive it: a ``recv`` runs the wire until its node has a
-frame, frames submitted meanwhile are stamped with the simulated time.
+Real time (the default): the clock is ``time.time()``, and whoever waits for the wire runs
+it: a reader blocked in ``recv`` sleeps until the end of the next frame that may reach it
+(wake-ups at least ``resolution_s`` apart), then carries out every event whose time has
+passed (delivering each frame, stamped with its own end, to every receiver, and waking the
+readers it reached) and sleeps again. Every other call (send, statistics, a node joining,
+leaving or changing, a sender waiting for room) first carries out what fell due, so a frame
+that ended before a node joined never reaches it, one that ended before a node stopped
+acknowledging stays acknowledged, and a process that only sends, or whose readers come
+later, still gets every frame at its own time. No thread of its own: a reader is woken once
+for the frames it gets, not once by a wire thread and again by the hand-over (each wake-up
+of a thread costs more CPU than carrying a frame).
+
+Simulated time (``realtime=False``): the clock starts at ``time.time()`` and moves only as
+frames cross the wire (or by :meth:`Wire.advance`); a ``recv`` runs the wire until its node
+has a frame, frames submitted meanwhile are stamped with the simulated time.
 """
-
 from __future__ import annotations
 
 import math
-import queue
 import threading
 import time
 from collections.abc import Callable, Hashable
@@ -35,18 +41,19 @@ from dataclasses import dataclass
 
 import can
 
-from canbus.framebits import F_ESI, F_FD, IFS_BITS, FrameBits, bits_for
+from canbus.framebits import F_ESI, F_FD, IFS_BITS, FrameBits, bits_unchecked
 from canbus.timed import message
 from canbus.timed.errors import TimedBusError
 from canbus.timed.faults import (
     ERROR_FRAME_BITS,
+    PASSIVE_ABOVE,
     RECOVERY_RUN_BITS,
     RECOVERY_SEQUENCES,
     SUSPEND_BITS,
     BitErrors,
     ack_error_time_s,
 )
-from canbus.timed.node import Node, Pending
+from canbus.timed.node import Node, Pending, Waiter, waiter
 from canbus.timed.stats import LoadWindow, NodeStats, WireStats
 
 OK, BIT_ERROR, ACK_ERROR = 0, 1, 2
@@ -106,6 +113,7 @@ class Wire:
         self.ifs_s = IFS_BITS / bitrate
         self.lock = threading.Lock()
         self.wake = threading.Condition(self.lock)
+        """Simulated time: readers waiting for another thread to send."""
         self.nodes: list[Node] = []
         self._next_index = 0
         self.started = time.time()
@@ -122,8 +130,9 @@ class Wire:
         self.off = 0
         """Nodes that are bus off (their recovery is counted only while there are some)."""
         self.resolution_s = resolution_s
-        self.closed = False
-        self.thread: threading.Thread | None = None
+        self.batch_at = -math.inf
+        """Real time: when a woken reader last ran the wire (the next timed wake-up is at
+        least ``resolution_s`` later)."""
 
     @property
     def data_bit_s(self) -> float:
@@ -143,16 +152,12 @@ class Wire:
             self._next_index += 1
             self._event()
             self.nodes.append(node)
-            if self.realtime and self.thread is None:
-                self.thread = threading.Thread(target=self._serve, daemon=True,
-                                               name=f"timed wire {self.channel}")
-                self.thread.start()
-            self.wake.notify_all()
+            self._signal()
         return node
 
     def remove_node(self, node: Node) -> bool:
         """The node leaves; its queued frames go (one on the wire finishes). True if it was
-        the last: the wire is then closed and its thread told to end (:meth:`join_thread`)."""
+        the last: the wire is then closed."""
         with self.lock:
             if not node.open:
                 return False
@@ -161,17 +166,10 @@ class Wire:
             node.open = False
             node.tx.clear()
             self.nodes.remove(node)
-            node.rx.put(None)  # wakes a reader blocked in recv
+            self._rouse(node)  # a reader blocked in recv returns (its bus says it is closed)
             node.room.notify_all()
-            if self.nodes:
-                return False
-            self.closed = True
-            self.wake.notify_all()
-            return True
-
-    def join_thread(self) -> None:
-        if self.thread is not None and self.thread is not threading.current_thread():
-            self.thread.join()
+            self._signal()
+            return not self.nodes
 
     def update(self, node: Node, *, acknowledge: bool | None = None,
                error_probability: float | None = None) -> None:
@@ -182,7 +180,7 @@ class Wire:
                 node.acknowledge = acknowledge
             if error_probability is not None:
                 node.errors.probability = error_probability
-            self.wake.notify_all()
+            self._signal()
 
     # ---------------------------------------------------------------- traffic
 
@@ -195,50 +193,70 @@ class Wire:
             now = self._event()
             pending.submitted = now
             node.tx.append(pending)
-            if self.flight is None or not self.realtime:
+            if not self.realtime:
                 self.wake.notify_all()
+                return
+            # Readers it may reach and that wait for nothing in particular must start timing
+            # it; on an idle wire it may also end before what timed readers wait for.
+            idle = self.flight is None
+            for other in self.nodes:
+                if other.waiters and (other is not node or other.receive_own
+                                      or other.receive_error_frames):
+                    self._rouse(other, timed=idle)
 
     def _wait_room(self, node: Node, timeout: float | None) -> None:
+        """Wait for room in the node's transmit queue: running the wire meanwhile."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while len(node.tx) >= node.tx_limit:
-            if not self.realtime:
+            if self.realtime:
+                now = time.time() - self.started
+                next_at = self._process(now)
+                wake_in = None if next_at is None else next_at - now
+            else:
                 self._process(math.inf, lambda: len(node.tx) < node.tx_limit)
-                if len(node.tx) < node.tx_limit:
-                    break
+                wake_in = None
+            if len(node.tx) < node.tx_limit:
+                break
             remaining = None if deadline is None else deadline - time.monotonic()
             if remaining is not None and remaining <= 0:
                 raise TimedBusError(f"transmit queue full ({node.tx_limit} frames) for "
                                     f"{timeout} s on timed channel {self.channel}")
-            node.room.wait(remaining)
+            if wake_in is not None:
+                remaining = wake_in if remaining is None else min(remaining, wake_in)
+            node.room_waiters += 1
+            try:
+                node.room.wait(remaining)
+            finally:
+                node.room_waiters -= 1
             if not node.open:
                 raise TimedBusError("Cannot operate on a closed bus")
 
     def receive(self, node: Node, timeout: float | None,
                 accept: Callable[[can.Message], bool] | None = None) -> can.Message | None:
-        """The node's next frame, waiting up to ``timeout`` seconds (None: no limit).
+        """The node's next frame ``accept`` takes (others are dropped, as filters do), waiting
+        up to ``timeout`` seconds (None: no limit); None also once the node is closed.
 
-        Simulated time: the wire runs until the node has a frame ``accept`` takes (others are
-        dropped, as filters do) or ``timeout`` of simulated time has passed; if nothing is left
-        to simulate it waits, in real time, for another thread to send.
+        Real time: while none is there the caller runs the wire (:meth:`_receive_realtime`).
+        Simulated time: the wire runs until the node has a frame or ``timeout`` of simulated
+        time has passed; if nothing is left to simulate it waits, in real time, for another
+        thread to send.
         """
         if self.realtime:
-            try:
-                if timeout is not None and timeout <= 0:
-                    return node.rx.get_nowait()
-                return node.rx.get(timeout=timeout)
-            except queue.Empty:
-                return None
+            return self._receive_realtime(node, timeout, accept)
         deadline = None if timeout is None else time.monotonic() + timeout
+        rx = node.rx
         with self.lock:
             horizon = math.inf if timeout is None else self.sim_now + timeout
             while True:
-                while not node.rx.empty():
-                    msg = node.rx.get_nowait()
-                    if msg is None or accept is None or accept(msg):
+                while rx:
+                    msg = rx.popleft()
+                    if accept is None or accept(msg):
                         return msg
-                self._process(horizon, lambda: not node.rx.empty())
+                if not node.open:
+                    return None
+                self._process(horizon, lambda: bool(rx))
                 pending = self._next_time() is not None
-                if not node.rx.empty():
+                if rx:
                     if pending:
                         self.wake.notify_all()  # other readers may be waiting for these
                     continue
@@ -246,9 +264,83 @@ class Wire:
                     self.sim_now = max(self.sim_now, horizon)  # the simulated timeout ran out
                     return None
                 remaining = None if deadline is None else deadline - time.monotonic()
-                if (remaining is not None and remaining <= 0) or not node.open:
+                if remaining is not None and remaining <= 0:
                     return None
                 self.wake.wait(remaining)  # until another thread submits
+
+    def _receive_realtime(self, node: Node, timeout: float | None,
+                          accept: Callable[[can.Message], bool] | None) -> can.Message | None:
+        """Real time: carry out what fell due; while nothing is there for the node, sleep to
+        the next event that may bring something (or until woken) and look again."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        rx = node.rx
+        with self.lock:
+            while True:
+                while rx:
+                    msg = rx.popleft()
+                    if accept is None or accept(msg):
+                        return msg
+                if not node.open:
+                    return None
+                now = time.time() - self.started
+                next_at = self._process(now)
+                if rx:
+                    continue
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    return None
+                timed = next_at is not None and self._may_reach(node)
+                if timed:
+                    assert next_at is not None
+                    wake_in = max(next_at, self.batch_at + self.resolution_s) - now
+                    if remaining is None or wake_in < remaining:
+                        remaining = wake_in
+                self._wait(node, remaining, timed)
+                if timed:  # a frame after an idle spell is still delivered at its end
+                    self.batch_at = time.time() - self.started
+
+    def _may_reach(self, node: Node) -> bool:
+        """Whether something on the wire or queued may still reach the node (else only a new
+        frame can, and its ``submit`` wakes the node's reader)."""
+        own = node.receive_own or node.receive_error_frames
+        flight = self.flight
+        if flight is not None and (flight.node is not node or own):
+            return True
+        return any(other.tx and (other is not node or own) for other in self.nodes)
+
+    def _wait(self, node: Node, timeout: float | None, timed: bool) -> None:
+        """Sleep up to ``timeout`` s (None: no limit) or until :meth:`_rouse`. Lock held on
+        entry and on exit (released meanwhile).
+
+        A bare lock per thread rather than a Condition: a Condition's wait allocates a lock
+        and a list entry each time, which doubled the CPU of a wake-up.
+        """
+        me = waiter()
+        me.timed, me.roused = timed, False
+        node.waiters.append(me)
+        self.lock.release()
+        woken = False
+        try:
+            woken = me.alarm.acquire(True, -1 if timeout is None else max(timeout, 0.0))
+        finally:
+            self.lock.acquire()
+            if not me.roused:
+                node.waiters.remove(me)
+            elif not woken:
+                me.alarm.acquire()  # roused just as it timed out: take the permit back
+
+    @staticmethod
+    def _rouse(node: Node, *, timed: bool = True) -> None:
+        """Wake the node's waiting readers (with ``timed`` False only those that wait for
+        nothing in particular). Lock held."""
+        kept: list[Waiter] = []
+        for sleeper in node.waiters:
+            if sleeper.timed and not timed:
+                kept.append(sleeper)
+            else:
+                sleeper.roused = True
+                sleeper.alarm.release()
+        node.waiters = kept
 
     def advance(self, seconds: float) -> None:
         """Simulated time only: let ``seconds`` pass, carrying every frame due meanwhile."""
@@ -282,57 +374,69 @@ class Wire:
     # ---------------------------------------------------------------- the engine
 
     def _event(self) -> float:
-        """Something outside the wire happens now: settle a stuck retry loop. Lock held."""
-        now = self._clock()
-        if self.stuck is not None:
-            self._unstick(now)
-            self.wake.notify_all()
+        """Something outside the wire happens now: in real time, first carry out everything
+        that fell due (a node joining, leaving or changing must not touch a frame that ended
+        before, even if nobody ran the wire since); then settle a stuck retry loop, which
+        the event may end. Lock held."""
+        if not self.realtime:
+            if self.stuck is not None:
+                self._unstick(self.sim_now)
+                self._signal()
+            return self.sim_now
+        now = time.time() - self.started
+        unstuck = False
+        while True:
+            self._process(now)
+            if self.stuck is None:
+                break
+            self._unstick(now)  # its last attempt (begun by now) goes on; the wire runs on
+            unstuck = True
+        if unstuck:
+            self._signal()
         return now
 
-    def _serve(self) -> None:
-        """The real-time thread: sleep to the next event, carry out all that fell due.
+    def _signal(self) -> None:
+        """Let everyone who waits on the wire look again (the nodes or the queues changed)."""
+        if self.realtime:
+            for node in self.nodes:
+                self._rouse(node)
+        else:
+            self.wake.notify_all()
+        for node in self.nodes:
+            if node.room_waiters:
+                node.room.notify_all()
 
-        Timed wake-ups are at least ``resolution_s`` apart (a wake-up costs more CPU than a
-        frame): back-to-back frames are delivered in small batches, each stamped with its
-        own end; a frame after an idle spell is delivered at its end.
+    def _process(self, until: float, stop: Callable[[], bool] | None = None) -> float | None:
+        """Carry out every event up to ``until`` (or until ``stop()``). Lock held.
+
+        Returns when the next event falls due: None if the wire waits for the outside (or
+        ``stop()`` ended the run: then see :meth:`_next_time`).
         """
-        last = -math.inf
-        with self.lock:
-            while not self.closed:
-                self._process(self._clock())
-                wake_at = self._next_time()
-                if wake_at is None:
-                    self.wake.wait()
-                    continue
-                timeout = max(wake_at, last + self.resolution_s) - self._clock()
-                if timeout > 0:
-                    self.wake.wait(timeout)
-                last = self._clock()
-
-    def _process(self, until: float, stop: Callable[[], bool] | None = None) -> None:
-        """Carry out every event up to ``until`` (or until ``stop()``). Lock held."""
         while True:
             flight = self.flight
             if flight is not None:
                 if flight.done > until:
-                    return
+                    return flight.done
                 self._land(flight)
                 if stop is not None and stop():
-                    return
+                    return None
                 continue
             if self.stuck is not None:
-                return
+                return None
             recovery, node = self._next_recovery() if self.off else (math.inf, None)
             decision = self._arbitration()
             if decision is not None and decision[0] < recovery:
                 cutoff, start, winner, pending = decision
                 if cutoff > until:
-                    return
-                self._tick(cutoff)
+                    return cutoff
+                if not self.realtime and cutoff > self.sim_now:
+                    self.sim_now = cutoff
                 self._launch(start, winner, pending)
                 continue
-            if node is None or recovery > until:
-                return
+            if node is None:
+                return None
+            if recovery > until:
+                return recovery
             self._tick(recovery)
             self._recover(node, recovery)
 
@@ -363,18 +467,21 @@ class Wire:
                     earliest = ready
         if earliest == math.inf:
             return None
-        cutoff = max(self.free_at - self.ifs_s, earliest)
-        best: tuple[int, float, int] | None = None
+        free = self.free_at
+        cutoff = free - self.ifs_s
+        if earliest > cutoff:
+            cutoff = earliest
+        best: Pending | None = None
         winner: Node | None = None
         for node in self.nodes:
             if node.tx and not node.bus_off:
                 pending = node.tx[0]
-                if pending.submitted <= cutoff and node.not_before <= cutoff:
-                    rank = (pending.key, pending.submitted, node.index)
-                    if best is None or rank < best:
-                        best, winner = rank, node
-        assert winner is not None
-        return cutoff, max(self.free_at, earliest), winner, winner.tx[0]
+                if pending.submitted <= cutoff and node.not_before <= cutoff and (
+                        best is None or pending.key < best.key or (
+                            pending.key == best.key and pending.submitted < best.submitted)):
+                    best, winner = pending, node  # nodes in index order: ties go to the first
+        assert winner is not None and best is not None
+        return cutoff, free if free > earliest else earliest, winner, best
 
     def _next_recovery(self) -> tuple[float, Node | None]:
         """When the first bus-off node recovers if the wire stays idle."""
@@ -402,20 +509,27 @@ class Wire:
                     other.counted_until = start
                     if other.recovery >= RECOVERY_SEQUENCES:
                         self._recover(other, start)
-        flags = pending.flags | (F_ESI if node.passive and pending.flags & F_FD else 0)
-        bits = bits_for(pending.can_id, flags, pending.dlc, pending.data)
+        flags = pending.flags
+        if flags & F_FD and (node.tec > PASSIVE_ABOVE or node.rec > PASSIVE_ABOVE):
+            flags |= F_ESI  # an error-passive node's FD frames carry ESI recessive
+        bits = pending.bits
+        if bits is None or flags != pending.flags:
+            bits = bits_unchecked(pending.can_id, flags, pending.dlc, pending.data)
+            if flags == pending.flags:
+                pending.bits = bits  # for its retransmissions
         if pending.attempts:
             self.retransmissions += 1
-        fd = bool(flags & F_FD)
+        fd = flags & F_FD
         acked = False
         for other in self.nodes:
             if (other.acknowledge and other is not node and other.open and not other.bus_off
                     and (other.fd or not fd)):
                 acked = True
                 break
-        if node.errors.hit():
+        errors = node.errors
+        if errors.probability > 0.0 and errors.hit():
             outcome = BIT_ERROR
-            held = node.errors.error_time_s(bits, self.bit_s, self.data_bit_s) + (
+            held = errors.error_time_s(bits, self.bit_s, self.data_bit_s) + (
                 ERROR_FRAME_BITS * self.bit_s)
         elif not acked:
             outcome = ACK_ERROR
@@ -423,54 +537,75 @@ class Wire:
                 ERROR_FRAME_BITS * self.bit_s)
         else:
             outcome = OK
-            held = bits.duration_s(self.bitrate, self.data_bitrate) - self.ifs_s
+            nominal, data = bits[0], bits[1]
+            held = (nominal / self.bitrate if not data else
+                    bits.duration_s(self.bitrate, self.data_bitrate)) - self.ifs_s
         self.flight = _Flight(node, pending, start, start + held, start + held + self.ifs_s,
                               bits, flags, outcome)
 
     def _land(self, flight: _Flight) -> None:
         self.flight = None
         node, pending = flight.node, flight.pending
-        self.free_at = flight.end
-        self.busy_s += flight.end - flight.start
-        self.window.add(flight.start, flight.end, flight.done if flight.outcome == OK else None)
-        self._tick(flight.done)
-        fd = bool(flight.flags & F_FD)
+        end = self.free_at = flight.end
+        self.busy_s += end - flight.start
+        ok = flight.outcome == OK
+        self.window.add(flight.start, end, flight.done if ok else None)
+        if not self.realtime and flight.done > self.sim_now:
+            self.sim_now = flight.done
         if self.off:
             for other in self.nodes:  # every frame and error frame ends with 11 recessive bits
                 if other.bus_off and other is not node:
                     other.recovery += 1
-                    other.counted_until = flight.end
+                    other.counted_until = end
                     if other.recovery >= RECOVERY_SEQUENCES:
-                        self._recover(other, flight.end)
-        if flight.outcome == OK:
-            if node.tx and node.tx[0] is pending:
-                node.tx.popleft()
-                node.room.notify_all()
-            node.sent_ok()
+                        self._recover(other, end)
+        if ok:
+            tx = node.tx
+            if tx and tx[0] is pending:
+                tx.popleft()
+                if node.room_waiters:
+                    node.room.notify_all()
+            node.sent += 1
+            if node.tec:
+                node.tec -= 1
             self.frames += 1
-            self.nominal_bits += flight.bits.nominal
-            self.data_bits += flight.bits.data
-            self._deliver(node, pending.template, flight, fd)
+            bits = flight.bits
+            self.nominal_bits += bits[0]
+            self.data_bits += bits[1]
+            self._deliver(node, pending.template, flight)
         else:
-            pending.attempts += 1
-            self.error_frames += 1
-            node.transmit_error(ack_error=flight.outcome == ACK_ERROR, at=flight.end)
-            self.off += node.bus_off and node.open  # a node gone since counts no more
-            for other in self.nodes:
-                if other is not node and other.understands(fd):
-                    if flight.outcome == BIT_ERROR:
-                        other.receive_error()
-                    if other.receive_error_frames:
-                        other.rx.put(message.error_frame(self.channel,
-                                                         self.started + flight.done))
-            if node.receive_error_frames and node.open:
-                node.rx.put(message.error_frame(self.channel, self.started + flight.done))
-        if node.passive and not node.bus_off:
-            node.not_before = flight.end + SUSPEND_BITS * self.bit_s
-        if flight.outcome == ACK_ERROR:
-            self._maybe_stuck(flight)
+            self._failed(flight)
+        if node.tec > PASSIVE_ABOVE or node.rec > PASSIVE_ABOVE:
+            if not node.bus_off:
+                node.not_before = end + SUSPEND_BITS * self.bit_s
+            if flight.outcome == ACK_ERROR:
+                self._maybe_stuck(flight)
 
-    def _deliver(self, sender: Node, template: can.Message, flight: _Flight, fd: bool) -> None:
+    def _failed(self, flight: _Flight) -> None:
+        """An attempt that ended in an error frame: counters, error frames to who wants them."""
+        node = flight.node
+        flight.pending.attempts += 1
+        self.error_frames += 1
+        node.transmit_error(ack_error=flight.outcome == ACK_ERROR, at=flight.end)
+        self.off += node.bus_off and node.open  # a node gone since counts no more
+        fd = bool(flight.flags & F_FD)
+        for other in self.nodes:
+            if other is not node and other.understands(fd):
+                if flight.outcome == BIT_ERROR:
+                    other.receive_error()
+                if other.receive_error_frames:
+                    self._put(other, message.error_frame(self.channel,
+                                                         self.started + flight.done))
+        if node.receive_error_frames and node.open:
+            self._put(node, message.error_frame(self.channel, self.started + flight.done))
+
+    def _put(self, node: Node, msg: can.Message) -> None:
+        node.rx.append(msg)
+        if node.waiters:
+            self._rouse(node)
+
+    def _deliver(self, sender: Node, template: can.Message, flight: _Flight) -> None:
+        fd = flight.flags & F_FD
         if flight.flags & F_ESI:
             template.error_state_indicator = True
         stamp = self.started + flight.done
@@ -482,20 +617,24 @@ class Wire:
                 if not node.receive_own:
                     continue
             elif node.rec:
-                node.received_ok()
-            if node.rx_limit and node.rx.qsize() >= node.rx_limit:
+                node.rec = PASSIVE_ABOVE if node.rec > PASSIVE_ABOVE else node.rec - 1
+            if node.rx_limit and len(node.rx) >= node.rx_limit:
                 node.lost_overflow += 1
             else:
                 takers.append(node)
-        last = len(takers) - 1
-        for k, node in enumerate(takers):  # copies first: the last taker gets the template
-            is_rx = node is not sender
-            if k == last:
-                template.timestamp, template.is_rx = stamp, is_rx
-                node.rx.put(template)
-            else:
-                node.rx.put(message.delivered(template, stamp, is_rx))
+        if not takers:
+            return
+        last = takers.pop()  # copies for all but the last taker, which gets the template
+        for node in takers:
+            node.rx.append(message.delivered(template, stamp, node is not sender))
             node.received += 1
+            if node.waiters:
+                self._rouse(node)
+        template.timestamp, template.is_rx = stamp, last is not sender
+        last.rx.append(template)
+        last.received += 1
+        if last.waiters:
+            self._rouse(last)
 
     def _maybe_stuck(self, flight: _Flight) -> None:
         """After an ACK error: enter the retry loop if nothing but outside events can end it."""

@@ -13,15 +13,21 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from canbus import busload
+from canbus import busload, framebits
 from canbus.framebits import (
     CRC15,
     CRC17,
     CRC21,
+    F_BRS,
+    F_ESI,
+    F_EXTENDED,
+    F_FD,
+    F_REMOTE,
     FD_LENGTHS,
     FrameBits,
     WireFrame,
     arbitration_key,
+    bits_unchecked,
     crc15,
     fd_dlc,
     frame_bits,
@@ -149,6 +155,81 @@ def test_the_fast_count_is_the_length_of_the_exact_bit_sequence(drawn: dict[str,
     w = wire_frame(**f)
     assert frame_bits(**f) == w.counts
     assert w.counts.total == len(w.bits)
+
+
+# Bytes whose bit runs reach 5 inside a byte or across bytes and 16-bit words: the
+# table-driven count carries its stuffing state across every boundary.
+RUNNY = st.sampled_from([0x00, 0xFF, 0x0F, 0xF0, 0x1F, 0xF8, 0x07, 0xE0, 0x7C, 0x83, 0x3E])
+PAYLOAD_BYTE = st.one_of(st.integers(0, 255), RUNNY)
+
+
+@st.composite
+def classic_frames(draw: st.DrawFn) -> tuple[int, int, int, bytes]:
+    """(id, flags, DLC, payload) of any classic frame, every length 0..8 as likely."""
+    extended, remote = draw(st.booleans()), draw(st.booleans())
+    can_id = draw(st.integers(0, 0x1FFFFFFF if extended else 0x7FF))
+    dlc = draw(st.integers(0, 8))
+    data = b"" if remote else bytes(draw(st.lists(PAYLOAD_BYTE, min_size=dlc, max_size=dlc)))
+    return can_id, F_EXTENDED * extended | F_REMOTE * remote, dlc, data
+
+
+@st.composite
+def fd_frames(draw: st.DrawFn) -> tuple[int, int, bytes]:
+    """(id, flags, payload) of any CAN FD frame, every DLC length as likely."""
+    extended = draw(st.booleans())
+    can_id = draw(st.integers(0, 0x1FFFFFFF if extended else 0x7FF))
+    flags = (F_FD | F_EXTENDED * extended | F_BRS * draw(st.booleans())
+             | F_ESI * draw(st.booleans()))
+    length = draw(st.sampled_from(FD_LENGTHS))
+    return can_id, flags, bytes(draw(st.lists(PAYLOAD_BYTE, min_size=length, max_size=length)))
+
+
+@settings(max_examples=500)
+@given(classic_frames())
+def test_the_wires_count_of_a_classic_frame_is_its_exact_bit_sequence(
+        frame: tuple[int, int, int, bytes]) -> None:
+    can_id, flags, dlc, data = frame
+    exact = wire_frame(can_id, data, extended=bool(flags & F_EXTENDED),
+                       remote=bool(flags & F_REMOTE), dlc=dlc).counts
+    assert bits_unchecked(can_id, flags, dlc, data) == exact
+    # a can.Message's payload is a bytearray: the same count
+    assert bits_unchecked(can_id, flags, dlc, bytearray(data)) == exact
+
+
+@settings(max_examples=300)
+@given(fd_frames())
+def test_the_wires_count_of_a_can_fd_frame_is_its_exact_bit_sequence(
+        frame: tuple[int, int, bytes]) -> None:
+    can_id, flags, data = frame
+    exact = wire_frame(can_id, data, extended=bool(flags & F_EXTENDED), fd=True,
+                       brs=bool(flags & F_BRS), esi=bool(flags & F_ESI)).counts
+    assert bits_unchecked(can_id, flags, len(data), data) == exact
+    assert bits_unchecked(can_id, flags, len(data), bytearray(data)) == exact
+
+
+def test_a_stuff_bit_every_4_payload_bits_is_counted() -> None:
+    # 00111100 repeated: the DLC (1000) ends on 3 zeros, so the payload's first 2 zeros make
+    # a run of 5; from then on every group of 4 equal bits joins the stuff bit before it into
+    # a run of 5. A stuff bit every 4 bits: 16 in 64, the most a payload can take, so the
+    # fast count's four 16-bit words each hold 4, whatever the id before them.
+    for can_id in (0, 0x123, 0x2AA, 0x7FF):
+        w = wire_frame(can_id, b"\x3c" * 8)
+        in_payload = [k for k, at in enumerate(w.stuff_at) if 19 <= at - k - 1 < 19 + 64]
+        assert len(in_payload) == 16
+        assert frame_bits(can_id, b"\x3c" * 8) == w.counts
+        for byte in (0xF0, 0x78, 0x1E, 0x0F, 0x87, 0xC3, 0xE1):  # the other phases
+            data = bytes([byte]) * 8
+            assert frame_bits(can_id, data) == wire_frame(can_id, data).counts
+
+
+def test_counts_stay_exact_when_the_header_cache_is_refilled() -> None:
+    # more distinct headers than the cache holds: it is emptied and filled again
+    count = framebits._MAX_HEADS + 100
+    data = bytes([0x0F, 0x80, 0x00, 0x3E, 0xFF, 0x01, 0xF0, 0x55])
+    counted = [bits_unchecked(0x1000000 + k * 997, F_EXTENDED, 8, data) for k in range(count)]
+    assert len(framebits._HEADS) <= framebits._MAX_HEADS
+    for k in range(0, count, 389):
+        assert counted[k] == wire_frame(0x1000000 + k * 997, data, extended=True).counts
 
 
 @settings(max_examples=300)
