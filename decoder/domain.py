@@ -1,6 +1,6 @@
 """A trained decoder's training domain, and whether a new sample lies inside it.
 
-Three checks, each fitted on the training data and kept in the model file:
+Four checks, each fitted on the training data and kept in the model file:
 
 - ``Box``: per-feature ranges. Each feature may go beyond its training range by
   ``margin`` times the largest span among the box's features, so a feature that
@@ -12,8 +12,17 @@ Three checks, each fitted on the training data and kept in the model file:
   moved in (a load pattern it never saw) is far away. A sample is inside when its
   distance is at most ``DENSITY_FACTOR`` times the largest training distance.
 - ``Band``: per-output bound on the size of a learned quantity (an MLP's
-  departure from the physics reading, hybrid's residual): ``BAND_FACTOR`` times
-  its largest training value, plus ``BAND_FLOOR`` times the outputs' span.
+  departure from the physics reading): ``BAND_FACTOR`` times its largest
+  training value, plus ``BAND_FLOOR`` times the outputs' span.
+- ``TaxelBand``: the same quantity judged per taxel, its P components jointly (Fx,
+  Fy, Fz of a 3-axis taxel): each taxel's values are whitened by their own mean and
+  covariance in training, and a taxel is inside when its whitened length is at most
+  ``TAXEL_BAND_FACTOR`` times the largest among *held-out* training rows (rows the
+  learned quantity was not fitted on), all taxels pooled. A new taxel from the training
+  distribution is beyond the largest of N exchangeable held-out values with probability
+  at most 1/(N + 1) (N = 9 x the held-out rows); the factor makes that rarer still.
+  Components that each stay inside their band can together make a departure that
+  training never showed (a shear the physics does not see, with a smaller Fz).
 
 Features are laid out taxel-major, so feature ``f`` of a (n, 9·k) array belongs
 to taxel ``f // k``: :func:`per_taxel` turns a feature mask into a taxel mask.
@@ -43,6 +52,8 @@ BAND_FACTOR = 1.2
 BAND_FLOOR = 0.001
 """A band is at least 0.1 % of its outputs' span wide, so a decoder that fitted its training
 data exactly still tolerates rounding."""
+TAXEL_BAND_FACTOR = 1.2
+"""A taxel is inside its band up to 1.2x the largest whitened length among held-out rows."""
 RIDGE = 1e-6
 """Added to the standardised covariance's diagonal: directions with less than about 0.1 % of
 a feature's spread are taken as never visited."""
@@ -122,6 +133,23 @@ class Box:
         return cls(lo, hi)
 
 
+def whitening(x: F64) -> tuple[F64, F64]:
+    """Mean (k,) and upper-triangular ``whiten`` (k, k) such that (x - mean) @ whiten has
+    identity covariance over the rows of ``x`` (n, k): standardised, with a ridge of
+    ``RIDGE`` on the covariance."""
+    mean = x.mean(axis=0)
+    centred = x - mean
+    scale = centred.std(axis=0)
+    scale = np.maximum(scale, 1e-12 * max(float(scale.max()), 1e-300))
+    z = centred / scale
+    cov = z.T @ z / max(x.shape[0] - 1, 1)
+    cov.flat[:: cov.shape[0] + 1] += RIDGE
+    upper = scipy.linalg.cholesky(cov, lower=False)  # cov = Uᵀ U
+    # (x - mean) / scale @ U⁻¹ has identity covariance.
+    whiten = scipy.linalg.solve_triangular(upper, np.eye(cov.shape[0]), lower=False)
+    return mean, np.ascontiguousarray(whiten / scale[:, None])
+
+
 @dataclass(frozen=True)
 class Ellipsoid:
     """Inside when |(x - mean) @ whiten| <= limit; ``whiten`` (k, k) is upper triangular."""
@@ -135,19 +163,9 @@ class Ellipsoid:
 
     @classmethod
     def fit(cls, x: F64) -> Ellipsoid:
-        mean = x.mean(axis=0)
-        centred = x - mean
-        scale = centred.std(axis=0)
-        scale = np.maximum(scale, 1e-12 * max(float(scale.max()), 1e-300))
-        z = centred / scale
-        cov = z.T @ z / max(x.shape[0] - 1, 1)
-        cov.flat[:: cov.shape[0] + 1] += RIDGE
-        upper = scipy.linalg.cholesky(cov, lower=False)  # cov = Uᵀ U
-        # (x - mean) / scale @ U⁻¹ has identity covariance.
-        whiten = scipy.linalg.solve_triangular(upper, np.eye(cov.shape[0]), lower=False)
-        whiten = whiten / scale[:, None]
-        distance = np.sqrt(np.sum((centred @ whiten) ** 2, axis=1))
-        return cls(mean, np.ascontiguousarray(whiten), DENSITY_FACTOR * float(distance.max()))
+        mean, whiten = whitening(x)
+        distance = np.sqrt(np.sum(((x - mean) @ whiten) ** 2, axis=1))
+        return cls(mean, whiten, DENSITY_FACTOR * float(distance.max()))
 
     def distance(self, x: F64) -> F64:
         """(n, k) -> (n,) or (k,) -> () Mahalanobis distances; NaN stays NaN."""
@@ -212,35 +230,105 @@ class Band:
 
 
 @dataclass(frozen=True)
+class TaxelBand:
+    """Per taxel, the whitened length of the P components of a learned quantity (n, 9·P).
+
+    Taxel t is inside when |(v_t - mean_t) @ whiten_t| <= limit, with ``whiten`` (9, P, P)
+    fitted per taxel and one ``limit`` for all taxels, from held-out rows. The blocks are
+    applied as one block-diagonal (9·P, 9·P) product."""
+
+    mean: F64
+    whiten: F64
+    limit: float
+
+    def __post_init__(self) -> None:
+        full = np.ascontiguousarray(scipy.linalg.block_diag(*self.whiten))
+        pillars = self.whiten.shape[1]
+        object.__setattr__(self, "_full", full)
+        object.__setattr__(self, "_shift", self.mean @ full)
+        # Sums each taxel's P squared components: (9·P,) @ (9·P, 9) -> (9,).
+        object.__setattr__(self, "_sum", np.kron(np.eye(TAXELS_PER_PATCH), np.ones((pillars, 1))))
+        object.__setattr__(self, "_limit2", self.limit * self.limit)
+
+    @classmethod
+    def fit(cls, values: F64, held_out: F64, pillars: int) -> TaxelBand:
+        """``values`` (n, 9·P) to whiten by, ``held_out`` (m, 9·P) rows they were not fitted
+        on that set the limit (``values`` themselves if m = 0)."""
+        parts = [whitening(values[:, t * pillars:(t + 1) * pillars])
+                 for t in range(TAXELS_PER_PATCH)]
+        mean = np.concatenate([p[0] for p in parts])
+        band = cls(mean, np.stack([p[1] for p in parts]), 1.0)
+        reference = held_out if held_out.shape[0] else values
+        largest = float(np.sqrt(band.squared(reference).max()))
+        return cls(mean, band.whiten, TAXEL_BAND_FACTOR * max(largest, 1e-12))
+
+    def squared(self, values: F64) -> F64:
+        """(n, 9·P) -> (n, 9) or (9·P,) -> (9,) squared whitened lengths; a NaN makes its whole
+        row NaN (the block-diagonal product mixes it into every taxel)."""
+        product = np.dot if values.ndim == 1 else np.matmul  # np.dot: less overhead for a vector
+        z = product(values, self._full)  # type: ignore[attr-defined]
+        z -= self._shift  # type: ignore[attr-defined]
+        z *= z
+        squared: F64 = product(z, self._sum)  # type: ignore[attr-defined]
+        return squared
+
+    def inside(self, values: F64) -> Mask:
+        """(n, 9·P) -> (n, 9), or (9·P,) -> (9,); a row with a NaN is outside everywhere."""
+        inside: Mask = self.squared(values) <= self._limit2  # type: ignore[attr-defined]
+        return inside
+
+    def all_inside(self, values: F64) -> bool:
+        """Whether every taxel is inside (False for any NaN; True for no rows)."""
+        squared = self.squared(values)
+        return not squared.size or bool(squared.max() <= self._limit2)  # type: ignore[attr-defined]
+
+    def to_state(self) -> dict[str, Any]:
+        return {"mean": self.mean, "whiten": self.whiten, "limit": self.limit}
+
+    @classmethod
+    def from_state(cls, state: Any, field: str, size: int) -> TaxelBand:
+        if not isinstance(state, dict) or set(state) != {"mean", "whiten", "limit"}:
+            raise ModelFileError(f"{field}: expected a map with keys ['limit', 'mean', 'whiten']")
+        pillars = size // TAXELS_PER_PATCH
+        mean = _expect(state["mean"], f"{field}.mean", (size,))
+        whiten = _expect(state["whiten"], f"{field}.whiten", (TAXELS_PER_PATCH, pillars, pillars))
+        limit = state["limit"]
+        if isinstance(limit, bool) or not isinstance(limit, float | int) or not limit > 0:
+            raise ModelFileError(f"{field}.limit: must be a positive number, got {limit!r}")
+        return cls(mean, whiten, float(limit))
+
+
+@dataclass(frozen=True)
 class Domain:
     """What a decoder saw in training: its inputs' and outputs' boxes, and optionally the
-    inputs' ellipsoid and a band on a learned quantity."""
+    inputs' ellipsoid and bands on a learned quantity, per output and per taxel."""
 
     inputs: Box
     outputs: Box
     density: Ellipsoid | None = None
     band: Band | None = None
+    taxel_band: TaxelBand | None = None
 
     def to_state(self) -> dict[str, Any]:
         state: dict[str, Any] = {"inputs": self.inputs.to_state(),
                                  "outputs": self.outputs.to_state()}
-        if self.density is not None:
-            state["density"] = self.density.to_state()
-        if self.band is not None:
-            state["band"] = self.band.to_state()
+        for key in ("density", "band", "taxel_band"):
+            part = getattr(self, key)
+            if part is not None:
+                state[key] = part.to_state()
         return state
 
     @classmethod
     def from_state(cls, state: Any, field: str, n_in: int, n_out: int) -> Domain:
-        keys = {"inputs", "outputs", "density", "band"}
+        keys = {"inputs", "outputs", "density", "band", "taxel_band"}
         if not isinstance(state, dict) or not {"inputs", "outputs"} <= set(state) <= keys:
             raise ModelFileError(f"{field}: expected a map with keys 'inputs', 'outputs' "
-                                 f"and optionally 'density', 'band'")
-        density = state.get("density")
-        band = state.get("band")
+                                 f"and optionally 'density', 'band', 'taxel_band'")
+        density, band, taxel = (state.get(k) for k in ("density", "band", "taxel_band"))
         return cls(
             Box.from_state(state["inputs"], f"{field}.inputs", n_in),
             Box.from_state(state["outputs"], f"{field}.outputs", n_out),
             None if density is None else Ellipsoid.from_state(density, f"{field}.density", n_in),
             None if band is None else Band.from_state(band, f"{field}.band", n_out),
+            None if taxel is None else TaxelBand.from_state(taxel, f"{field}.taxel_band", n_out),
         )

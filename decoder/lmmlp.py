@@ -14,11 +14,18 @@ EXTRAPOLATED when:
 - its force is outside the box of the training forces and of what the network
   answered on the training readings;
 - its force departs from the physics reading (the exact inverse and the
-  crosstalk inverse fitted on the same data, as ``deconv``) by more than it ever
-  did in training (:class:`decoder.domain.Band`). This catches what the input
-  checks cannot: a pattern inside the training readings' spread on which the
-  network is nevertheless wrong. It is checked only when every taxel of the
-  sample has a physics reading.
+  crosstalk inverse fitted on the same data, as ``deconv``) by more than in
+  training: per component, by more than its largest departure
+  (:class:`decoder.domain.Band`); and, in 3-axis mode, the taxel's three
+  components jointly (:class:`decoder.domain.TaxelBand`: the departure whitened
+  by its covariance per taxel, against the largest such length on the
+  validation rows, which the network was not fitted on). This catches what the
+  input checks cannot: a pattern inside the training readings' spread on which
+  the network is nevertheless wrong, such as a network trained on sliding
+  contacts, whose shear grows with the press, answering a shear of a few
+  hundredths of a newton for a pure press. A z-only taxel has one component,
+  which the first bound already judges. Both are checked only when every taxel
+  of the sample has a physics reading.
 
 A taxel with a faulty pillar, or one the physics cannot decode, keeps its
 electrical reason or OUT_OF_RANGE; its readings are replaced by the middle of the
@@ -32,7 +39,16 @@ from typing import Any, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from decoder.domain import Band, Box, Domain, Ellipsoid, check_margin, domain_reasons, per_taxel
+from decoder.domain import (
+    Band,
+    Box,
+    Domain,
+    Ellipsoid,
+    TaxelBand,
+    check_margin,
+    domain_reasons,
+    per_taxel,
+)
 from decoder.physics import features, solve, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
@@ -80,15 +96,19 @@ class LMMLPDecoder(MLPDecoderBase):
         keep = np.all(reason == 0, axis=1)
         x = r[keep].reshape(-1, T * pillars)
         y = features(force[keep], pillars)
-        self._fit_scaled(x, y, pillars, progress)
+        val = self._fit_scaled(x, y, pillars, progress)
         self.unmix_ = fit_unmix(*unmix_rows(effective[keep], force[keep], pillars),
                                 UNMIX_ALPHA).matrix
         physics = features(apply_unmix(self.unmix_, effective[keep]), pillars)
         predicted = self._net(x)
         outputs = Box.fit(np.concatenate((y, predicted)), self.range_margin)
-        self.domain_ = Domain(Box.fit(x, self.range_margin), outputs,
-                              Ellipsoid.fit(x), Band.fit(predicted - physics,
-                                                         y.max(axis=0) - y.min(axis=0)))
+        departure = predicted - physics
+        fitted = np.ones(x.shape[0], dtype=bool)
+        fitted[val] = False
+        self.domain_ = Domain(Box.fit(x, self.range_margin), outputs, Ellipsoid.fit(x),
+                              Band.fit(departure, y.max(axis=0) - y.min(axis=0)),
+                              TaxelBand.fit(departure[fitted], departure[val], pillars)
+                              if pillars > 1 else None)
         return self
 
     @classmethod
@@ -112,8 +132,9 @@ class LMMLPDecoder(MLPDecoderBase):
             expect_array(self.unmix_, "unmix_", (9, 9))
         self.domain_ = Domain.from_state(self.domain_, "state.domain_", layout.n_in,
                                          layout.n_out)
-        if self.domain_.band is not None and self.unmix_ is None:
-            raise ModelFileError("state.domain_.band: needs state.unmix_")
+        for key in ("band", "taxel_band"):
+            if getattr(self.domain_, key) is not None and self.unmix_ is None:
+                raise ModelFileError(f"state.domain_.{key}: needs state.unmix_")
 
     def _prepare(self) -> None:
         super()._prepare()
@@ -137,9 +158,18 @@ class LMMLPDecoder(MLPDecoderBase):
         effective = self.inverse(self.pillars_).fast(r)
         if effective is None:
             return None
-        if domain.band is not None and not domain.band.all_inside(y - self._physics(effective)):
+        judged = domain.band is not None or domain.taxel_band is not None
+        if judged and not self._departure_inside(y, effective):
             return None
         return to_force(y, self.pillars_)
+
+    def _departure_inside(self, y: F64, effective: F64) -> bool:
+        """Whether the network's rows ``y`` depart from the physics reading of ``effective`` as
+        they did in training, every component and every taxel (the fast path's check)."""
+        band, taxel_band = self.domain_.band, self.domain_.taxel_band
+        departure = y - self._physics(effective)
+        return ((band is None or band.all_inside(departure))
+                and (taxel_band is None or taxel_band.all_inside(departure)))
 
     def _decode_full(self, r: F64) -> tuple[F64, NDArray[np.uint8]]:
         n, pillars = r.shape[0], self.pillars_
@@ -154,8 +184,12 @@ class LMMLPDecoder(MLPDecoderBase):
             domain_reasons(reason, ~domain.density.inside(x)[:, None])
         y = self._net(sample_rows(x)).reshape(n, -1)  # one sample as a vector, as on the fast path
         domain_reasons(reason, per_taxel(~domain.outputs.inside(y)))
-        if domain.band is not None and self.unmix_ is not None:
-            whole = np.asarray(ok.all(axis=1))
-            off = ~domain.band.inside(y - features(apply_unmix(self.unmix_, effective), pillars))
-            domain_reasons(reason, per_taxel(off) & whole[:, None])
+        judged = domain.band is not None or domain.taxel_band is not None
+        if judged and self.unmix_ is not None:
+            whole = np.asarray(ok.all(axis=1))[:, None]
+            departure = y - features(apply_unmix(self.unmix_, effective), pillars)
+            if domain.band is not None:
+                domain_reasons(reason, per_taxel(~domain.band.inside(departure)) & whole)
+            if domain.taxel_band is not None:
+                domain_reasons(reason, ~domain.taxel_band.inside(departure) & whole)
         return to_force(y, pillars), reason

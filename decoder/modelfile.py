@@ -2,7 +2,7 @@
 
 Layout::
 
-    {"schema": "canskin.decoder", "version": 2, "name": str,
+    {"schema": "canskin.decoder", "version": 3, "name": str,
      "params": {str: value}, "state": {str: value}, "meta": {str: value}}
 
 where a value is None, bool, int, float, str, a map of values (depth-limited)
@@ -12,8 +12,10 @@ names the field: a corrupt, truncated or hostile file never becomes a model.
 
 ``meta`` (version 2) is what training reports and decoding does not need: how
 the hidden nodes were chosen, the validation curve, where training stopped.
-Version 1 files (no ``meta``, no training domain) are still read; each decoder
-class says how its version-1 state is upgraded (``BaseDecoder._upgrade``).
+Version 3 adds hybrid's residual threshold (``residual_threshold_``) and, for
+lm-mlp in 3-axis mode, the per-taxel band of its training domain. Files of
+versions 1 (no ``meta``, no training domain) and 2 are still read; each decoder
+class says how an older state is upgraded (``BaseDecoder._upgrade``).
 """
 
 from __future__ import annotations
@@ -30,8 +32,8 @@ from skin.atomic import atomic_write
 from skin.errors import ModelFileError
 
 SCHEMA = "canskin.decoder"
-VERSION = 2
-READABLE_VERSIONS = (1, 2)
+VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
 MAX_FILE_BYTES = 64 * 1024 * 1024
 MAX_ARRAY_ELEMENTS = 4_000_000
 MAX_DIMS = 4
@@ -41,7 +43,8 @@ DTYPES: dict[str, np.dtype[Any]] = {
     name: np.dtype(name) for name in ("<f8", "<i8", "|u1", "|b1")
 }
 TOP_KEYS = {1: frozenset({"schema", "version", "name", "params", "state"}),
-            2: frozenset({"schema", "version", "name", "params", "state", "meta"})}
+            2: frozenset({"schema", "version", "name", "params", "state", "meta"}),
+            3: frozenset({"schema", "version", "name", "params", "state", "meta"})}
 
 
 @dataclass(frozen=True)
@@ -151,8 +154,9 @@ def unpack_model(payload: bytes) -> ModelContent:
         raise ModelFileError(f"schema: expected {SCHEMA!r}, got {doc.get('schema')!r}")
     version = doc.get("version")
     if isinstance(version, bool) or version not in READABLE_VERSIONS:
-        readable = " and ".join(str(v) for v in READABLE_VERSIONS)
-        raise ModelFileError(f"version: this canskin reads versions {readable}, got {version!r}")
+        *older, newest = (str(v) for v in READABLE_VERSIONS)
+        raise ModelFileError(f"version: this canskin reads versions {', '.join(older)} and "
+                             f"{newest}, got {version!r}")
     keys = TOP_KEYS[version]
     missing = sorted(keys - set(doc))
     extra = sorted(set(doc) - keys)

@@ -69,6 +69,14 @@ def _report(decoder: Any) -> list[str]:
         lines.append(f"residual network used on {used} of {residual['used'].size} outputs "
                      f"(those where it cut the held-out MSE by "
                      f"{100 * residual['required_gain']:.0f} % or more)")
+        threshold = residual.get("threshold_N")
+        if used and threshold is not None:
+            import numpy as np
+
+            median = float(np.median(threshold[residual["used"]]))
+            lines.append(f"residual shrunk by {residual['threshold_standard_errors']:g} standard "
+                         f"errors of its own fit: {1e3 * median:.2f} mN (median over the "
+                         f"outputs used)")
     return lines
 
 

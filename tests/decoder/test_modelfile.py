@@ -1,4 +1,4 @@
-"""Model files: round trip (with the training domain and the metadata), version-1 files, and
+"""Model files: round trip (with the training domain and the metadata), version-1 and -2 files, and
 every corrupt or hostile file refused with a named field."""
 
 from __future__ import annotations
@@ -98,7 +98,7 @@ def saved(tmp_path_factory: pytest.TempPathFactory, synth: Any) -> dict[str, Pat
 def test_the_training_domain_and_metadata_round_trip(saved: dict[str, Path], synth: Any,
                                                      name: str) -> None:
     doc = _doc(saved[name])
-    assert doc["version"] == 2 and "domain_" in doc["state"] and isinstance(doc["meta"], dict)
+    assert doc["version"] == 3 and "domain_" in doc["state"] and isinstance(doc["meta"], dict)
     loaded = load_decoder(saved[name])
     r, _ = synth(60, seed=72, fz_max=5.0)  # some taxels beyond the 3 N of training
     out = loaded.decode(r)
@@ -123,7 +123,8 @@ def _as_version_1(doc: dict[str, Any], params: tuple[str, ...], state: tuple[str
     ("deconv", ("range_margin",), ("domain_",)),
     ("lm-mlp", ("goal_units",), ("hidden_", "unmix_", "domain_")),
     ("hybrid", ("goal_units", "alpha", "range_margin"),
-     ("hidden_", "unmix_", "domain_", "residual_domain_", "use_residual_")),
+     ("hidden_", "unmix_", "domain_", "residual_domain_", "use_residual_",
+      "residual_threshold_")),
 ])
 def test_version_1_files_still_load(saved: dict[str, Path], synth: Any, tmp_path: Path,
                                     name: str, params: tuple[str, ...],
@@ -135,6 +136,62 @@ def test_version_1_files_still_load(saved: dict[str, Path], synth: Any, tmp_path
     out = old.decode(r)
     assert out.valid.all() and np.all(np.isfinite(out.force_N))
     assert old.meta() == {}  # type: ignore[attr-defined]
+
+
+@pytest.fixture(scope="module")
+def lm_xyz(tmp_path_factory: pytest.TempPathFactory, synth: Any) -> Path:
+    """lm-mlp in 3-axis mode (whose domain has the per-taxel band), saved."""
+    r, f = synth(300, seed=74, pillars=3, fz_max=3.0)
+    path = tmp_path_factory.mktemp("xyz") / "lm-mlp.msgpack"
+    create_decoder("lm-mlp", max_epochs=30).fit(r, f).save(path)
+    return path
+
+
+def test_version_2_files_still_load_and_decode_as_they_did(saved: dict[str, Path], synth: Any,
+                                                           lm_xyz: Path, tmp_path: Path) -> None:
+    """Version 3 added hybrid's residual threshold and lm-mlp's per-taxel band: a version-2
+    hybrid adds its residual as it is, a version-2 lm-mlp has only the per-component band."""
+    doc = _doc(saved["hybrid"])
+    doc["version"] = 2
+    del doc["state"]["residual_threshold_"]
+    old = load_decoder(_put(tmp_path / "hybrid-v2.msgpack", doc))
+    assert not old.residual_threshold_.any()  # type: ignore[attr-defined]
+    now = load_decoder(saved["hybrid"])
+    now.residual_threshold_[:] = 0.0  # type: ignore[attr-defined]
+    now._prepare()  # type: ignore[attr-defined]
+    r, _ = synth(40, seed=76, fz_max=3.0)
+    np.testing.assert_array_equal(old.decode(r).force_N, now.decode(r).force_N)
+    doc = _doc(lm_xyz)
+    doc["version"] = 2
+    del doc["state"]["domain_"]["taxel_band"]
+    old = load_decoder(_put(tmp_path / "lm-v2.msgpack", doc))
+    assert old.domain_.taxel_band is None  # type: ignore[attr-defined]
+    r, _ = synth(60, seed=75, pillars=3, fz_max=5.0)
+    then, now_out = old.decode(r), load_decoder(lm_xyz).decode(r)
+    np.testing.assert_array_equal(then.force_N[now_out.valid], now_out.force_N[now_out.valid])
+    assert not (now_out.valid & ~then.valid).any()  # the band only adds flags
+
+
+def test_the_per_taxel_band_round_trips_and_is_checked(lm_xyz: Path, synth: Any,
+                                                       tmp_path: Path) -> None:
+    doc = _doc(lm_xyz)
+    assert set(doc["state"]["domain_"]) == {"inputs", "outputs", "density", "band", "taxel_band"}
+    r, _ = synth(60, seed=75, pillars=3, fz_max=5.0)
+    out = load_decoder(lm_xyz).decode(r)
+    again = load_decoder(_put(tmp_path / "copy.msgpack", doc))
+    np.testing.assert_array_equal(again.decode(r).reason, out.reason)
+    for damage, field in (
+            (lambda b: b.__setitem__("limit", 0.0), "state.domain_.taxel_band.limit"),
+            (lambda b: b.__setitem__("whiten", b["mean"]), "state.domain_.taxel_band.whiten"),
+            (lambda b: b.__setitem__("extra", 1), "state.domain_.taxel_band")):
+        bad = _doc(lm_xyz)
+        damage(bad["state"]["domain_"]["taxel_band"])
+        with pytest.raises(ModelFileError, match=field.replace(".", r"\.")):
+            load_decoder(_put(tmp_path / "bad.msgpack", bad))
+    bad = _doc(lm_xyz)
+    bad["state"]["unmix_"] = None
+    with pytest.raises(ModelFileError, match=r"state\.domain_\.band: needs state\.unmix_"):
+        load_decoder(_put(tmp_path / "bad.msgpack", bad))
 
 
 BROKEN = [
