@@ -112,8 +112,12 @@ class LoadWindow:
         """Busy seconds and delivered frames in ``[now - window_s, now]``."""
         low = now - min(window_s, self.span_s)
         busy, frames = 0.0, 0
-        for start, end, delivered in self._spans:
-            if end <= low or start >= now:
+        # From the newest back (one wire: the spans are in order), so that a short window
+        # costs what it holds: this runs under the wire's lock.
+        for start, end, delivered in reversed(self._spans):
+            if end <= low:
+                break
+            if start >= now:
                 continue
             busy += min(end, now) - max(start, low)
             frames += delivered is not None and low < delivered <= now

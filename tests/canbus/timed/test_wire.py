@@ -9,8 +9,11 @@ from typing import Any
 
 import can
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from canbus.timed import TimedBus
+from canbus.timed.stats import LoadWindow
 from tests.canbus.timed.stamps import check_starts
 
 OpenBus = Callable[..., TimedBus]
@@ -219,3 +222,28 @@ def test_bit_timing_objects_give_the_bitrates(open_bus: OpenBus) -> None:
     bus = open_bus(timing=timing)
     assert (bus.bitrate, bus.data_bitrate, bus.protocol) == (
         500_000, 2_000_000, can.CanProtocol.CAN_FD)
+
+
+@settings(max_examples=200)
+@given(gaps=st.lists(st.tuples(st.floats(0, 2e-4), st.floats(1e-5, 3e-4), st.booleans()),
+                     min_size=1, max_size=60),
+       now_back=st.floats(-5e-4, 3e-3), window=st.floats(1e-6, 0.02))
+def test_the_load_window_counts_what_lies_in_it(gaps: list[tuple[float, float, bool]],
+                                                now_back: float, window: float) -> None:
+    """Busy time and delivered frames in [now - window, now], against a plain sum."""
+    span_s = 0.01
+    load = LoadWindow(span_s)
+    spans, t = [], 0.0
+    for gap, length, ok in gaps:
+        start, end = t + gap, t + gap + length
+        load.add(start, end, end if ok else None)
+        spans.append((start, end, end if ok else None))
+        t = end
+    now = t - now_back
+    low = now - min(window, span_s)
+    kept = [s for s in spans if s[1] >= t - span_s]  # what the window still holds
+    busy = sum(max(0.0, min(e, now) - max(s, low)) for s, e, _ in kept)
+    frames = sum(d is not None and low < d <= now for _, _, d in kept)
+    got_busy, got_frames = load.measure(now, window)
+    assert got_frames == frames
+    assert got_busy == pytest.approx(busy, abs=1e-12)
