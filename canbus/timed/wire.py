@@ -36,6 +36,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 
@@ -248,10 +249,9 @@ class Wire:
         with self.lock:
             horizon = math.inf if timeout is None else self.sim_now + timeout
             while True:
-                while rx:
-                    msg = rx.popleft()
-                    if accept is None or accept(msg):
-                        return msg
+                msg = _first_accepted(rx, accept)
+                if msg is not None:
+                    return msg
                 if not node.open:
                     return None
                 self._process(horizon, lambda: bool(rx))
@@ -276,10 +276,9 @@ class Wire:
         rx = node.rx
         with self.lock:
             while True:
-                while rx:
-                    msg = rx.popleft()
-                    if accept is None or accept(msg):
-                        return msg
+                msg = _first_accepted(rx, accept)
+                if msg is not None:
+                    return msg
                 if not node.open:
                     return None
                 now = time.time() - self.started
@@ -701,3 +700,13 @@ class Wire:
                 busy_s=self.busy_s + extra * length - ahead,
                 window_s=window_s or self.window.span_s, window_frames=frames,
                 window_busy_s=busy, nodes=tuple(n.snapshot() for n in self.nodes))
+
+
+def _first_accepted(rx: deque[can.Message],
+                    accept: Callable[[can.Message], bool] | None) -> can.Message | None:
+    """The first received frame ``accept`` takes (those before it are dropped), or None."""
+    while rx:
+        msg = rx.popleft()
+        if accept is None or accept(msg):
+            return msg
+    return None
