@@ -40,7 +40,6 @@ from canbus.master.patch_setup import (
 )
 from canbus.master.records import PatchRecord
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM
-from canbus.rxfilter import receive_filter
 from skin.errors import BusError, SkinError
 
 if TYPE_CHECKING:
@@ -97,7 +96,7 @@ class ActiveMaster:
         if host.executor is not None:
             host.executor.shutdown(wait=True, cancel_futures=True)
         for link in host.links.values():
-            receive_filter(link.bus).release(link)
+            link.release_own()
         for patch in host.patches.values():
             patch.force_node.on_cob_ids_changed = None
             patch.force_node.detach()
@@ -167,10 +166,8 @@ class ActiveMaster:
             force.on_cob_ids_changed = self._claim_own_frames  # another master remapped it
 
     def _claim_own_frames(self) -> None:
-        """What the host alone sends on each bus (the SYNC it produces, its force nodes'
-        frames, its SDO requests to its patches) is claimed: on a bus that hands a process
-        its own frames back (udp_multicast) their echoes are dropped in the kernel, before
-        they cost a wake-up (``canbus.rxfilter``); elsewhere nothing changes."""
+        """What the host alone sends on each bus is claimed (:meth:`BusLink.claim_own`): the
+        SYNC it produces, its force nodes' frames, its SDO requests to its patches."""
         host = self.host
         producing_sync = not host.config.sync_following
         for link in host.links.values():
@@ -182,7 +179,7 @@ class ActiveMaster:
                     own |= patch.force_node.cob_ids()
                 if patch.link is link:
                     own.add(SDO_REQUEST + patch.node_id)
-            receive_filter(link.bus).claim(link, own)
+            link.claim_own(own)
 
     def _submit(self, job: Callable[[int], None], node_id: int) -> Future[None] | None:
         executor = self.host.executor

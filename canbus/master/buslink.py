@@ -11,7 +11,7 @@ and canopen's own listener keeps seeing every frame, as it did.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import can
 import canopen
@@ -21,7 +21,7 @@ from canbus.master.dataplane import DataPlane, PdoRouter
 from canbus.master.discovery import BootListener
 from canbus.master.liveness import HeartbeatMonitor
 from canbus.master.sync_producer import SyncFollower, SyncProducer
-from canbus.rxfilter import OwnFrameGate, receive_filter
+from canbus.rxfilter import OwnFrameGate, ReceiveFilter, receive_filter
 from skin.errors import BusError
 
 NOTIFIER_CYCLE_S = 0.05  # canopen's notifier recv() timeout: stop() joins within one cycle
@@ -56,6 +56,7 @@ class BusLink:
         self.dataplane: DataPlane | None = None
         self.sync: SyncProducer | SyncFollower | None = None
         self._added: list[can.Listener] = []
+        self._gated = False  # our listeners sit behind an OwnFrameGate
 
     @property
     def fd(self) -> bool:
@@ -73,9 +74,6 @@ class BusLink:
             others.append(follower)
         listeners: list[can.Listener] = [PdoRouter(dataplane, others)] if dataplane is not None \
             else others
-        own = receive_filter(self.bus)
-        if own.echoes:  # what the kernel filter cannot drop (canbus.rxfilter) stops here
-            listeners = [OwnFrameGate(listener, own) for listener in listeners]
         self.boots.start()
         if self.joined:
             notifier = self.network.notifier
@@ -88,6 +86,35 @@ class BusLink:
             self.network.notifier = can.Notifier(self.bus, listeners,
                                                  timeout=self.network.NOTIFIER_CYCLE)
         self.monitor.start()
+
+    def claim_own(self, cob_ids: Iterable[int]) -> None:
+        """The COB-IDs only this host sends on the bus (replacing an earlier claim). Where
+        the bus hands a process its own frames back (udp_multicast) their echoes are
+        dropped in the kernel (``canbus.rxfilter``), or, where it cannot filter, by a gate
+        in front of our listeners; elsewhere nothing changes."""
+        own = receive_filter(self.bus)
+        own.claim(self, cob_ids)
+        if own.echoes and not own.in_kernel and not self._gated:
+            self._gate_listeners(own)
+
+    def release_own(self) -> None:
+        receive_filter(self.bus).release(self)
+
+    def _gate_listeners(self, own: ReceiveFilter) -> None:
+        notifier = self.network.notifier
+        if notifier is None:
+            return
+        gates: list[can.Listener] = []
+        for listener in self._added if self.joined else list(notifier.listeners):
+            if not isinstance(listener, can.Listener):
+                continue
+            gate = OwnFrameGate(listener, own)
+            if listener in notifier.listeners:
+                notifier.listeners[notifier.listeners.index(listener)] = gate
+            gates.append(gate)
+        if self.joined:
+            self._added = gates
+        self._gated = True
 
     def produce_sync(self, period_s: float, counter: bool) -> SyncProducer:
         assert self.dataplane is not None, "listen() first"

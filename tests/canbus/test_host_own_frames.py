@@ -31,7 +31,11 @@ def _config(sync_external: bool = False) -> HostConfig:
                       sync="external" if sync_external else "produce")
 
 
-def test_the_host_never_takes_back_its_own_frames(udp_channel: str, udp_port: int) -> None:
+@pytest.mark.parametrize("where", ["kernel", "gate"])
+def test_the_host_never_takes_back_its_own_frames(udp_channel: str, udp_port: int, where: str,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    if where == "gate":  # no socket filter: the gate in front of the listeners drops them
+        monkeypatch.setattr("canbus.rxfilter._install", lambda *args: False)
     device_bus = can.Bus(interface="udp_multicast", channel=udp_channel, port=udp_port)
     host_bus = can.Bus(interface="udp_multicast", channel=udp_channel, port=udp_port)
     network = canopen.Network(device_bus)
@@ -44,6 +48,7 @@ def test_the_host_never_takes_back_its_own_frames(udp_channel: str, udp_port: in
             own = receive_filter(host_bus)
             force: ForceNode = host.patch(5).force_node
             assert {0x080, 0x605} | force.cob_ids() <= own.cob_ids
+            assert own.in_kernel == (where == "kernel")
             eventually(lambda: host.stats()["samples"] >= 20, "20 samples")
             before = host.stats()  # the scan and the set-up's SDO traffic are behind
             started = time.monotonic()
