@@ -2,7 +2,7 @@
 its heartbeat consumer.
 
 A link either owns its network (built on the caller's python-can bus, with a notifier of
-its own whose one listener is a :class:`~canbus.master.dataplane.PdoRouter`) or joins a
+its own whose one listener is a :class:`~canbus.master.pdo_router.PdoRouter`) or joins a
 ``canopen.Network`` the caller already runs (an application that is itself a CANopen
 master): then the data plane and the SYNC follower are added to that network's notifier
 and canopen's own listener keeps seeing every frame, as it did.
@@ -17,9 +17,10 @@ import can
 import canopen
 
 from canbus.master.busconfig import BusConfig
-from canbus.master.dataplane import DataPlane, PdoRouter
+from canbus.master.dataplane import DataPlane
 from canbus.master.discovery import BootListener
 from canbus.master.liveness import HeartbeatMonitor
+from canbus.master.pdo_router import PdoRouter
 from canbus.master.sync_producer import SyncFollower, SyncProducer
 from canbus.rxfilter import OwnFrameGate, ReceiveFilter, receive_filter
 from skin.errors import BusError

@@ -49,184 +49,36 @@ only copies bytes). ``background=False`` leaves that to the caller
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import threading
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 
 import can
 import numpy as np
 from numpy.typing import NDArray
 
-from canbus.codes import code_to_resistance
-from canbus.master.baseline import Baseline
-from canbus.master.forcenode import ForceNode, batch_frames
-from canbus.pdo_codec import PdoCodec
-from canbus.txmessage import TxMessage
-from decoder.protocol import Decoder
-from decoder.reasons import Reason
-from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH
+from canbus.master.channel import (
+    AnswerSlot,
+    DataPlaneStats,
+    ForceFrame,
+    PatchChannel,
+    SampleJob,
+    Subscriber,
+    rest_payload,
+)
+from canbus.master.forcenode import batch_frames
+from canbus.master.publisher import Publisher, by_decoder
+from skin.constants import TAXELS_PER_PATCH
 from skin.errors import ConfigError
+
+__all__ = ["DataPlane", "DataPlaneStats", "ForceFrame", "PatchChannel", "Subscriber"]
 
 logger = logging.getLogger(__name__)
 
-RESISTANCES, ANSWERED = 0x2000, 0x2006
 
 
-@dataclass(frozen=True)
-class ForceFrame:
-    """One patch's forces for one SYNC cycle."""
-
-    patch: int  # patch node-ID
-    force_node: int  # force node-ID it was published as
-    cycle: int  # host's SYNC cycle number (1, 2, ...), monotonic
-    sync_counter: int  # the SYNC counter byte sent (0 without a counter)
-    timestamp: float  # time.time() when the host sent that SYNC
-    force_N: NDArray[np.float64]  # (9, 3) Fx, Fy, Fz; 0 N where not valid
-    valid: NDArray[np.bool_]  # (9,)
-    reason: NDArray[np.uint8]  # (9,) decoder.reasons codes; MISSING, FAULTY from the data plane
-    complete: bool  # every TPDO of one answer of the patch arrived, in order, in the window
-    published: bool  # the force TPDOs went onto the bus
-
-
-@dataclass
-class PatchChannel:
-    """Everything the data plane needs to turn one patch's PDOs into forces."""
-
-    node_id: int
-    codec: PdoCodec  # the patch's TPDOs as configured (maps 0x2000 codes; may map more)
-    pillars: int  # 1 (z-only) or 3
-    lsb_ohm: float  # the patch's 0x2001
-    decoder: Decoder  # any registered decoder; r0 baked in by the host
-    force_node: ForceNode
-    scale: NDArray[np.float64] = field(default_factory=lambda: np.ones((TAXELS_PER_PATCH, 1)))
-    """(9, P), or anything that broadcasts to it: multiplied onto resistances before decode
-    (with a ``baseline``, its scale is used instead)."""
-    masked: NDArray[np.bool_] = field(
-        default_factory=lambda: np.zeros(TAXELS_PER_PATCH, dtype=bool))
-    """(9,) taxels the host knows are faulty: invalid with ``Reason.FAULTY``."""
-    baseline: Baseline | None = None
-    """Tare and drift tracking: the data plane decodes with its scale, tracks drift on every
-    complete sample and tares it (:meth:`DataPlane.tare`)."""
-    answer_order: str = "cob-id"
-    """The order in which the patch sends the TPDOs of one answer: ``"cob-id"`` (ascending
-    identifier, as a node's queued frames leave on a CAN bus) or ``"tpdo"`` (TPDO number
-    order, a device with a single FIFO transmit buffer)."""
-
-
-@dataclass
-class DataPlaneStats:
-    """Counters since the data plane was built."""
-
-    frames_in: int = 0  # PDO frames of known channels
-    frames_out: int = 0  # force TPDOs sent
-    unknown_frames: int = 0  # anything not a PDO of a channel (other services, lost patches)
-    duplicate_frames: int = 0  # a PDO already seen in its cycle
-    late_frames: int = 0  # before the window, after it, or the tail of an earlier answer
-    out_of_order_frames: int = 0  # ahead of its place in the answer, or after the answer ended
-    second_answers: int = 0  # an answer began after a complete one in one window: the one
-    # published was then most likely the previous SYNC's, whole (docs/host.md)
-    stale_answers: int = 0  # an answer that names (0x2006) an earlier SYNC than its cycle's
-    malformed_frames: int = 0  # shorter than the PDO's mapping
-    samples: int = 0
-    batches: int = 0  # publishing rounds: samples / batches is the mean decode batch
-    complete_samples: int = 0
-    incomplete_samples: int = 0
-    decode_errors: int = 0  # decoder raised: those samples are dropped (logged)
-    send_errors: int = 0  # bus.send raised: that sample is not published (logged)
-    callback_errors: int = 0  # a subscriber raised (logged)
-
-    def snapshot(self) -> dict[str, int]:
-        return dataclasses.asdict(self)
-
-
-class _Slot:
-    """A channel's state in the current cycle and its precomputed layout."""
-
-    def __init__(self, channel: PatchChannel, key: int) -> None:
-        codec = channel.codec
-        pdos = len(codec.layouts)
-        self.channel = channel
-        self.active = True
-        self.online = True
-        self.stride = codec.width + codec.width % 2  # bytes per PDO in ``raw``: even, so
-        self.raw = bytearray(self.stride * pdos)  # that codes read as UNSIGNED16 words
-        self.zeros = bytes(self.stride * pdos)
-        self.full = (1 << pdos) - 1
-        self.seen = 0  # PDO bits received this cycle
-        self.bad = 0  # PDO bits not trusted this cycle (duplicate, malformed)
-        self.done = False  # queued this cycle
-        self.next = 0  # the place in the answer the next frame must take (0: not begun)
-        self.ended = False  # the answer was broken: nothing more counts this cycle
-        self.key = key  # channels with equal keys are unpacked together
-        cob_ids = codec.cob_ids.tolist()
-        if channel.answer_order == "cob-id":
-            order = sorted(range(pdos), key=cob_ids.__getitem__)
-        elif channel.answer_order == "tpdo":
-            order = list(range(pdos))
-        else:
-            raise ConfigError("channel.answer_order", "must be 'cob-id' or 'tpdo', got "
-                              f"{channel.answer_order!r}")
-        self.place = [0] * pdos  # PDO position in codec.layouts -> its place in the answer
-        for n, p in enumerate(order):
-            self.place[p] = n
-        p = channel.pillars
-        try:
-            self.columns = np.array([[codec.column(RESISTANCES, 3 * t + k + 1) for k in range(p)]
-                                     for t in range(TAXELS_PER_PATCH)], dtype=np.intp)
-        except ValueError as err:
-            raise ConfigError("channel.codec", f"patch {channel.node_id}'s PDOs do not map "
-                              f"every 0x2000 code of {p} pillar(s)") from err
-        carried = np.zeros((pdos, TAXELS_PER_PATCH), dtype=bool)
-        at: dict[tuple[int, int], int] = {}  # variable -> its first byte in ``raw``
-        for n, layout in enumerate(codec.layouts):
-            offset = self.stride * n
-            for entry in layout.entries:
-                at.setdefault((entry.index, entry.subindex), offset)
-                offset += entry.bits // 8
-                value = entry.subindex - 1
-                if entry.index == RESISTANCES and value % 3 < p:
-                    carried[n, value // 3] = True
-        self.carried = carried  # (PDOs, 9): the taxels each PDO carries
-        offsets = np.array([[at[(RESISTANCES, 3 * t + k + 1)] for k in range(p)]
-                            for t in range(TAXELS_PER_PATCH)], dtype=np.intp)
-        self.words: NDArray[np.intp] | None = None
-        """(9, P) each code's place in ``raw`` read as little-endian UNSIGNED16 words, or
-        None if a code starts at an odd byte (then ``codec.unpack`` reads them)."""
-        u16 = all(codec.dtypes[c] == np.dtype("<u2") for c in self.columns.ravel().tolist())
-        if u16 and not np.any(offsets % 2):
-            self.words = offsets // 2
-        self.answered_bit = 0  # the PDO that carries 0x2006, the SYNC counter answered
-        self.answered_at = 0  # its byte in that PDO
-        if (ANSWERED, 0) in at:
-            pdo, self.answered_at = divmod(at[(ANSWERED, 0)], self.stride)
-            self.answered_bit = 1 << pdo
-
-    def taxels_of(self, pdo_bits: int) -> NDArray[np.bool_]:
-        """(9,) the taxels carried by the PDOs whose bits are set."""
-        which = np.array([pdo_bits >> p & 1 for p in range(len(self.carried))], dtype=bool)
-        taxels: NDArray[np.bool_] = self.carried[which].any(axis=0)
-        return taxels
-
-    def reset(self) -> None:
-        self.seen = self.bad = self.next = 0
-        self.done = self.ended = False
-        self.raw[:] = self.zeros
-
-
-@dataclass(frozen=True)
-class _Job:
-    slot: _Slot
-    cycle: tuple[int, int, float]
-    payload: bytes
-    missing: int  # PDO bits absent or not trusted
-    complete: bool
-
-
-_Entry = tuple[_Slot, int, int, int, int]  # slot, PDO bit, byte offset, mapped size, place
-Subscriber = Callable[[list[ForceFrame]], None]
+_Entry = tuple[AnswerSlot, int, int, int, int]  # slot, PDO bit, byte offset, mapped size, place
 
 
 class DataPlane(can.Listener):
@@ -242,15 +94,13 @@ class DataPlane(can.Listener):
         self._lock = threading.Lock()  # cycle state: held briefly by every thread
         self._publish_lock = threading.Lock()  # one publisher at a time, in queue order
         self._table: dict[int, _Entry] = {}  # replaced, never mutated: read without the lock
-        self._slots: dict[int, _Slot] = {}
+        self._slots: dict[int, AnswerSlot] = {}
         self._shapes: dict[object, int] = {}  # PDO layout and pillars -> slot key
         self._cycle: tuple[int, int, float] | None = None
         self._start, self._end = math.inf, -math.inf  # no cycle open
         self._held: list[tuple[_Entry, bytes, float]] = []
-        self._queue: list[_Job] = []
-        self._subscribers: tuple[Subscriber, ...] = ()
-        self._raw_samples: dict[int, NDArray[np.float64]] = {}
-        self._last_complete: dict[int, ForceFrame] = {}
+        self._queue: list[SampleJob] = []
+        self._publisher = Publisher(bus, self.stats, self._slots)
         self._wake = threading.Event()
         self._stopping = False
         self._thread: threading.Thread | None = None
@@ -273,7 +123,7 @@ class DataPlane(can.Listener):
         _check_shape(channel.masked, (TAXELS_PER_PATCH,), "channel.masked")
         shape = (tuple(layout.entries for layout in channel.codec.layouts), channel.pillars)
         with self._lock:
-            slot = _Slot(channel, self._shapes.setdefault(shape, len(self._shapes)))
+            slot = AnswerSlot(channel, self._shapes.setdefault(shape, len(self._shapes)))
             slot.online = online
             others = [s.channel for n, s in self._slots.items() if n != channel.node_id]
             _check_identifiers(channel, others)
@@ -358,11 +208,11 @@ class DataPlane(can.Listener):
         slot.raw[offset:offset + size] = data if len(data) == size else data[:size]
         if slot.seen == slot.full and not slot.bad and slot.active and self._cycle is not None:
             slot.done = True
-            self._queue.append(_Job(slot, self._cycle, bytes(slot.raw), 0, True))
+            self._queue.append(SampleJob(slot, self._cycle, bytes(slot.raw), 0, True))
             if not self._wake.is_set():  # the publisher has not yet taken the queue
                 self._wake.set()
 
-    def _stale(self, slot: _Slot, data: bytes | bytearray) -> bool:
+    def _stale(self, slot: AnswerSlot, data: bytes | bytearray) -> bool:
         """The PDO names the SYNC it answers (0x2006), and it is not this cycle's: an answer
         to an earlier SYNC, counted ``stale_answers`` and ``late_frames`` (lock held)."""
         counter = self._cycle[1] if self._cycle is not None else 0
@@ -431,7 +281,8 @@ class DataPlane(can.Listener):
             for slot in self._slots.values():
                 if not slot.done:
                     missing = slot.full & ~(slot.seen & ~slot.bad)
-                    self._queue.append(_Job(slot, self._cycle, bytes(slot.raw), missing, False))
+                    self._queue.append(SampleJob(slot, self._cycle, bytes(slot.raw), missing,
+                                                 False))
         for slot in self._slots.values():
             slot.reset()
 
@@ -440,11 +291,12 @@ class DataPlane(can.Listener):
     def subscribe(self, callback: Subscriber) -> None:
         """Call ``callback(frames)`` with each published batch (from the publishing thread)."""
         with self._lock:
-            self._subscribers = (*self._subscribers, callback)
+            self._publisher.subscribers = (*self._publisher.subscribers, callback)
 
     def unsubscribe(self, callback: Subscriber) -> None:
         with self._lock:
-            self._subscribers = tuple(c for c in self._subscribers if c != callback)
+            self._publisher.subscribers = tuple(c for c in self._publisher.subscribers
+                                                if c != callback)
 
     def tare(self, node_id: int) -> None:
         """Re-zero patch ``node_id``'s baseline at its last complete sample.
@@ -455,13 +307,13 @@ class DataPlane(can.Listener):
         baseline = self.channel(node_id).baseline
         if baseline is None:
             raise ConfigError("node_id", f"patch {node_id} has no baseline to tare")
-        last = self._last_complete.get(node_id)
+        last = self._publisher.last_complete.get(node_id)
         baseline.tare(self.raw_sample(node_id), None if last is None else last.force_N,
                       None if last is None else last.valid, node_id=node_id)
 
     def raw_sample(self, node_id: int) -> NDArray[np.float64] | None:
         """The last complete ``(9, P)`` resistances of a patch in ohm, before ``scale``."""
-        sample = self._raw_samples.get(node_id)
+        sample = self._publisher.raw_samples.get(node_id)
         return None if sample is None else sample.copy()
 
     def publish_pending(self) -> None:
@@ -470,18 +322,19 @@ class DataPlane(can.Listener):
             with self._lock:
                 jobs, self._queue = self._queue, []
             if jobs:
-                self._publish(jobs)
+                self._publisher.publish(jobs)
 
     def warm_up(self) -> None:
         """Run every channel's publishing path once on a sample at rest, sending nothing,
         so that the first cycle does not pay for code and tables run the first time."""
         with self._publish_lock:
-            jobs = [_Job(slot, (0, 0, 0.0), _rest_payload(slot), 0, False)
+            jobs = [SampleJob(slot, (0, 0, 0.0), rest_payload(slot), 0, False)
                     for slot in list(self._slots.values())]
             if not jobs:
                 return
-            resistance = self._resistances(jobs, np.zeros((len(jobs), TAXELS_PER_PATCH), bool))
-            for rows, decoder in _by_decoder(jobs):
+            resistance = self._publisher.resistances(
+                jobs, np.zeros((len(jobs), TAXELS_PER_PATCH), bool))
+            for rows, decoder in by_decoder(jobs):
                 pillars = jobs[rows[0]].slot.channel.pillars
                 result = decoder.decode(resistance[rows, :, :pillars])
                 nodes = [jobs[i].slot.channel.force_node for i in rows]
@@ -513,216 +366,6 @@ class DataPlane(can.Listener):
                 self.publish_pending()
             except Exception:  # keep publishing: one bad batch must not stop the data plane
                 logger.exception("data plane: publishing failed")
-
-    def _publish(self, jobs: list[_Job]) -> None:
-        n = len(jobs)
-        missing = np.zeros((n, TAXELS_PER_PATCH), dtype=bool)
-        masked = np.zeros((n, TAXELS_PER_PATCH), dtype=bool)
-        for i, job in enumerate(jobs):
-            if job.missing:
-                missing[i] = job.slot.taxels_of(job.missing)
-            masked[i] = job.slot.channel.masked
-        resistance = self._resistances(jobs, missing | masked)
-        force = np.zeros((n, TAXELS_PER_PATCH, 3))
-        reason = np.zeros((n, TAXELS_PER_PATCH), dtype=np.uint8)
-        decoded = np.zeros(n, dtype=bool)
-        for rows, decoder in _by_decoder(jobs):
-            try:
-                pillars = jobs[rows[0]].slot.channel.pillars
-                result = decoder.decode(resistance[rows, :, :pillars])
-            except Exception:
-                logger.exception("data plane: %r failed on patches %s", decoder,
-                                 [jobs[i].slot.channel.node_id for i in rows])
-                self.stats.decode_errors += len(rows)
-                continue
-            force[rows] = result.force_N
-            reason[rows] = result.reason
-            decoded[rows] = True
-        reason[missing] = Reason.MISSING
-        reason[masked] = Reason.FAULTY
-        valid = reason == 0
-        force[~valid] = 0.0
-        if decoded.all():
-            self._send(jobs, force, valid, reason)
-        else:
-            kept = np.flatnonzero(decoded)
-            self._send([jobs[i] for i in kept], force[kept], valid[kept], reason[kept])
-
-    def _resistances(self, jobs: Sequence[_Job],
-                     undecodable: NDArray[np.bool_]) -> NDArray[np.float64]:
-        """``(n, 9, 3)``: each job's ``(9, P)`` ohms in ``[:, :, :P]``, scaled, NaN where
-        ``undecodable``; one unpack per layout.
-
-        NaN, not a stale or faulty reading, so that a decoder that couples taxels (deconv)
-        treats those taxels as invalid rather than spreading them to their neighbours.
-        """
-        out = np.full((len(jobs), TAXELS_PER_PATCH, 3), np.nan)
-        groups: dict[int, list[int]] = {}
-        for i, job in enumerate(jobs):
-            groups.setdefault(job.slot.key, []).append(i)
-        for rows in groups.values():
-            first = jobs[rows[0]].slot
-            blob = b"".join(jobs[i].payload for i in rows)
-            if first.words is not None:
-                codes = np.frombuffer(blob, dtype="<u2").reshape(len(rows), -1)[:, first.words]
-            else:
-                codec = first.channel.codec
-                payload = np.frombuffer(blob, dtype=np.uint8).reshape(
-                    len(rows), len(codec.layouts), first.stride)[:, :, :codec.width]
-                codes = codec.unpack(payload)[:, first.columns]
-            channels = [jobs[i].slot.channel for i in rows]
-            lsb = {channel.lsb_ohm for channel in channels}
-            if len(lsb) == 1:  # open/saturated: +inf
-                raw = code_to_resistance(codes, lsb.pop())
-            else:
-                raw = code_to_resistance(codes, 1.0) * np.array(
-                    [channel.lsb_ohm for channel in channels])[:, None, None]
-            for m, i in enumerate(rows):
-                if jobs[i].complete:
-                    self._raw_samples[channels[m].node_id] = raw[m]
-            shape = raw.shape[1:]
-            scales = [channel.scale if channel.baseline is None else channel.baseline.scale
-                      for channel in channels]
-            if all(np.shape(scale_) == shape for scale_ in scales):
-                scale = np.array(scales, dtype=np.float64)
-            else:
-                scale = np.empty_like(raw)
-                for m, scale_ in enumerate(scales):
-                    scale[m] = scale_  # broadcast to (9, P)
-            scaled = raw * scale
-            scaled[undecodable[rows]] = np.nan
-            out[rows, :, : first.channel.pillars] = scaled
-        return out
-
-    def _send(self, jobs: list[_Job], force: NDArray[np.float64], valid: NDArray[np.bool_],
-              reason: NDArray[np.uint8]) -> None:
-        if not jobs:
-            return
-        complete = [job.complete for job in jobs]
-        nodes = [job.slot.channel.force_node for job in jobs]
-        frames = batch_frames(nodes, force, valid, np.array(complete), reason,
-                              [job.cycle[1] for job in jobs])
-        # Every frame onto the bus first: the frames for the API come after.
-        published = [node.transmitting and self._transmit(f, _bus_of(node, self.bus))
-                     for node, f in zip(nodes, frames, strict=True)]
-        out = []
-        for i, job in enumerate(jobs):
-            cycle, counter, timestamp = job.cycle
-            out.append(ForceFrame(job.slot.channel.node_id, nodes[i].node_id, cycle, counter,
-                                  timestamp, force[i], valid[i], reason[i], job.complete,
-                                  published[i]))
-        self._follow_baselines(out)
-        stats = self.stats
-        stats.samples += len(out)
-        stats.batches += 1
-        stats.complete_samples += sum(complete)
-        stats.incomplete_samples += len(out) - sum(complete)
-        for callback in self._subscribers:
-            try:
-                callback(out)
-            except Exception:
-                stats.callback_errors += 1
-                logger.exception("data plane: subscriber %r failed", callback)
-
-    def _follow_baselines(self, frames: list[ForceFrame]) -> None:
-        """Remember each patch's last complete sample (for tare) and track drift on it."""
-        for out in frames:
-            if not out.complete:
-                continue
-            previous = self._last_complete.get(out.patch)
-            self._last_complete[out.patch] = out
-            baseline = self._slots[out.patch].channel.baseline if out.patch in self._slots \
-                else None
-            raw = self._raw_samples.get(out.patch)
-            if baseline is None or baseline.time_constant_s is None or raw is None:
-                continue
-            dt = out.timestamp - previous.timestamp if previous is not None else 0.0
-            baseline.track(raw, out.force_N, out.valid, max(dt, 0.0))
-
-    def _transmit(self, frames: list[tuple[int, bytes]], bus: can.BusABC) -> bool:
-        send, frame, sent = bus.send, TxMessage.frame, 0
-        try:
-            for cob, payload in frames:
-                send(frame(cob, payload))
-                sent += 1
-        except can.CanError as err:
-            self.stats.send_errors += 1
-            logger.warning("data plane: force TPDO not sent: %s", err)
-            return False
-        finally:
-            self.stats.frames_out += sent
-        return True
-
-
-class PdoRouter(can.Listener):
-    """A notifier's one listener: a PDO of a data plane channel goes to the data plane
-    alone, every other frame to ``others`` in order (canopen's listener, a SYNC follower).
-
-    canopen has no use for the patches' PDOs once the data plane owns them, and its
-    listener costs a microsecond a frame on the latency path.
-    """
-
-    def __init__(self, dataplane: DataPlane, others: Sequence[can.Listener]) -> None:
-        self.dataplane = dataplane
-        self.take = dataplane.take
-        self.others = tuple(others)
-
-    def on_message_received(self, msg: can.Message) -> None:
-        if not self.take(msg):
-            for listener in self.others:
-                listener.on_message_received(msg)
-
-    def on_error(self, exc: Exception) -> None:
-        """As ``can.Notifier`` does: handled if any of ``others`` handles it."""
-        handled = False
-        for listener in self.others:
-            try:
-                listener.on_error(exc)
-            except NotImplementedError:
-                continue
-            handled = True
-        if not handled:
-            raise NotImplementedError
-
-    def stop(self) -> None:
-        """Stop every listener, the data plane last (it publishes what is queued)."""
-        for listener in self.others:
-            listener.stop()
-        self.dataplane.stop()
-
-
-def _rest_payload(slot: _Slot) -> bytes:
-    """The slot's raw bytes with every code at the decoder's zero-force resistance."""
-    channel = slot.channel
-    codec = channel.codec
-    values = np.zeros((1, len(codec.variables)))
-    rest = (channel.baseline.r0_ref if channel.baseline is not None else
-            np.broadcast_to(DEFAULT_CONSTANTS.nominal_resistance_ohm[:channel.pillars],
-                            (TAXELS_PER_PATCH, channel.pillars)))
-    codes = np.clip(np.rint(rest / channel.lsb_ohm), 1, 0xFFFD)
-    values[0, slot.columns.ravel()] = codes.ravel()
-    packed = codec.pack(values)[0]  # (PDOs, width)
-    raw = bytearray(slot.stride * len(codec.layouts))
-    for p in range(len(codec.layouts)):
-        raw[slot.stride * p:slot.stride * p + codec.width] = packed[p].tobytes()
-    return bytes(raw)
-
-
-def _bus_of(node: ForceNode, default: can.BusABC) -> can.BusABC:
-    """The bus a force node publishes on: the one it is attached to (several buses)."""
-    network = node.network
-    bus = network.bus if network is not None else None
-    return bus if bus is not None else default
-
-
-def _by_decoder(jobs: Sequence[_Job]) -> list[tuple[list[int], Decoder]]:
-    """Rows that share one decoder object and pillar count: one decode call each."""
-    groups: dict[tuple[int, int], tuple[list[int], Decoder]] = {}
-    for i, job in enumerate(jobs):
-        channel = job.slot.channel
-        key = (id(channel.decoder), channel.pillars)
-        groups.setdefault(key, ([], channel.decoder))[0].append(i)
-    return list(groups.values())
 
 
 def _check_shape(array: NDArray[np.generic], shape: tuple[int, ...], name: str) -> None:

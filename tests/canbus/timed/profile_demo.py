@@ -77,7 +77,7 @@ def _instrument(stages: _Stages) -> dict[str, Any]:
 
     import skin.commands.demo
     from canbus.device import patch_server
-    from canbus.master import dataplane
+    from canbus.master import dataplane, publisher
     from canbus.timed import wire
 
     stages.wrap(wire.Wire, "receive", "bus recv (timed: running the wire, wake-ups)")
@@ -86,8 +86,8 @@ def _instrument(stages: _Stages) -> dict[str, Any]:
     stages.wrap(wire.Wire, "submit", "bus send (timed)")
     stages.wrap(can.interfaces.virtual.VirtualBus, "_recv_internal", "bus recv (virtual)")
     stages.wrap(can.interfaces.virtual.VirtualBus, "send", "bus send (virtual)")
-    stages.wrap(dataplane.DataPlane, "_publish", "data plane: decode and publish a batch")
-    stages.wrap(dataplane.DataPlane, "_send", "  of which the force frames sent")
+    stages.wrap(publisher.Publisher, "publish", "data plane: decode and publish a batch")
+    stages.wrap(publisher.Publisher, "_send", "  of which the force frames sent")
     stages.wrap(dataplane.DataPlane, "take", "data plane: a PDO taken in")
     stages.wrap(patch_server.PatchServer, "_answer", "patch server: a SYNC's answer sent")
     stages.wrap(canopen.network.MessageListener, "on_message_received",

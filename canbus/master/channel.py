@@ -1,0 +1,191 @@
+"""What the data plane knows of each patch: its channel (PDO mapping, decoder, force
+node), its answer slot (the precomputed layout of one answer and what arrived of it in the
+open cycle), the samples it queues, the force frames it publishes and its counters."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canbus.master.baseline import Baseline
+from canbus.master.forcenode import ForceNode
+from canbus.pdo_codec import PdoCodec
+from decoder.protocol import Decoder
+from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH
+from skin.errors import ConfigError
+
+RESISTANCES, ANSWERED = 0x2000, 0x2006
+
+
+@dataclass(frozen=True)
+class ForceFrame:
+    """One patch's forces for one SYNC cycle."""
+
+    patch: int  # patch node-ID
+    force_node: int  # force node-ID it was published as
+    cycle: int  # host's SYNC cycle number (1, 2, ...), monotonic
+    sync_counter: int  # the SYNC counter byte sent (0 without a counter)
+    timestamp: float  # time.time() when the host sent that SYNC
+    force_N: NDArray[np.float64]  # (9, 3) Fx, Fy, Fz; 0 N where not valid
+    valid: NDArray[np.bool_]  # (9,)
+    reason: NDArray[np.uint8]  # (9,) decoder.reasons codes; MISSING, FAULTY from the data plane
+    complete: bool  # every TPDO of one answer of the patch arrived, in order, in the window
+    published: bool  # the force TPDOs went onto the bus
+
+
+@dataclass
+class PatchChannel:
+    """Everything the data plane needs to turn one patch's PDOs into forces."""
+
+    node_id: int
+    codec: PdoCodec  # the patch's TPDOs as configured (maps 0x2000 codes; may map more)
+    pillars: int  # 1 (z-only) or 3
+    lsb_ohm: float  # the patch's 0x2001
+    decoder: Decoder  # any registered decoder; r0 baked in by the host
+    force_node: ForceNode
+    scale: NDArray[np.float64] = field(default_factory=lambda: np.ones((TAXELS_PER_PATCH, 1)))
+    """(9, P), or anything that broadcasts to it: multiplied onto resistances before decode
+    (with a ``baseline``, its scale is used instead)."""
+    masked: NDArray[np.bool_] = field(
+        default_factory=lambda: np.zeros(TAXELS_PER_PATCH, dtype=bool))
+    """(9,) taxels the host knows are faulty: invalid with ``Reason.FAULTY``."""
+    baseline: Baseline | None = None
+    """Tare and drift tracking: the data plane decodes with its scale, tracks drift on every
+    complete sample and tares it (:meth:`DataPlane.tare`)."""
+    answer_order: str = "cob-id"
+    """The order in which the patch sends the TPDOs of one answer: ``"cob-id"`` (ascending
+    identifier, as a node's queued frames leave on a CAN bus) or ``"tpdo"`` (TPDO number
+    order, a device with a single FIFO transmit buffer)."""
+
+
+@dataclass
+class DataPlaneStats:
+    """Counters since the data plane was built."""
+
+    frames_in: int = 0  # PDO frames of known channels
+    frames_out: int = 0  # force TPDOs sent
+    unknown_frames: int = 0  # anything not a PDO of a channel (other services, lost patches)
+    duplicate_frames: int = 0  # a PDO already seen in its cycle
+    late_frames: int = 0  # before the window, after it, or the tail of an earlier answer
+    out_of_order_frames: int = 0  # ahead of its place in the answer, or after the answer ended
+    second_answers: int = 0  # an answer began after a complete one in one window: the one
+    # published was then most likely the previous SYNC's, whole (docs/host.md)
+    stale_answers: int = 0  # an answer that names (0x2006) an earlier SYNC than its cycle's
+    malformed_frames: int = 0  # shorter than the PDO's mapping
+    samples: int = 0
+    batches: int = 0  # publishing rounds: samples / batches is the mean decode batch
+    complete_samples: int = 0
+    incomplete_samples: int = 0
+    decode_errors: int = 0  # decoder raised: those samples are dropped (logged)
+    send_errors: int = 0  # bus.send raised: that sample is not published (logged)
+    callback_errors: int = 0  # a subscriber raised (logged)
+
+    def snapshot(self) -> dict[str, int]:
+        return dataclasses.asdict(self)
+
+
+class AnswerSlot:
+    """A channel's state in the current cycle and its precomputed layout."""
+
+    def __init__(self, channel: PatchChannel, key: int) -> None:
+        codec = channel.codec
+        pdos = len(codec.layouts)
+        self.channel = channel
+        self.active = True
+        self.online = True
+        self.stride = codec.width + codec.width % 2  # bytes per PDO in ``raw``: even, so
+        self.raw = bytearray(self.stride * pdos)  # that codes read as UNSIGNED16 words
+        self.zeros = bytes(self.stride * pdos)
+        self.full = (1 << pdos) - 1
+        self.seen = 0  # PDO bits received this cycle
+        self.bad = 0  # PDO bits not trusted this cycle (duplicate, malformed)
+        self.done = False  # queued this cycle
+        self.next = 0  # the place in the answer the next frame must take (0: not begun)
+        self.ended = False  # the answer was broken: nothing more counts this cycle
+        self.key = key  # channels with equal keys are unpacked together
+        cob_ids = codec.cob_ids.tolist()
+        if channel.answer_order == "cob-id":
+            order = sorted(range(pdos), key=cob_ids.__getitem__)
+        elif channel.answer_order == "tpdo":
+            order = list(range(pdos))
+        else:
+            raise ConfigError("channel.answer_order", "must be 'cob-id' or 'tpdo', got "
+                              f"{channel.answer_order!r}")
+        self.place = [0] * pdos  # PDO position in codec.layouts -> its place in the answer
+        for n, p in enumerate(order):
+            self.place[p] = n
+        p = channel.pillars
+        try:
+            self.columns = np.array([[codec.column(RESISTANCES, 3 * t + k + 1) for k in range(p)]
+                                     for t in range(TAXELS_PER_PATCH)], dtype=np.intp)
+        except ValueError as err:
+            raise ConfigError("channel.codec", f"patch {channel.node_id}'s PDOs do not map "
+                              f"every 0x2000 code of {p} pillar(s)") from err
+        carried = np.zeros((pdos, TAXELS_PER_PATCH), dtype=bool)
+        at: dict[tuple[int, int], int] = {}  # variable -> its first byte in ``raw``
+        for n, layout in enumerate(codec.layouts):
+            offset = self.stride * n
+            for entry in layout.entries:
+                at.setdefault((entry.index, entry.subindex), offset)
+                offset += entry.bits // 8
+                value = entry.subindex - 1
+                if entry.index == RESISTANCES and value % 3 < p:
+                    carried[n, value // 3] = True
+        self.carried = carried  # (PDOs, 9): the taxels each PDO carries
+        offsets = np.array([[at[(RESISTANCES, 3 * t + k + 1)] for k in range(p)]
+                            for t in range(TAXELS_PER_PATCH)], dtype=np.intp)
+        self.words: NDArray[np.intp] | None = None
+        """(9, P) each code's place in ``raw`` read as little-endian UNSIGNED16 words, or
+        None if a code starts at an odd byte (then ``codec.unpack`` reads them)."""
+        u16 = all(codec.dtypes[c] == np.dtype("<u2") for c in self.columns.ravel().tolist())
+        if u16 and not np.any(offsets % 2):
+            self.words = offsets // 2
+        self.answered_bit = 0  # the PDO that carries 0x2006, the SYNC counter answered
+        self.answered_at = 0  # its byte in that PDO
+        if (ANSWERED, 0) in at:
+            pdo, self.answered_at = divmod(at[(ANSWERED, 0)], self.stride)
+            self.answered_bit = 1 << pdo
+
+    def taxels_of(self, pdo_bits: int) -> NDArray[np.bool_]:
+        """(9,) the taxels carried by the PDOs whose bits are set."""
+        which = np.array([pdo_bits >> p & 1 for p in range(len(self.carried))], dtype=bool)
+        taxels: NDArray[np.bool_] = self.carried[which].any(axis=0)
+        return taxels
+
+    def reset(self) -> None:
+        self.seen = self.bad = self.next = 0
+        self.done = self.ended = False
+        self.raw[:] = self.zeros
+
+
+@dataclass(frozen=True)
+class SampleJob:
+    slot: AnswerSlot
+    cycle: tuple[int, int, float]
+    payload: bytes
+    missing: int  # PDO bits absent or not trusted
+    complete: bool
+
+
+Subscriber = Callable[[list[ForceFrame]], None]
+
+
+def rest_payload(slot: AnswerSlot) -> bytes:
+    """The slot's raw bytes with every code at the decoder's zero-force resistance."""
+    channel = slot.channel
+    codec = channel.codec
+    values = np.zeros((1, len(codec.variables)))
+    rest = (channel.baseline.r0_ref if channel.baseline is not None else
+            np.broadcast_to(DEFAULT_CONSTANTS.nominal_resistance_ohm[:channel.pillars],
+                            (TAXELS_PER_PATCH, channel.pillars)))
+    codes = np.clip(np.rint(rest / channel.lsb_ohm), 1, 0xFFFD)
+    values[0, slot.columns.ravel()] = codes.ravel()
+    packed = codec.pack(values)[0]  # (PDOs, width)
+    raw = bytearray(slot.stride * len(codec.layouts))
+    for p in range(len(codec.layouts)):
+        raw[slot.stride * p:slot.stride * p + codec.width] = packed[p].tobytes()
+    return bytes(raw)

@@ -1,0 +1,198 @@
+"""The data plane's second half: queued samples decoded in numpy batches (one unpack per
+PDO layout, one ``decode`` per decoder object), the force nodes' TPDOs sent with
+``bus.send``, the API's frames handed to subscribers, baselines followed."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+
+import can
+import numpy as np
+from numpy.typing import NDArray
+
+from canbus.codes import code_to_resistance
+from canbus.master.channel import (
+    AnswerSlot,
+    DataPlaneStats,
+    ForceFrame,
+    SampleJob,
+    Subscriber,
+)
+from canbus.master.forcenode import ForceNode, batch_frames
+from canbus.txmessage import TxMessage
+from decoder.protocol import Decoder
+from decoder.reasons import Reason
+from skin.constants import TAXELS_PER_PATCH
+
+logger = logging.getLogger("canbus.master.dataplane")  # one logger for the whole data plane
+
+
+class Publisher:
+    """Publishes batches of :class:`SampleJob` (one caller at a time: the data plane's
+    publishing lock); remembers each patch's last complete sample, raw and decoded."""
+
+    def __init__(self, bus: can.BusABC, stats: DataPlaneStats,
+                 slots: dict[int, AnswerSlot]) -> None:
+        self.bus = bus
+        self.stats = stats
+        self.subscribers: tuple[Subscriber, ...] = ()
+        self.raw_samples: dict[int, NDArray[np.float64]] = {}
+        self.last_complete: dict[int, ForceFrame] = {}
+        self._slots = slots  # the data plane's channels by node-ID, kept current by it
+
+    def publish(self, jobs: list[SampleJob]) -> None:
+        n = len(jobs)
+        missing = np.zeros((n, TAXELS_PER_PATCH), dtype=bool)
+        masked = np.zeros((n, TAXELS_PER_PATCH), dtype=bool)
+        for i, job in enumerate(jobs):
+            if job.missing:
+                missing[i] = job.slot.taxels_of(job.missing)
+            masked[i] = job.slot.channel.masked
+        resistance = self.resistances(jobs, missing | masked)
+        force = np.zeros((n, TAXELS_PER_PATCH, 3))
+        reason = np.zeros((n, TAXELS_PER_PATCH), dtype=np.uint8)
+        decoded = np.zeros(n, dtype=bool)
+        for rows, decoder in by_decoder(jobs):
+            try:
+                pillars = jobs[rows[0]].slot.channel.pillars
+                result = decoder.decode(resistance[rows, :, :pillars])
+            except Exception:
+                logger.exception("data plane: %r failed on patches %s", decoder,
+                                 [jobs[i].slot.channel.node_id for i in rows])
+                self.stats.decode_errors += len(rows)
+                continue
+            force[rows] = result.force_N
+            reason[rows] = result.reason
+            decoded[rows] = True
+        reason[missing] = Reason.MISSING
+        reason[masked] = Reason.FAULTY
+        valid = reason == 0
+        force[~valid] = 0.0
+        if decoded.all():
+            self._send(jobs, force, valid, reason)
+        else:
+            kept = np.flatnonzero(decoded)
+            self._send([jobs[i] for i in kept], force[kept], valid[kept], reason[kept])
+
+    def resistances(self, jobs: Sequence[SampleJob],
+                     undecodable: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """``(n, 9, 3)``: each job's ``(9, P)`` ohms in ``[:, :, :P]``, scaled, NaN where
+        ``undecodable``; one unpack per layout.
+
+        NaN, not a stale or faulty reading, so that a decoder that couples taxels (deconv)
+        treats those taxels as invalid rather than spreading them to their neighbours.
+        """
+        out = np.full((len(jobs), TAXELS_PER_PATCH, 3), np.nan)
+        groups: dict[int, list[int]] = {}
+        for i, job in enumerate(jobs):
+            groups.setdefault(job.slot.key, []).append(i)
+        for rows in groups.values():
+            first = jobs[rows[0]].slot
+            blob = b"".join(jobs[i].payload for i in rows)
+            if first.words is not None:
+                codes = np.frombuffer(blob, dtype="<u2").reshape(len(rows), -1)[:, first.words]
+            else:
+                codec = first.channel.codec
+                payload = np.frombuffer(blob, dtype=np.uint8).reshape(
+                    len(rows), len(codec.layouts), first.stride)[:, :, :codec.width]
+                codes = codec.unpack(payload)[:, first.columns]
+            channels = [jobs[i].slot.channel for i in rows]
+            lsb = {channel.lsb_ohm for channel in channels}
+            if len(lsb) == 1:  # open/saturated: +inf
+                raw = code_to_resistance(codes, lsb.pop())
+            else:
+                raw = code_to_resistance(codes, 1.0) * np.array(
+                    [channel.lsb_ohm for channel in channels])[:, None, None]
+            for m, i in enumerate(rows):
+                if jobs[i].complete:
+                    self.raw_samples[channels[m].node_id] = raw[m]
+            shape = raw.shape[1:]
+            scales = [channel.scale if channel.baseline is None else channel.baseline.scale
+                      for channel in channels]
+            if all(np.shape(scale_) == shape for scale_ in scales):
+                scale = np.array(scales, dtype=np.float64)
+            else:
+                scale = np.empty_like(raw)
+                for m, scale_ in enumerate(scales):
+                    scale[m] = scale_  # broadcast to (9, P)
+            scaled = raw * scale
+            scaled[undecodable[rows]] = np.nan
+            out[rows, :, : first.channel.pillars] = scaled
+        return out
+
+    def _send(self, jobs: list[SampleJob], force: NDArray[np.float64], valid: NDArray[np.bool_],
+              reason: NDArray[np.uint8]) -> None:
+        if not jobs:
+            return
+        complete = [job.complete for job in jobs]
+        nodes = [job.slot.channel.force_node for job in jobs]
+        frames = batch_frames(nodes, force, valid, np.array(complete), reason,
+                              [job.cycle[1] for job in jobs])
+        # Every frame onto the bus first: the frames for the API come after.
+        published = [node.transmitting and self._transmit(f, bus_of(node, self.bus))
+                     for node, f in zip(nodes, frames, strict=True)]
+        out = []
+        for i, job in enumerate(jobs):
+            cycle, counter, timestamp = job.cycle
+            out.append(ForceFrame(job.slot.channel.node_id, nodes[i].node_id, cycle, counter,
+                                  timestamp, force[i], valid[i], reason[i], job.complete,
+                                  published[i]))
+        self._follow_baselines(out)
+        stats = self.stats
+        stats.samples += len(out)
+        stats.batches += 1
+        stats.complete_samples += sum(complete)
+        stats.incomplete_samples += len(out) - sum(complete)
+        for callback in self.subscribers:
+            try:
+                callback(out)
+            except Exception:
+                stats.callback_errors += 1
+                logger.exception("data plane: subscriber %r failed", callback)
+
+    def _follow_baselines(self, frames: list[ForceFrame]) -> None:
+        """Remember each patch's last complete sample (for tare) and track drift on it."""
+        for out in frames:
+            if not out.complete:
+                continue
+            previous = self.last_complete.get(out.patch)
+            self.last_complete[out.patch] = out
+            baseline = self._slots[out.patch].channel.baseline if out.patch in self._slots \
+                else None
+            raw = self.raw_samples.get(out.patch)
+            if baseline is None or baseline.time_constant_s is None or raw is None:
+                continue
+            dt = out.timestamp - previous.timestamp if previous is not None else 0.0
+            baseline.track(raw, out.force_N, out.valid, max(dt, 0.0))
+
+    def _transmit(self, frames: list[tuple[int, bytes]], bus: can.BusABC) -> bool:
+        send, frame, sent = bus.send, TxMessage.frame, 0
+        try:
+            for cob, payload in frames:
+                send(frame(cob, payload))
+                sent += 1
+        except can.CanError as err:
+            self.stats.send_errors += 1
+            logger.warning("data plane: force TPDO not sent: %s", err)
+            return False
+        finally:
+            self.stats.frames_out += sent
+        return True
+
+
+def bus_of(node: ForceNode, default: can.BusABC) -> can.BusABC:
+    """The bus a force node publishes on: the one it is attached to (several buses)."""
+    network = node.network
+    bus = network.bus if network is not None else None
+    return bus if bus is not None else default
+
+
+def by_decoder(jobs: Sequence[SampleJob]) -> list[tuple[list[int], Decoder]]:
+    """Rows that share one decoder object and pillar count: one decode call each."""
+    groups: dict[tuple[int, int], tuple[list[int], Decoder]] = {}
+    for i, job in enumerate(jobs):
+        channel = job.slot.channel
+        key = (id(channel.decoder), channel.pillars)
+        groups.setdefault(key, ([], channel.decoder))[0].append(i)
+    return list(groups.values())
