@@ -131,9 +131,12 @@ def test_sim_run_warns_when_one_bus_cannot_carry_the_skin(capsys: pytest.Capture
     (["--patches", "4", "--buses", "2", "-c", "a,b,c"], "--channel: 3 channels for --buses 2"),
     (["--patches", "2", "--buses", "2", "-i", "socketcan", "-c", "can0"],
      "--buses: name the 2 channels of socketcan"),
+    (["--patches", "2", "--buses", "2", "--truth", "never-written.csv"],
+     "--truth: writes one bus's answers: use it with --buses 1"),
 ])
 def test_sim_run_refuses_bad_buses_in_one_line(argv: list[str], message: str,
                                                capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["sim", "run", "indenter", "--seconds", "0.01", *argv]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
+    assert not Path("never-written.csv").exists()
