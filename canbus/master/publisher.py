@@ -25,7 +25,7 @@ from decoder.protocol import Decoder
 from decoder.reasons import Reason
 from skin.constants import TAXELS_PER_PATCH
 
-logger = logging.getLogger("canbus.master.dataplane")  # one logger for the whole data plane
+logger = logging.getLogger(__name__)
 
 
 class Publisher:
