@@ -8,9 +8,8 @@ train-scene x test-scene matrix with the share of taxels each decoder flags.
 
 from __future__ import annotations
 
-import statistics
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -20,9 +19,10 @@ from decoder.lm import LMOptions, train_lm
 from decoder.metrics import evaluate
 from decoder.mlp import F64, Layout, forward, jacobian, mapminmax, minmax_range, nguyen_widrow
 from decoder.oracle import oracle_decode
-from decoder.protocol import Decoded, Decoder
+from decoder.protocol import Decoded
 from decoder.reasons import Reason
 from decoder.registry import create_decoder
+from decoder.speed import best_time, decode_speed
 
 Split = tuple[F64, F64, F64, F64]  # train r, train F, test r, test F
 Params = dict[str, dict[str, Any]]
@@ -31,29 +31,6 @@ Params = dict[str, dict[str, Any]]
 PAPER_TABLE1 = {5: 3.07, 6: 2.95, 7: 2.63, 8: 2.19, 9: 1.96, 10: 1.72, 11: 1.83, 12: 1.98,
                 13: 2.17, 14: 2.06}
 """AveRelErr (%) of the paper's Table 1 by hidden nodes."""
-
-
-def best_time(fn: Callable[[], object], repeats: int) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
-
-
-def decode_speed(decoder: Decoder, r: F64, batch: int, repeats: int) -> tuple[float, float]:
-    """(patch-samples/s batched, median latency of one patch-sample in microseconds)."""
-    tiled = np.ascontiguousarray(np.resize(r, (batch, *r.shape[1:])))
-    decoder.decode(tiled[:64])
-    rate = batch / best_time(lambda: decoder.decode(tiled), repeats)
-    one = np.ascontiguousarray(r[:1])
-    laps = []
-    for _ in range(200 * repeats):
-        start = time.perf_counter()
-        decoder.decode(one)
-        laps.append(time.perf_counter() - start)
-    return rate, 1e6 * statistics.median(laps)
 
 
 def bench_decoders(

@@ -27,10 +27,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from decoder.benchmark import decode_speed
 from decoder.metrics import FLOOR_FRACTION, evaluate
 from decoder.protocol import BaseDecoder, Decoder
 from decoder.registry import available_decoders, create_decoder, decoder_class
+from decoder.speed import decode_speed
 from skin.constants import TAXELS_PER_PATCH, SensorConstants
 from skin.errors import ConfigError, DecodeError
 

@@ -94,6 +94,7 @@ def run_decoders(quick: bool, goal_units: str = "N",
     import sim
     from decoder import benchmark
     from decoder.registry import available_decoders, create_decoder
+    from decoder.speed import decode_speed
 
     seeds, batch, repeats = (1, 20_000, 2) if quick else (3, 200_000, 5)
     params = mlp_params(goal_units)
@@ -126,7 +127,7 @@ def run_decoders(quick: bool, goal_units: str = "N",
     r_xyz, f_xyz, r_xyz_test, _ = _splits("indenter", 1)[0]
     result["xyz_speed"] = [
         dict(zip(("name", "decode_samples_per_s", "latency_us"),
-                 (name, *benchmark.decode_speed(
+                 (name, *decode_speed(
                      create_decoder(name, **params.get(name, {})).fit(r_xyz, f_xyz),
                      r_xyz_test, batch, repeats)), strict=True))
         for name in available_decoders()]
