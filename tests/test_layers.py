@@ -51,14 +51,16 @@ def test_imports_flow_one_way(path: Path) -> None:
 
 
 # Inside canbus: the wire-level modules beside the subpackages use none of them; the device
-# side uses only those; the master side also the device side (its force nodes are local
-# devices) and the bus tools (it decodes recordings); the bus tools and the timed bus only
-# the wire-level modules.
-CANBUS_SIDES = ("device", "master", "tools", "timed")
+# side uses only those; the master side (the live host) also the device side (its force
+# nodes are local devices); the offline side also the master (it feeds recordings to the
+# listen-only host) and the bus tools (it reads recordings); the bus tools and the timed bus
+# only the wire-level modules.
+CANBUS_SIDES = ("device", "master", "offline", "tools", "timed")
 CANBUS_ALLOWED = {
     "": set(),
     "device": {"device"},
-    "master": {"device", "master", "tools"},
+    "master": {"device", "master"},
+    "offline": {"device", "master", "offline", "tools"},
     "tools": {"tools"},
     "timed": {"timed"},
 }

@@ -12,8 +12,8 @@ import can
 import numpy as np
 import pytest
 
-from canbus.master.recorded import read_patch_samples
-from canbus.master.recorded_dataset import JoinChoice, dataset_from_recording
+from canbus.offline.dataset import JoinChoice, dataset_from_recording
+from canbus.offline.recorded import read_patch_samples
 from decoder.reasons import Reason
 from skin.cli import main
 from skin.dataset import read_dataset

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canbus.master.recorded_dataset import dataset_from_recording
+from canbus.offline.dataset import dataset_from_recording
 from decoder.registry import load_decoder
 from decoder.tare import nominal_r0, normalise
 from skin.constants import DEFAULT_CONSTANTS

@@ -1,7 +1,7 @@
 """A dataset from a bus recording and reference forces: what ``skin dataset from-recording``
 writes (docs/calibrate.md).
 
-Each patch's samples come from :func:`canbus.master.recorded.read_patch_samples` (the
+Each patch's samples come from :func:`canbus.offline.recorded.read_patch_samples` (the
 data plane's answer rules), the reference from :func:`skin.reference.read_reference`,
 and they are joined by :func:`canbus.tools.join.join` on one clock offset for every
 patch. A dataset row is one SYNC at which every chosen patch has a complete sample with
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from canbus.master.recorded import PatchSamples, RecordedSamples, read_patch_samples
+from canbus.offline.recorded import PatchSamples, RecordedSamples, read_patch_samples
 from canbus.tools.join import Join, Series, default_tolerance_s, join
 from decoder.reasons import Reason
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH

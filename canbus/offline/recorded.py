@@ -4,7 +4,7 @@ data plane judges a live bus.
 :func:`read_patch_samples` first reads what the recording shows about each patch
 (:mod:`canbus.tools.recording_facts`: the TPDO mapping its SDO writes left, its heartbeat,
 LSB and R0, the SYNC period), then plays the recording through the listen-only host on
-the recording's own clock (:func:`canbus.master.offline.decode_recording`). Each patch's
+the recording's own clock (:func:`canbus.offline.decode.decode_recording`). Each patch's
 decoder there is :class:`_Readings`, which decodes nothing: it hands the resistances the
 data plane assembled back through the force frame. So a sample is complete, incomplete
 or missing by exactly the data plane's answer rules (one unbroken run of one answer per
@@ -26,8 +26,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from canbus.master.busconfig import BusConfig
 from canbus.master.hostconfig import FORCE_NODE_OFFSET, HostConfig, PatchConfig
-from canbus.master.offline import decode_recording
 from canbus.master.patch_setup import tpdo_layouts
+from canbus.offline.decode import decode_recording
 from canbus.pdo_codec import TpdoLayout
 from canbus.tools.recording_facts import RecordingFacts, scan_recording
 from decoder.protocol import Decoded, Progress, fold_resistance, unfold
