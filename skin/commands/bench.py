@@ -92,7 +92,7 @@ def run_decoders(quick: bool, goal_units: str = "N",
                  stage: Callable[[str], None] = lambda label: None) -> dict[str, Any]:
     """Every figure of ``skin bench``; ``stage(label)`` as each long part starts."""
     import sim
-    from decoder import benchmark
+    from bench import decoders as benchmark
     from decoder.registry import available_decoders, create_decoder
     from decoder.speed import decode_speed
 
@@ -175,7 +175,7 @@ def limit_blas_threads() -> None:
 def run(args: argparse.Namespace) -> int:
     limit_blas_threads()
     if args.target == "sim":
-        from sim.benchmark import run_benchmark
+        from bench.sim import run_benchmark
 
         figures = run_benchmark(quick=args.quick)
         for key, value in figures.items():
@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
             _write_json(args.json, dict(figures))
         return 0
     if args.target == "dataplane":
-        from canbus.master.dataplane_bench import run_dataplane_benchmark
+        from bench.dataplane import run_dataplane_benchmark
 
         cycles, repeats = (100, 2) if args.quick else (300, 5)
         figures = run_dataplane_benchmark(cycles=cycles, repeats=repeats)

@@ -37,7 +37,7 @@ def _untrained(names: tuple[str, ...]) -> list[str]:
 
 def run_cross(quick: bool, params: dict[str, dict[str, Any]]) -> dict[str, Any]:
     import sim
-    from decoder import benchmark
+    from bench import decoders as benchmark
     from decoder.registry import available_decoders
 
     n_train, n_test = (500, 200) if quick else (1000, 500)

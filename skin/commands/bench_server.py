@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_server(args: argparse.Namespace) -> dict[str, Any]:
-    from canbus.device.server_bench import default_port, run_server_benchmark
+    from bench.server import default_port, run_server_benchmark
     from canbus.device.source import SimulatorSource
     from sim import Simulator
     from skin.commands.sim_run import AHEAD_S, scene_on_patches

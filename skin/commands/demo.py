@@ -34,10 +34,10 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     import can
 
+    from bench.rigs.demo import Record
     from canbus.busload import Plan
     from canbus.master.host import HostManager
     from sim import Scene
-    from skin.commands.demo_rig import Record
 
 DEFAULT_PATCHES = 4
 DEFAULT_SECONDS = 3.0
@@ -128,6 +128,7 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     import canopen
     import numpy as np
 
+    from bench.rigs.demo import BusClock, Record, Replay
     from canbus.busload import spread
     from canbus.device.patch_server import PatchServer
     from canbus.master.busconfig import BusConfig
@@ -135,7 +136,6 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     from canbus.master.hostconfig import HostConfig, PatchConfig, predefined_tpdo_cob_ids
     from sim import Simulator
     from skin.commands import demo_summary
-    from skin.commands.demo_rig import BusClock, Record, Replay
     from skin.commands.demo_summary import DemoBus
     from skin.commands.signals import until_stopped
     from skin.errors import BusError, ConfigError

@@ -19,6 +19,7 @@ import pytest
 from matplotlib import colormaps
 from PIL import Image
 
+from bench.rigs.view import HostRun, record_host_run, until
 from canbus.master.forcenode import forces_to_mN
 from canbus.tools.replay import Recording
 from sim import Simulator
@@ -28,7 +29,6 @@ from skin.commands.view import moment_view, title
 from skin.commands.view_layout import Layout
 from skin.commands.view_plot import moment_picture
 from skin.commands.view_sources import recorded_resistances, recorded_samples, recording_times
-from tests.skin.view_rig import HostRun, record_host_run, until
 
 CYCLES = 80
 

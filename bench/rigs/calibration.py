@@ -1,6 +1,6 @@
 """The calibration loop end to end, as a user runs it, in separate processes on udp_multicast.
 
-``python tests/skin/calibration_rig.py [--fd] [--seconds S] [--folder DIR]`` prints the
+``python -m bench.rigs.calibration [--fd] [--seconds S] [--folder DIR]`` prints the
 figures of docs/calibrate.md; ``tests/skin/test_calibrate_e2e.py`` asserts them.
 
 1. ``skin run host.toml`` (the host; classic CAN, or CAN FD with ``--fd``) and, for each of two

@@ -1,7 +1,7 @@
 """The deployment's shape: `skin sim run` (8 patches, 3-axis, 100 Hz) and the host in two
 processes on udp_multicast for 10 s; prints the share of complete samples, per run.
 
-    python tests/canbus/bench_two_process.py [--runs 3] [--seconds 10] [--pin]
+    python -m bench.two_process [--runs 3] [--seconds 10] [--pin]
 
 The host is `skin run examples/host8.toml` as it is (it drops the echoes of its own frames in
 the kernel: docs/host.md). ``--pin`` puts the patches on CPU 0 and the host on CPU 1
@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "examples" / "host8.toml"
 
 

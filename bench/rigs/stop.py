@@ -6,7 +6,7 @@ their own; both signals go at the same moment. can.logger has no SIGTERM handler
 dies with its buffered tail unwritten (and, for .blf, with the header it wrote at the
 start); its recording is read with ``partial=True``, as is the killed one.
 
-    python tests/canbus/stop_rig.py [--format asc] [--rate 2000] [--seconds 2]
+    python -m bench.rigs.stop [--format asc] [--rate 2000] [--seconds 2]
 
 prints the counts as JSON (the figures of docs/sniffer.md).
 """

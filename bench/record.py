@@ -1,6 +1,6 @@
 """Benchmark: does ``skin sniff --record`` keep every frame at 20,000 frames/s?
 
-    python tests/canbus/bench_record.py [--rate 20000] [--seconds 5] [--format pcap]
+    python -m bench.record [--rate 20000] [--seconds 5] [--format pcap]
                                         [--view live] [--interface udp_multicast]
 
 udp_multicast (default): ``skin sniff`` runs as its own process, its stdout on a

@@ -1,6 +1,6 @@
 """Benchmark: CPU per frame of the timed bus against python-can's virtual bus, same traffic.
 
-    python tests/canbus/timed/bench_timed.py [--seconds 5] [--runs 1] [--json F]
+    python -m bench.timed [--seconds 5] [--runs 1] [--json F]
 
 Traffic as in ``skin demo``, cause and effect included. Per channel two buses, each read by a
 ``can.Notifier`` (as canopen reads its network): the host's bus and the patches' bus. A SYNC

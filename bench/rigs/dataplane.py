@@ -11,10 +11,10 @@ import canopen
 import numpy as np
 from numpy.typing import ArrayLike
 
+from bench.dataplane import SinkBus
 from canbus.codes import code_to_resistance
 from canbus.device.patch_node import PatchNode
 from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
-from canbus.master.dataplane_bench import SinkBus
 from canbus.master.forcenode import ForceNode
 from canbus.od import load_od
 from decoder.protocol import Decoded

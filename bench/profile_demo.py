@@ -1,8 +1,8 @@
 """Where ``skin demo``'s CPU goes: the demo run in this process, its threads' CPU counted.
 
-    python tests/canbus/timed/profile_demo.py [--profile-json F] DEMO-ARGS...
-    python tests/canbus/timed/profile_demo.py --patches 8 --buses 2
-    python tests/canbus/timed/profile_demo.py --patches 8 --buses 2 --bus virtual
+    python -m bench.profile_demo [--profile-json F] DEMO-ARGS...
+    python -m bench.profile_demo --patches 8 --buses 2
+    python -m bench.profile_demo --patches 8 --buses 2 --bus virtual
 
 Runs ``skin demo DEMO-ARGS`` and reports, over the demo's run (``seconds`` of its summary):
 

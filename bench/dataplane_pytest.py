@@ -1,9 +1,9 @@
 """Speed of the data plane against canopen's PdoMap callbacks (pytest-benchmark).
 
-Run: /work/venv/bin/pytest tests/canbus/bench_dataplane.py --benchmark-enable
+Run: pytest bench/dataplane_pytest.py --benchmark-enable
 Each benchmark round is the whole stream: 16 patches (xyz), CYCLES SYNC cycles of 7 TPDOs
 in and 7 force TPDOs out per patch; frames/s = 16 * 7 * CYCLES / round time. The stream
-and both paths are canbus.master.dataplane_bench's (what `skin bench dataplane` prints).
+and both paths are bench.dataplane's (what `skin bench dataplane` prints).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from canbus.master.dataplane_bench import (
+from bench.dataplane import (
     CanopenRig,
     DataPlaneRig,
     QueuedFrames,

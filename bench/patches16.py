@@ -4,7 +4,7 @@ The server (this process) serves 16 patch nodes; the master (NMT start, SYNC pro
 TPDO counter) runs in a child process, so the CPU share printed, ``time.process_time()``
 of this process over wall time while SYNCs flow, is the server's alone.
 
-Run: /work/venv/bin/python tests/canbus/bench_16_patches.py [SECONDS]
+Run: python -m bench.patches16 [SECONDS]
 """
 
 from __future__ import annotations
@@ -67,8 +67,8 @@ def main(seconds: float) -> None:
     net.connect(interface="udp_multicast", channel=CHANNEL)
     try:
         with PatchServer(net, source) as server:
-            child = subprocess.Popen([sys.executable, __file__, "--master", CHANNEL, str(seconds)],
-                                     stdout=subprocess.PIPE, text=True)
+            child = subprocess.Popen([sys.executable, "-m", "bench.patches16", "--master",
+                                      CHANNEL, str(seconds)], stdout=subprocess.PIPE, text=True)
             assert child.stdout is not None
             assert child.stdout.readline().strip() == "syncing"
             cpu0, t0 = time.process_time(), time.monotonic()

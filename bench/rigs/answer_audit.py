@@ -6,7 +6,7 @@ runs of their 7 TPDOs in COB-ID order (TPDO 1, 5, 2, 6, 3, 7, 4 with the predefi
 COB-IDs), decoded here with the analytic decoder; the force samples are read with
 canopen's own PDO decoding of ``eds/skin-forces.eds``. Usable as a script::
 
-    python -m tests.canbus.answer_audit run.log --patches 1 2
+    python -m bench.rigs.answer_audit run.log --patches 1 2
 """
 
 # mypy: disable-error-code="no-untyped-call"

@@ -1,4 +1,4 @@
-"""What the live view costs: `python tests/skin/bench_view.py [RUNS] [SECONDS]`.
+"""What the live view costs: `python -m bench.view [RUNS] [SECONDS]`.
 
 1. The host's own counters with and without the view, in interleaved runs of ``skin
    demo``'s set-up (8 simulated patches of the indenter scene at 100 Hz, the host, one
@@ -22,7 +22,7 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import can
 import canopen

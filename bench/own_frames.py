@@ -3,7 +3,7 @@ saves: 112 TPDOs every 10 ms through a canopen Network's bus (its notifier runni
 patch server or a host), CPU per frame sent, with the echoes handed to canopen's listener
 and with them claimed (``canbus.rxfilter``: dropped in the kernel). Same bus, alternating.
 
-Run: python tests/canbus/bench_own_frames.py [ROUNDS]
+Run: python -m bench.own_frames [ROUNDS]
 """
 
 from __future__ import annotations
