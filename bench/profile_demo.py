@@ -75,7 +75,7 @@ def _instrument(stages: _Stages) -> dict[str, Any]:
     import can.interfaces.virtual
     import canopen.network
 
-    import skin.commands.demo_summary
+    import skin.commands.demo.summary
     from canbus.device import patch_server
     from canbus.master import dataplane, publisher
     from canbus.timed import wire
@@ -93,14 +93,14 @@ def _instrument(stages: _Stages) -> dict[str, Any]:
     stages.wrap(canopen.network.MessageListener, "on_message_received",
                 "canopen: a frame dispatched (patches' side)")
     record: dict[str, Any] = {}
-    summary = skin.commands.demo_summary.summary
+    summary = skin.commands.demo.summary.summary
 
     def keep(*args: Any, **kwargs: Any) -> dict[str, Any]:
         result: dict[str, Any] = summary(*args, **kwargs)
         record.update(result)
         return result
 
-    skin.commands.demo_summary.summary = keep  # type: ignore[assignment]
+    skin.commands.demo.summary.summary = keep  # type: ignore[assignment]
     return record
 
 

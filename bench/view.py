@@ -38,9 +38,9 @@ from canbus.master.hostconfig import HostConfig, PatchConfig
 from canbus.tools.forcereader import ForceReader
 from sim import Simulator
 from skin.commands.demo import _scene
-from skin.commands.view_layout import Layout, layout_from_positions
-from skin.commands.view_live import LiveThread, draw_live
-from skin.commands.view_term import SkinView
+from skin.commands.view.layout import Layout, layout_from_positions
+from skin.commands.view.live import LiveThread, draw_live
+from skin.commands.view.term import SkinView
 
 PATCHES = 8
 

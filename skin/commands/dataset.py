@@ -35,7 +35,7 @@ def _quiet_host() -> Iterator[None]:
 def _from_recording(args: argparse.Namespace) -> int:
     from canbus.offline.dataset import JoinChoice, dataset_from_recording
     from canbus.tools.replay import recording_reader
-    from skin.commands.calibrate_out import write_json
+    from skin.commands.calibrate.output import write_json
     from skin.dataset import write_dataset
     from skin.errors import ConfigError
 

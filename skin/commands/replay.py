@@ -22,8 +22,8 @@ def _replay(args: argparse.Namespace) -> int:
 
     from canbus.tools.replay import Recording, RecordingError, Replayer
     from skin.atomic import atomic_write
-    from skin.commands.busargs import default_channel
-    from skin.commands.signals import until_stopped
+    from skin.commands.common.busargs import default_channel
+    from skin.commands.common.signals import until_stopped
     from skin.errors import ConfigError
 
     if args.loop is not None and args.loop < 0:

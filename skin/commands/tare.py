@@ -23,7 +23,7 @@ def _tare(args: argparse.Namespace) -> int:
 
     from canbus.master.forcenode import TARE, TARE_COMMAND
     from canbus.od import load_od
-    from skin.commands.busargs import default_channel
+    from skin.commands.common.busargs import default_channel
     from skin.errors import BusError
 
     default_channel(args)
@@ -52,7 +52,7 @@ def _tare(args: argparse.Namespace) -> int:
 def add_subparser(subparsers: Any) -> None:
     import can.cli
 
-    from skin.commands.busargs import node_id
+    from skin.commands.common.busargs import node_id
 
     parser = subparsers.add_parser(
         "tare", help="re-zero a patch through its force node (SDO write of 0x2007)",

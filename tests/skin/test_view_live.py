@@ -36,9 +36,9 @@ from canbus.master.hostconfig import HostConfig, PatchConfig
 from canbus.tools.forcereader import ForceReader
 from sim import Scene, Simulator
 from skin.commands.demo import _scene
-from skin.commands.view_layout import layout_from_positions
-from skin.commands.view_live import DEFAULT_REFRESH_HZ, LiveStats, LiveThread, draw_live
-from skin.commands.view_term import SkinView
+from skin.commands.view.layout import layout_from_positions
+from skin.commands.view.live import DEFAULT_REFRESH_HZ, LiveStats, LiveThread, draw_live
+from skin.commands.view.term import SkinView
 
 PATCHES = 8
 SECONDS = 2.0

@@ -26,9 +26,9 @@ from sim import Simulator
 from skin.cli import main
 from skin.commands.demo import _scene
 from skin.commands.view import moment_view, title
-from skin.commands.view_layout import Layout
-from skin.commands.view_plot import moment_picture
-from skin.commands.view_sources import recorded_resistances, recorded_samples, recording_times
+from skin.commands.view.layout import Layout
+from skin.commands.view.plot import moment_picture
+from skin.commands.view.sources import recorded_resistances, recorded_samples, recording_times
 
 CYCLES = 80
 

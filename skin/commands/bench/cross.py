@@ -65,7 +65,7 @@ def _pct(value: float | None) -> str:
 
 
 def print_cross(result: dict[str, Any]) -> None:
-    from skin.commands.tables import show
+    from skin.commands.common.tables import show
 
     oracle = {(o["mode"], o["test"]): o for o in result["oracle"]}
     for mode, scenes in (("z", Z_SCENES), ("xyz", XYZ_SCENES)):

@@ -134,7 +134,7 @@ def _warn_if_tight(scene: Scene, args: argparse.Namespace, planned: Plan) -> Non
 
 
 def _run(args: argparse.Namespace) -> int:
-    from skin.commands.cpu import pinned
+    from skin.commands.common.cpu import pinned
 
     with pinned(args.cpu):  # before the buses and the server start their threads
         return _run_pinned(args)
@@ -144,7 +144,7 @@ def _run_pinned(args: argparse.Namespace) -> int:
     import can.cli
     import canopen
 
-    from skin.commands.busargs import default_channel
+    from skin.commands.common.busargs import default_channel
     from skin.errors import ConfigError
 
     scene = scene_on_patches(args.scene, args.patches)
@@ -179,7 +179,7 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
     from canbus.device.truth import TruthSource, truth_log
     from sim import Simulator
     from skin.atomic import atomic_write
-    from skin.commands.signals import until_stopped
+    from skin.commands.common.signals import until_stopped
 
     simulator = Simulator(scene, seed=args.seed)
     truth = TruthSource(simulator) if args.truth else None
@@ -252,7 +252,7 @@ def _ids(ids: list[int]) -> str:
 def add_subparser(group_subparsers: Any) -> None:
     import can.cli
 
-    from skin.commands.cpu import add_cpu_argument
+    from skin.commands.common.cpu import add_cpu_argument
 
     parser = group_subparsers.add_parser(
         "run", help="the scene's patches as nodes on a bus",

@@ -26,13 +26,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from skin.commands.view_term import SHEAR_MIN_N, reason_code
+from skin.commands.view.term import SHEAR_MIN_N, reason_code
 from skin.errors import ConfigError
 
 if TYPE_CHECKING:
     from numpy.typing import NDArray
 
-    from skin.commands.view_term import ViewState
+    from skin.commands.view.term import ViewState
 
 DPI = 100
 HATCH_GREY = "#9e9e9e"

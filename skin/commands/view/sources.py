@@ -1,6 +1,6 @@
 """Where ``skin view`` gets force samples: a bus, a listen-only host, or a recording.
 
-Live sources file samples into a :class:`~skin.commands.view_term.SkinView` from their own
+Live sources file samples into a :class:`~skin.commands.view.term.SkinView` from their own
 threads (:class:`BusForces`: the force nodes' PDOs through a ``ForceReader``;
 :class:`BusDecode`: the patches' PDOs decoded by a listen-only ``HostManager``);
 :class:`Playback` replays a recording onto a private virtual bus that keeps the recorded
@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from canbus.tools.forcereader import ForceNodeSpec, ForceReader
     from canbus.tools.resistance_reader import ResistanceSample
     from canbus.tools.sample_tracker import SampleLike
-    from skin.commands.view_term import SkinView
+    from skin.commands.view.term import SkinView
 
 _channels = count()
 _DRAIN_S = 10.0

@@ -49,7 +49,7 @@ def resolve(config: HostConfig, args: argparse.Namespace) -> HostConfig:
                        "given (nor python-can's configuration); say which bus, e.g. "
                        "-i socketcan -c can0")
     if bus.channel is None and bus.interface in ("virtual", "udp_multicast", "timed"):
-        from skin.commands.busargs import default_channel
+        from skin.commands.common.busargs import default_channel
 
         namespace = argparse.Namespace(interface=bus.interface)
         default_channel(namespace)

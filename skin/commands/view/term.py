@@ -29,7 +29,7 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from skin.commands.view_layout import Layout
+from skin.commands.view.layout import Layout
 
 if TYPE_CHECKING:
     from rich.console import RenderableType

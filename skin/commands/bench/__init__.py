@@ -41,7 +41,7 @@ def add_subparser(subparsers: Any) -> None:
                              "function) or on the mapminmax-scaled outputs")
     parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     parser.add_argument("--plot", metavar="FILE.png", help="draw speed against error")
-    from skin.commands.bench_server import add_arguments
+    from skin.commands.bench.server import add_arguments
 
     add_arguments(parser)
     parser.set_defaults(func=run)
@@ -140,7 +140,7 @@ def run_decoders(quick: bool, goal_units: str = "N",
 
 
 def print_dataplane(result: dict[str, Any]) -> None:
-    from skin.commands.tables import show
+    from skin.commands.common.tables import show
 
     rows = []
     for label, key in (("data plane", "dataplane"), ("data plane, batch 1", "per_patch"),
@@ -193,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
             _write_json(args.json, figures)
         return 0
     if args.target == "server":
-        from skin.commands.bench_server import print_server, run_server
+        from skin.commands.bench.server import print_server, run_server
 
         result = run_server(args)
         print_server(result)
@@ -201,14 +201,14 @@ def run(args: argparse.Namespace) -> int:
             _write_json(args.json, result)
         return 0
     if args.target == "cross":
-        from skin.commands.bench_cross import print_cross, run_cross
+        from skin.commands.bench.cross import print_cross, run_cross
 
         result = run_cross(args.quick, mlp_params(args.goal_units))
         print_cross(result)
         if args.json:
             _write_json(args.json, result)
         return 0
-    from skin.commands.bench_view import Stages, check_plot, plot, print_decoders
+    from skin.commands.bench.report import Stages, check_plot, plot, print_decoders
 
     if args.plot:
         check_plot(args.plot)  # before minutes of work, not after

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from skin.commands.tables import show
+from skin.commands.common.tables import show
 from skin.errors import ConfigError
 
 

@@ -140,7 +140,7 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
     from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
     from canbus.od import load_od
-    from skin.commands.busargs import default_channel
+    from skin.commands.common.busargs import default_channel
     from skin.errors import BusError
 
     rest = np.asarray(rest_ohm, dtype=np.float64)

@@ -6,8 +6,8 @@ host), or a recording FILE played with its own timing (``--fast``: as fast as it
 Outputs: a rich live view on a terminal (redraws are dropped, never frames), one plain
 text frame (``--snapshot``; also what a run prints when stdout is not a terminal), a
 PNG of one moment, a GIF or MP4 of a span, a trace of one taxel; a summary, and its JSON.
-Rendering: :mod:`skin.commands.view_term` (terminal), :mod:`skin.commands.view_plot`
-(pictures); the sources: :mod:`skin.commands.view_sources`.
+Rendering: :mod:`skin.commands.view.term` (terminal), :mod:`skin.commands.view.plot`
+(pictures); the sources: :mod:`skin.commands.view.sources`.
 """
 
 from __future__ import annotations
@@ -20,13 +20,13 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from skin.commands.view_layout import Layout, layout_from_positions, parse_layout
-from skin.commands.view_term import DEFAULT_SCALE_N, SkinView
+from skin.commands.view.layout import Layout, layout_from_positions, parse_layout
+from skin.commands.view.term import DEFAULT_SCALE_N, SkinView
 
 if TYPE_CHECKING:
     from canbus.master.hostconfig import HostConfig
-    from skin.commands.view_live import LiveStats
-    from skin.commands.view_sources import BusDecode, BusForces, Playback, RecordingTimes
+    from skin.commands.view.live import LiveStats
+    from skin.commands.view.sources import BusDecode, BusForces, Playback, RecordingTimes
 
 DEFAULT_FPS = 10
 SNAPSHOT_SECONDS = 1.0
@@ -83,11 +83,11 @@ def _check(args: argparse.Namespace) -> None:
     if args.scene and args.config:
         raise ConfigError("--scene", "give the layout by --scene or by --config, not both")
     if args.mp4 or args.gif:
-        from skin.commands.view_plot import check_animation_writer
+        from skin.commands.view.plot import check_animation_writer
 
         check_animation_writer(Path(args.mp4 or args.gif).suffix.lower())
     elif args.png or args.plot:
-        from skin.commands.view_plot import pyplot
+        from skin.commands.view.plot import pyplot
 
         pyplot("--png" if args.png else "--plot")
     for flag in ("png", "gif", "mp4", "plot"):
@@ -130,7 +130,7 @@ def _view(args: argparse.Namespace) -> int:
         config = load_host_config(args.config)
     layout = _layout(args, config)
     if args.file:
-        from skin.commands.view_sources import recording_times
+        from skin.commands.view.sources import recording_times
 
         times = recording_times(args.file)  # the file is checked before anything else
         if args.plot:
@@ -156,7 +156,7 @@ def _title(args: argparse.Namespace) -> str:
 def moment_view(path: str, t: float, layout: Layout, scale_N: float, *,
                 config: HostConfig | None = None, decode: bool = False) -> SkinView:
     """The view of recording ``path`` at bus time ``t``: every sample up to ``t`` filed."""
-    from skin.commands.view_sources import force_specs, recorded_samples
+    from skin.commands.view.sources import force_specs, recorded_samples
 
     samples = recorded_samples(path, until=t, specs=force_specs(config),
                                decode=config if decode else None)
@@ -172,8 +172,8 @@ def moment_view(path: str, t: float, layout: Layout, scale_N: float, *,
 def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) -> int:
     import can.cli
 
-    from skin.commands.busargs import default_channel
-    from skin.commands.view_sources import BusDecode, BusForces, force_specs
+    from skin.commands.common.busargs import default_channel
+    from skin.commands.view.sources import BusDecode, BusForces, force_specs
     from skin.errors import BusError
 
     default_channel(args)
@@ -199,7 +199,7 @@ def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) ->
 
 def _play(args: argparse.Namespace, config: HostConfig | None, layout: Layout,
           times: RecordingTimes) -> int:
-    from skin.commands.view_sources import BusDecode, BusForces, Playback, force_specs
+    from skin.commands.view.sources import BusDecode, BusForces, Playback, force_specs
 
     specs = force_specs(config)
 
@@ -217,7 +217,7 @@ def _play(args: argparse.Namespace, config: HostConfig | None, layout: Layout,
 
 def _live(args: argparse.Namespace, source: BusForces | BusDecode | Playback, layout: Layout,
           seconds: float | None, where: str, label: Any) -> int:
-    from skin.commands.view_live import LiveStats, draw_live, short_switch_interval
+    from skin.commands.view.live import LiveStats, draw_live, short_switch_interval
     from skin.errors import BusError
 
     view = SkinView(layout, args.scale, title=_title(args))
@@ -313,7 +313,7 @@ def _moment(args: argparse.Namespace, config: HostConfig | None, layout: Layout,
     if args.snapshot:
         print(view.text(t, label), end="")
     else:
-        from skin.commands.view_plot import moment_picture, pyplot, save_png
+        from skin.commands.view.plot import moment_picture, pyplot, save_png
 
         picture = moment_picture(view.state(t), scale_N=args.scale, time_s=t - times.first,
                                  title=_title(args))
@@ -331,8 +331,8 @@ def _moment(args: argparse.Namespace, config: HostConfig | None, layout: Layout,
 
 def _animation(args: argparse.Namespace, config: HostConfig | None, layout: Layout,
                times: RecordingTimes) -> int:
-    from skin.commands.view_plot import figure_size, save_animation
-    from skin.commands.view_sources import force_specs, recorded_samples
+    from skin.commands.view.plot import figure_size, save_animation
+    from skin.commands.view.sources import force_specs, recorded_samples
 
     started = time.monotonic()
     begin = _at(args, times, args.start or 0.0, "--from")
@@ -366,8 +366,8 @@ def _animation(args: argparse.Namespace, config: HostConfig | None, layout: Layo
 def _trace(args: argparse.Namespace, config: HostConfig | None, times: RecordingTimes) -> int:
     import numpy as np
 
-    from skin.commands.view_plot import save_trace
-    from skin.commands.view_sources import force_specs, recorded_resistances, recorded_samples
+    from skin.commands.view.plot import save_trace
+    from skin.commands.view.sources import force_specs, recorded_resistances, recorded_samples
     from skin.errors import ConfigError
 
     begin = _at(args, times, args.start or 0.0, "--from")
@@ -410,7 +410,7 @@ def _trace(args: argparse.Namespace, config: HostConfig | None, times: Recording
 def add_subparser(subparsers: Any) -> None:
     import can.cli
 
-    from skin.commands.busargs import add_rcvbuf_argument
+    from skin.commands.common.busargs import add_rcvbuf_argument
 
     parser = subparsers.add_parser(
         "view", help="every patch's taxels at its place: live, or pictures of a recording",

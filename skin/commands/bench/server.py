@@ -28,7 +28,7 @@ def run_server(args: argparse.Namespace) -> dict[str, Any]:
     from bench.server import default_port, run_server_benchmark
     from canbus.device.source import SimulatorSource
     from sim import Simulator
-    from skin.commands.sim_run import AHEAD_S, scene_on_patches
+    from skin.commands.sim.run import AHEAD_S, scene_on_patches
     from skin.errors import ConfigError
 
     if not 1 <= args.patches <= 127:

@@ -33,9 +33,9 @@ def add_subparser(subparsers: Any) -> None:
     dataset.add_argument("-o", "--output", required=True, metavar="FILE", help="output .npz")
     dataset.set_defaults(func=_dataset)
     try:  # `skin sim run` lives in its own module
-        sim_run = importlib.import_module("skin.commands.sim_run")
+        sim_run = importlib.import_module("skin.commands.sim.run")
     except ModuleNotFoundError as err:
-        if err.name != "skin.commands.sim_run":
+        if err.name != "skin.commands.sim.run":
             raise
     else:
         sim_run.add_subparser(group)

@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from canbus.tools.recorder import Recorder
     from canbus.tools.sniffer import FrameFilter, Snapshot, Sniffer
 
-from skin.commands.sniff_view import LinePrinter, ViewStats, render, summary_lines
+from skin.commands.sniff.view import LinePrinter, ViewStats, render, summary_lines
 
 SERVICES = ("nmt", "sync", "emcy", "time", "pdo", "sdo", "heartbeat", "lss", "error", "unknown")
 _SWITCH_S = 0.0005  # the longest a busy thread keeps the GIL from the receive thread
@@ -60,7 +60,7 @@ def _sniff(args: argparse.Namespace) -> int:
     from canbus.tools.recorder import check_channel_name, enlarge_receive_buffer, recording_format
     from canbus.tools.services import ServiceDecoder
     from canbus.tools.sniffer import FrameFilter, Sniffer
-    from skin.commands.busargs import default_channel
+    from skin.commands.common.busargs import default_channel
     from skin.errors import BusError, ConfigError
 
     if args.record:
@@ -109,7 +109,7 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
     import can
 
     from canbus.tools.recorder import Recorder, log_channel_name
-    from skin.commands.signals import until_stopped
+    from skin.commands.common.signals import until_stopped
 
     name = args.channel_name or log_channel_name(args.channel)
     header = f"skin sniff {args.interface}:{args.channel}" + \
@@ -230,7 +230,7 @@ def _size(text: str) -> int:
 def add_subparser(subparsers: Any) -> None:
     import can.cli
 
-    from skin.commands.busargs import add_rcvbuf_argument, node_id
+    from skin.commands.common.busargs import add_rcvbuf_argument, node_id
 
     parser = subparsers.add_parser(
         "sniff", help="live, EDS-aware bus view; --record to .log/.asc/.blf/.pcap",

@@ -1,4 +1,4 @@
-"""Drawing a :class:`~skin.commands.view_term.SkinView` live, without holding up reading.
+"""Drawing a :class:`~skin.commands.view.term.SkinView` live, without holding up reading.
 
 :func:`draw_live` redraws a rich ``Live`` at most ``refresh_hz`` times a second and for at
 most ``draw_share`` of the time: a redraw that took long pushes the next one back, so a
@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from rich.console import Console
 
-    from skin.commands.view_term import SkinView
+    from skin.commands.view.term import SkinView
 
 DEFAULT_REFRESH_HZ = 4.0
 DRAW_SHARE = 0.2

@@ -127,7 +127,7 @@ def _fit(args: argparse.Namespace) -> int:
     from decoder.calibration import calibrate, report
     from decoder.tare import nominal_r0, normalise, tare_at_rest
     from skin.commands.bench import limit_blas_threads
-    from skin.commands.calibrate_out import (
+    from skin.commands.calibrate.output import (
         model_meta,
         save_model,
         snippet,
@@ -235,7 +235,7 @@ def _check(args: argparse.Namespace) -> int:
     from decoder.protocol import BaseDecoder
     from decoder.registry import load_decoder
     from decoder.tare import nominal_r0, normalise, tare_at_rest
-    from skin.commands.calibrate_out import write_json
+    from skin.commands.calibrate.output import write_json
     from skin.constants import DEFAULT_CONSTANTS
     from skin.dataset import read_dataset
     from skin.errors import ConfigError

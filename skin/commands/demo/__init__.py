@@ -107,7 +107,7 @@ def _check_plan(args: argparse.Namespace, plan: Plan) -> None:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from skin.commands.cpu import pinned
+    from skin.commands.common.cpu import pinned
     from skin.errors import ConfigError
 
     if not args.seconds > 0:
@@ -135,9 +135,9 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig, PatchConfig, predefined_tpdo_cob_ids
     from sim import Simulator
-    from skin.commands import demo_summary
-    from skin.commands.demo_summary import DemoBus
-    from skin.commands.signals import until_stopped
+    from skin.commands.common.signals import until_stopped
+    from skin.commands.demo import summary as demo_summary
+    from skin.commands.demo.summary import DemoBus
     from skin.errors import BusError, ConfigError
 
     scene = _scene(args.scene, args.patches)
@@ -265,9 +265,9 @@ def _watch(host: HostManager, live: Record, seconds: float, scene: Scene) -> Non
     started = time.monotonic()
     stop = threading.Event()
     if sys.stdout.isatty():
-        from skin.commands.view_layout import layout_from_positions
-        from skin.commands.view_live import LiveThread
-        from skin.commands.view_term import SkinView
+        from skin.commands.view.layout import layout_from_positions
+        from skin.commands.view.live import LiveThread
+        from skin.commands.view.term import SkinView
 
         layout = layout_from_positions({p.node_id: p.position_m for p in scene.patches},
                                        "scene")
@@ -291,7 +291,7 @@ def _watch(host: HostManager, live: Record, seconds: float, scene: Scene) -> Non
 
 
 def add_subparser(subparsers: Any) -> None:
-    from skin.commands.cpu import add_cpu_argument
+    from skin.commands.common.cpu import add_cpu_argument
 
     parser = subparsers.add_parser(
         "demo", help="simulated patches + the host on a timed bus: live forces, a summary")

@@ -1,0 +1,3 @@
+"""What every command shares: the bus flags (``busargs``), a config's path (``configpath``),
+CPU pinning (``cpu``), the host's buses from flags or a config (``hostbus``), logging
+(``logs``), stop signals (``signals``) and tables (``tables``)."""
