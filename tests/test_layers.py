@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -88,8 +90,6 @@ def test_canbus_sides_import_one_way(path: Path) -> None:
     side = _canbus_side(".".join(rel.parts))
     if rel.parts[-1] == "__init__" and len(rel.parts) == 2:
         return  # canbus/__init__.py names the public API of every side, lazily
-    if rel.parts[-1] == "_moved":
-        return  # the old module paths, lazily
     used = {_canbus_side(name) for name in _canbus_imports(ast.parse(path.read_text()))}
     wrong = used - {""} - CANBUS_ALLOWED[side]
     assert not wrong, f"{path} ({side or 'wire level'}) imports canbus.{sorted(wrong)}"
@@ -101,3 +101,20 @@ def test_canbus_exports_what_it_names() -> None:
     assert sorted(canbus.__all__) == sorted(canbus._PUBLIC)
     for name in canbus.__all__:
         assert getattr(canbus, name).__name__ == name
+
+
+def test_import_canbus_adds_only_itself() -> None:
+    """``import canbus`` puts nothing in ``sys.modules`` but itself and what it imports (no
+    stand-ins for other module paths), and replaces nothing already there."""
+    tree = ast.parse((ROOT / "canbus" / "__init__.py").read_text(encoding="utf-8"))
+    eager = [node for node in tree.body if isinstance(node, ast.Import | ast.ImportFrom)]
+    outside = sorted({n for node in eager for n in _imports(node)} - {"canbus"})
+    own = {"canbus"} | {n for n in _canbus_imports(ast.Module(body=eager, type_ignores=[]))}
+    code = (f"import sys\nfor name in {outside!r}:\n    __import__(name)\n"
+            "before = dict(sys.modules)\nimport canbus\n"
+            "print(sorted(set(sys.modules) - set(before)))\n"
+            "print(sorted(n for n, m in before.items() if sys.modules.get(n) is not m))\n")
+    run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                         text=True, check=True)
+    added, replaced = run.stdout.splitlines()
+    assert (added, replaced) == (repr(sorted(own)), "[]")

@@ -24,9 +24,6 @@ import numpy as np
 
 from canbus.master.busconfig import BusConfig, buses_from_dict
 from canbus.master.cobids import check_cob_ids, restricted
-from canbus.master.cobids import force_cob_ids as force_cob_ids  # re-exported
-from canbus.master.cobids import node_cob_ids as node_cob_ids  # re-exported
-from canbus.master.cobids import predefined_tpdo_cob_ids as predefined_tpdo_cob_ids
 from decoder.protocol import Decoder
 from decoder.registry import decoder_class, load_decoder
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants

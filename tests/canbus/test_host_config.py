@@ -4,14 +4,9 @@ from pathlib import Path
 
 import pytest
 
+from canbus.master.cobids import node_cob_ids, predefined_tpdo_cob_ids
 from canbus.master.forcenode import force_node_cob_ids
-from canbus.master.hostconfig import (
-    HostConfig,
-    PatchConfig,
-    load_host_config,
-    node_cob_ids,
-    predefined_tpdo_cob_ids,
-)
+from canbus.master.hostconfig import HostConfig, PatchConfig, load_host_config
 from canbus.od import load_od
 from canbus.pdo_codec import read_defaults, read_layouts
 from decoder.registry import create_decoder

@@ -132,8 +132,9 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     from canbus.busload import spread
     from canbus.device.patch_server import PatchServer
     from canbus.master.busconfig import BusConfig
+    from canbus.master.cobids import predefined_tpdo_cob_ids
     from canbus.master.host import HostManager
-    from canbus.master.hostconfig import HostConfig, PatchConfig, predefined_tpdo_cob_ids
+    from canbus.master.hostconfig import HostConfig, PatchConfig
     from sim import Simulator
     from skin.commands.common.signals import until_stopped
     from skin.commands.demo import summary as demo_summary
