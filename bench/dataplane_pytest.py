@@ -1,6 +1,7 @@
 """Speed of the data plane against canopen's PdoMap callbacks (pytest-benchmark).
 
-Run: pytest bench/dataplane_pytest.py --benchmark-enable
+Run: python -m bench.dataplane_pytest [PYTEST-OPTIONS] (pytest with --benchmark-enable on
+this file).
 Each benchmark round is the whole stream: 16 patches (xyz), CYCLES SYNC cycles of 7 TPDOs
 in and 7 force TPDOs out per patch; frames/s = 16 * 7 * CYCLES / round time. The stream
 and both paths are bench.dataplane's (what `skin bench dataplane` prints).
@@ -8,6 +9,7 @@ and both paths are bench.dataplane's (what `skin bench dataplane` prints).
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterator
 from typing import Any
 
@@ -102,3 +104,7 @@ def test_both_paths_send_identical_force_frames(dataplane: DataPlaneRig,
     canopen_rig.run(stream)
     assert len(dataplane.sink.sent) == stream.frame_count
     assert dataplane.sink.sent == canopen_rig.sink.sent
+
+
+if __name__ == "__main__":
+    sys.exit(pytest.main([__file__, "--benchmark-enable", *sys.argv[1:]]))

@@ -100,7 +100,7 @@ def _instrument(stages: _Stages) -> dict[str, Any]:
         record.update(result)
         return result
 
-    skin.commands.demo.summary.summary = keep  # type: ignore[assignment]
+    skin.commands.demo.summary.summary = keep
     return record
 
 
@@ -131,14 +131,14 @@ def main() -> None:
     stop.set()
     watcher.join()
     seconds = float(record.get("seconds") or "nan")
-    groups: collections.Counter[str] = collections.Counter()
+    groups: dict[str, float] = collections.defaultdict(float)
     for (_, name), cpu in last.items():
         group = next((g for key, g in _GROUPS.items() if name.startswith(key)), "other threads")
         groups[group] += cpu
     run = sum(cpu for group, cpu in groups.items() if group != _GROUPS["MainThread"])
     print(f"\nrun {seconds:.2f} s; process CPU {process:.2f} s (set-up included); threads "
           f"of the run {run:.2f} s = {100 * run / seconds:.0f} % of one core", file=sys.stderr)
-    for group, cpu in groups.most_common():
+    for group, cpu in sorted(groups.items(), key=lambda item: -item[1]):
         print(f"  {cpu:6.2f} s  {100 * cpu / seconds:5.1f} %  {group}", file=sys.stderr)
     print("stages (thread CPU inside each call):", file=sys.stderr)
     for label, ns in stages.ns.most_common():

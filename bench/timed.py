@@ -42,6 +42,7 @@ import threading
 import time
 import timeit
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import can
 
@@ -183,7 +184,7 @@ def _switches() -> int:
 
 def run(scenario: str, interface: str, channels: int, patches: int, short: int,
         seconds: float) -> Result:
-    kwargs: dict[str, int] = {"bitrate": 1_000_000} if interface == "timed" else {}
+    kwargs: dict[str, Any] = {"bitrate": 1_000_000} if interface == "timed" else {}
     names = [f"bench-{scenario}-{interface}-{k}" for k in range(channels)]
     chans = [_Channel(can.Bus(interface=interface, channel=name, **kwargs),
                       can.Bus(interface=interface, channel=name, **kwargs),
@@ -197,7 +198,8 @@ def run(scenario: str, interface: str, channels: int, patches: int, short: int,
                                       timeout=0.05))
     publisher = threading.Thread(target=_publisher, args=(publish, ready, stop), daemon=True)
     publisher.start()
-    stats0 = [ch.host.wire_stats() for ch in chans] if interface == "timed" else []
+    stats0 = ([ch.host.wire_stats() for ch in chans]  # type: ignore[attr-defined]
+              if interface == "timed" else [])
     cycles = round(seconds / CYCLE_S)
     cpu0, switches0 = time.process_time(), _switches()
     _sync(chans, cycles, patches, short)

@@ -49,7 +49,7 @@ def _wait_for(path: Path, text: str, proc: subprocess.Popen[bytes], timeout: flo
     deadline = time.monotonic() + timeout
     while text not in (path.read_text() if path.exists() else ""):
         if proc.poll() is not None or time.monotonic() > deadline:
-            raise RuntimeError(f"{proc.args} did not say {text!r}: {path.read_text()}")
+            raise RuntimeError(f"{proc.args!r} did not say {text!r}: {path.read_text()}")
         time.sleep(0.05)
 
 

@@ -4,6 +4,7 @@ Reads 0x1018 and the TPDO mapping over SDO, starts node 1 by NMT, sends ``SYNCS`
 and, for each, decodes the 7 TPDOs through canopen's own PdoMaps.
 """
 
+# mypy: disable-error-code="no-untyped-call"
 from __future__ import annotations
 
 import json
@@ -37,6 +38,7 @@ def main(channel: str, port: int, syncs: int) -> None:
 
         def on_pdo(pdo: PdoMap) -> None:
             with arrived:
+                assert pdo.cob_id is not None
                 received[pdo.cob_id] = [int(v.raw) for v in pdo.map]
                 arrived.notify()
 

@@ -58,7 +58,7 @@ def _wait_ready(procs: list[subprocess.Popen[str]], files: list[Path], logger_ou
     while not (all(f.exists() for f in files) and "Connected to" in logger_out.read_text()):
         for proc in procs:
             if proc.poll() is not None:
-                raise RuntimeError(f"a recorder ended early: {proc.args}")
+                raise RuntimeError(f"a recorder ended early: {proc.args!r}")
         if time.monotonic() > deadline:
             raise RuntimeError("the recorders did not start")
         time.sleep(0.02)
