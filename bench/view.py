@@ -37,7 +37,7 @@ from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, PatchConfig
 from canbus.tools.forcereader import ForceReader
 from sim import Simulator
-from skin.commands.demo import _scene
+from skin.commands.demo import demo_scene
 from skin.commands.view.layout import Layout, layout_from_positions
 from skin.commands.view.live import LiveThread, draw_live
 from skin.commands.view.term import SkinView
@@ -140,7 +140,7 @@ def reader_us_per_sample() -> float:
 def main() -> None:
     runs = int(sys.argv[1]) if len(sys.argv) > 1 else 4
     seconds = float(sys.argv[2]) if len(sys.argv) > 2 else 5.0
-    scene = _scene("indenter", PATCHES)
+    scene = demo_scene("indenter", PATCHES)
     resistance = Simulator(scene).run(int(seconds * 100) + 300).resistance_ohm
     layout = layout_from_positions({p.node_id: p.position_m for p in scene.patches}, "scene")
     rows: dict[bool, list[dict[str, float]]] = {True: [], False: []}

@@ -47,7 +47,7 @@ BUS_KINDS = ("timed", "virtual")
 WIRE_SNAPSHOT_WINDOW_S = 0.01
 
 
-def _scene(name: str, patches: int | None) -> Scene:
+def demo_scene(name: str, patches: int | None) -> Scene:
     """The scene, or its loads and effects on ``patches`` patches at node-IDs 1..N."""
     from sim import load_scene, on_patches
     from skin.errors import ConfigError
@@ -141,7 +141,7 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     from skin.commands.demo.summary import DemoBus
     from skin.errors import BusError, ConfigError
 
-    scene = _scene(args.scene, args.patches)
+    scene = demo_scene(args.scene, args.patches)
     if args.buses > len(scene.node_ids):
         raise ConfigError("--buses", f"{args.buses} buses for {len(scene.node_ids)} patches")
     groups = spread(scene.node_ids, args.buses)
