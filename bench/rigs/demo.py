@@ -13,6 +13,7 @@ wire; nothing is computed on the data path.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -75,6 +76,20 @@ class BusClock:
         self.force_frames = 0
         self.force_cobs: set[int] = set()
         self.seen: list[can.Message] = []  # every frame of the wire, both sides (timed bus)
+
+    @classmethod
+    def for_patches(cls, patches: Sequence[int], *, fd: bool, bitrate: int | None,
+                    data_bitrate: int | None) -> BusClock:
+        """The clock of a bus whose patches' force nodes (node-ID + 64) publish on their
+        predefined TPDO COB-IDs: one force PDO a sample in CAN FD, seven in classic CAN."""
+        from canbus.master.cobids import predefined_tpdo_cob_ids
+        from canbus.master.hostconfig import FORCE_NODE_OFFSET
+
+        pdos = {n: predefined_tpdo_cob_ids(n + FORCE_NODE_OFFSET)[:1 if fd else 7]
+                for n in patches}
+        clock = cls({cob_ids[-1]: n for n, cob_ids in pdos.items()}, bitrate, data_bitrate)
+        clock.force_cobs = {c for cob_ids in pdos.values() for c in cob_ids}
+        return clock
 
     def __call__(self, msg: can.Message) -> None:
         cob_id = msg.arbitration_id

@@ -37,7 +37,9 @@ if TYPE_CHECKING:
     from bench.rigs.demo import Record
     from canbus.busload import Plan
     from canbus.master.host import HostManager
+    from canbus.master.hostconfig import HostConfig
     from sim import Scene
+    from skin.commands.demo.summary import DemoBus
 
 DEFAULT_PATCHES = 4
 DEFAULT_SECONDS = 3.0
@@ -125,95 +127,27 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
-    import canopen
     import numpy as np
 
-    from bench.rigs.demo import BusClock, Record, Replay
-    from canbus.busload import spread
-    from canbus.device.patch_server import PatchServer
-    from canbus.master.busconfig import BusConfig
-    from canbus.master.cobids import predefined_tpdo_cob_ids
-    from canbus.master.host import HostManager
-    from canbus.master.hostconfig import HostConfig, PatchConfig
+    from bench.rigs.demo import Record
     from sim import Simulator
-    from skin.commands.common.signals import until_stopped
     from skin.commands.demo import summary as demo_summary
-    from skin.commands.demo.summary import DemoBus
-    from skin.errors import BusError, ConfigError
 
     scene = demo_scene(args.scene, args.patches)
-    if args.buses > len(scene.node_ids):
-        raise ConfigError("--buses", f"{args.buses} buses for {len(scene.node_ids)} patches")
-    groups = spread(scene.node_ids, args.buses)
-    names = [f"skin{k}" for k in range(len(groups))]
-    buses = tuple(BusConfig(name=name, fd=args.fd) for name in names)
-    rate_hz = scene.rate_hz
-    config = HostConfig(
-        patches=tuple(PatchConfig(n, mode=scene.mode, bus=names[k])
-                      for k, group in enumerate(groups) for n in group),
-        sync_period_ms=1000.0 / rate_hz, scan_ms=100, buses=buses).check()
+    config = _host_config(args, scene)
     plan = _plan(args, scene, config.heartbeat_ms, config.force_heartbeat_ms)
     _check_plan(args, plan)
-
-    steps = math.ceil(args.seconds * rate_hz) + int(rate_hz) + 2
+    steps = math.ceil(args.seconds * scene.rate_hz) + int(scene.rate_hz) + 2
     simulated = Simulator(scene).run(steps)
     truth = np.zeros((steps, len(scene.node_ids), 9, 3))
     known = np.zeros((steps, len(scene.node_ids)), dtype=bool)
     live = Record(steps, scene.node_ids)
-    timed = args.bus == "timed"
     opened: list[DemoBus] = []
     try:
-        for name, group in zip(names, groups, strict=True):
-            channel = f"demo-{os.getpid()}-{name}"
-            host_bus = _open(args.bus, channel, args)  # first: the patches' frames need it
-            patch_net = canopen.Network(_open(args.bus, channel, args))
-            patch_net.NOTIFIER_CYCLE = 0.05
-            patch_net.connect()
-            last = {(predefined_tpdo_cob_ids(n + 64)[0 if args.fd else -1]): n for n in group}
-            clock = BusClock(last, args.bitrate if timed else None,
-                             args.data_bitrate if timed and args.fd else None)
-            clock.force_cobs = {c for n in group for c in
-                                predefined_tpdo_cob_ids(n + 64)[:1 if args.fd else 7]}
-            assert patch_net.notifier is not None
-            patch_net.notifier.add_listener(clock)
-            columns = [live.column[n] for n in group]
-            replay = Replay(simulated.resistance_ohm, simulated.force_N, group, columns, truth,
-                            known)
-            server = PatchServer(patch_net, replay)
-            patch_net.subscribe(0x080, replay.on_sync)  # before the server's: it labels cycles
-            opened.append(DemoBus(name, group, host_bus, patch_net, server, clock))
-        host = HostManager({b.name: b.host_bus for b in opened}, config)
-        # The nodes' object dictionaries are ~50k long-lived objects: a full collection
-        # walking them stalled every thread for ~75 ms mid-run. Collect once, freeze them.
-        gc.collect()
-        gc.freeze()
-        # Before the start: a sample published before the record saw it would still end on
-        # the bus clock, and every later sample would be matched to the SYNC before its own.
-        host.on_forces(live)
-        for bus in opened:
-            bus.server.start()
-        try:
-            with host:
-                if not host.wait_operational(timeout=10.0):
-                    states = {n: h.state for n, h in host.health().items()}
-                    raise BusError(f"the patches did not all become operational: {states}")
-                print(_banner(args, scene, config, cpus), flush=True)
-                for bus in opened:
-                    bus.wire_start = _wire(bus.host_bus)
-                    notifier = host.links[bus.name].network.notifier
-                    if timed and notifier is not None:  # only appends: off the data path
-                        notifier.add_listener(bus.clock.host_side)
-                started = time.monotonic()
-                with until_stopped():  # Ctrl-C, SIGTERM, SIGHUP: the summary all the same
-                    _watch(host, live, args.seconds, scene)
-                for bus in opened:
-                    bus.wire_end = _wire(bus.host_bus)
-            seconds = time.monotonic() - started
-            stats = host.stats()
-        finally:
-            for bus in opened:
-                bus.server.stop()
-                bus.frames_sent = bus.server.frames_sent
+        for name in (b.name for b in config.buses):
+            group = tuple(p.node_id for p in config.patches if p.bus == name)
+            opened.append(_open_bus(args, name, group, live, simulated, truth, known))
+        seconds, stats = _run_host(args, scene, config, cpus, opened, live)
     finally:
         gc.unfreeze()
         for bus in opened:
@@ -228,6 +162,94 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
     return 0
+
+
+def _host_config(args: argparse.Namespace, scene: Scene) -> HostConfig:
+    """The host's config: the scene's patches spread over ``--buses`` buses, SYNC at the
+    scene's rate."""
+    from canbus.busload import spread
+    from canbus.master.busconfig import BusConfig
+    from canbus.master.hostconfig import HostConfig, PatchConfig
+    from skin.errors import ConfigError
+
+    if args.buses > len(scene.node_ids):
+        raise ConfigError("--buses", f"{args.buses} buses for {len(scene.node_ids)} patches")
+    groups = spread(scene.node_ids, args.buses)
+    names = [f"skin{k}" for k in range(len(groups))]
+    return HostConfig(
+        patches=tuple(PatchConfig(n, mode=scene.mode, bus=names[k])
+                      for k, group in enumerate(groups) for n in group),
+        sync_period_ms=1000.0 / scene.rate_hz, scan_ms=100,
+        buses=tuple(BusConfig(name=name, fd=args.fd) for name in names)).check()
+
+
+def _open_bus(args: argparse.Namespace, name: str, group: tuple[int, ...], live: Record,
+              simulated: Any, truth: Any, known: Any) -> DemoBus:
+    """One bus of the demo: the host's end, and the patches of ``group`` served from the
+    precomputed simulation on a canopen Network of their own, with the bus clock."""
+    import canopen
+
+    from bench.rigs.demo import BusClock, Replay
+    from canbus.device.patch_server import PatchServer
+    from skin.commands.demo.summary import DemoBus
+
+    channel = f"demo-{os.getpid()}-{name}"
+    host_bus = _open(args.bus, channel, args)  # first: the patches' frames need it
+    patch_net = canopen.Network(_open(args.bus, channel, args))
+    patch_net.NOTIFIER_CYCLE = 0.05
+    patch_net.connect()
+    timed = args.bus == "timed"
+    clock = BusClock.for_patches(group, fd=args.fd, bitrate=args.bitrate if timed else None,
+                                 data_bitrate=args.data_bitrate if timed and args.fd else None)
+    assert patch_net.notifier is not None
+    patch_net.notifier.add_listener(clock)
+    columns = [live.column[n] for n in group]
+    replay = Replay(simulated.resistance_ohm, simulated.force_N, group, columns, truth, known)
+    server = PatchServer(patch_net, replay)
+    patch_net.subscribe(0x080, replay.on_sync)  # before the server's: it labels cycles
+    return DemoBus(name, group, host_bus, patch_net, server, clock)
+
+
+def _run_host(args: argparse.Namespace, scene: Scene, config: HostConfig,
+              cpus: set[int] | None, opened: list[DemoBus],
+              live: Record) -> tuple[float, dict[str, int]]:
+    """The host on the demo's buses, the patches served, for ``--seconds`` (or until a stop
+    signal): the run's length and the host's counters."""
+    from canbus.master.host import HostManager
+    from skin.commands.common.signals import until_stopped
+    from skin.errors import BusError
+
+    host = HostManager({b.name: b.host_bus for b in opened}, config)
+    # The nodes' object dictionaries are ~50k long-lived objects: a full collection
+    # walking them stalled every thread for ~75 ms mid-run. Collect once, freeze them.
+    gc.collect()
+    gc.freeze()
+    # Before the start: a sample published before the record saw it would still end on
+    # the bus clock, and every later sample would be matched to the SYNC before its own.
+    host.on_forces(live)
+    for bus in opened:
+        bus.server.start()
+    try:
+        with host:
+            if not host.wait_operational(timeout=10.0):
+                states = {n: h.state for n, h in host.health().items()}
+                raise BusError(f"the patches did not all become operational: {states}")
+            print(_banner(args, scene, config, cpus), flush=True)
+            for bus in opened:
+                bus.wire_start = _wire(bus.host_bus)
+                notifier = host.links[bus.name].network.notifier
+                if args.bus == "timed" and notifier is not None:  # only appends: off the path
+                    notifier.add_listener(bus.clock.host_side)
+            started = time.monotonic()
+            with until_stopped():  # Ctrl-C, SIGTERM, SIGHUP: the summary all the same
+                _watch(host, live, args.seconds, scene)
+            for bus in opened:
+                bus.wire_end = _wire(bus.host_bus)
+        return time.monotonic() - started, host.stats()  # the host stopped: its last counts
+    finally:
+        for bus in opened:
+            bus.server.stop()
+            bus.frames_sent = bus.server.frames_sent
 
 
 def _wire(bus: can.BusABC) -> Any:
