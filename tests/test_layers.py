@@ -226,3 +226,14 @@ def test_no_import_loop_in_canbus() -> None:
              if name in reach[name]}
     wrong = [sorted(loop) for loop in loops if not loop <= ISSUE_20_LOOP]
     assert not wrong, f"import loops: {wrong}"
+
+
+@pytest.mark.parametrize("path", [p for p in _modules() if _is_command(p)],
+                         ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_command_functions_are_short(path: Path) -> None:
+    """No function of the command line is over 60 lines: a command reads as its steps."""
+    long = [f"{node.name} ({node.end_lineno - node.lineno + 1} lines)"
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and node.end_lineno
+            and node.end_lineno - node.lineno + 1 > 60]
+    assert not long, f"{path}: {long}"

@@ -121,19 +121,10 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from decoder.calibration import calibrate, report
+    from decoder.calibration import report
     from decoder.tare import nominal_r0, normalise, tare_at_rest
     from skin.commands.bench import limit_blas_threads
-    from skin.commands.calibrate.output import (
-        model_meta,
-        save_model,
-        snippet,
-        write_json,
-        write_rest_to_node,
-    )
+    from skin.commands.calibrate.output import model_meta, save_model, snippet, write_json
     from skin.constants import SensorConstants
     from skin.dataset import read_dataset
     from skin.errors import ConfigError
@@ -151,11 +142,32 @@ def _fit(args: argparse.Namespace) -> int:
         raise ConfigError("--write-node", f"{args.dataset} has fewer than 10 samples at rest "
                           f"(|F| <= {args.rest_N:g} N): no tare to write to the patch")
     rest = tare.rest_ohm if tare is not None else r0
-    x = normalise(r, rest, r0)
-    console = Console(stderr=True)
+    cal = _calibrate(args, normalise(r, rest, r0), f, constants)
+    found = report(cal, None if tare is None else tare.rest_ohm,
+                   0 if tare is None else tare.samples, args.rest_N,
+                   None if tare is None else tare.noise_ohm)
+    found.update(node_id=node, dataset=args.dataset, model=args.output)
+    save_model(cal.decoder, args.output, model_meta(found, node_id=node, dataset=args.dataset))
+    text = snippet(node, cal.mode, args.output, None if tare is None else tare.rest_ohm,
+                   args.config_snippet, constants.nominal_resistance_ohm)
+    written = _write_fit(args, found, cal, tare, node, r0, text)
+    if args.json:
+        write_json(args.json, {**found, "seconds": time.perf_counter() - started,
+                               "written_to_node": written})
+    return 0
+
+
+def _calibrate(args: argparse.Namespace, x: Any, f: Any, constants: Any) -> Any:
+    """``decoder.calibration.calibrate`` on the normalised resistances, its stages and
+    epochs shown on a transient progress bar on stderr."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from decoder.calibration import calibrate
+
     columns = (TextColumn("[bold]{task.description}"), BarColumn(),
                TextColumn("{task.fields[status]}"), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=True) as bar:
+    with Progress(*columns, console=Console(stderr=True), transient=True) as bar:
         task = bar.add_task("calibrating", total=1, status="")
 
         def stage(what: str, done: int, total: int) -> None:
@@ -164,16 +176,17 @@ def _fit(args: argparse.Namespace) -> int:
         def epochs(epoch: int, mse: float, mu: float) -> None:
             bar.update(task, status=f"epoch {epoch}  mse {mse:.3e}")
 
-        cal = calibrate(x, f, constants, names=args.decoders, folds=args.folds,
-                        hidden=args.hidden, seed=args.seed, tie=args.tie,
-                        max_flagged=args.max_flagged, stage=stage, epochs=epochs)
-    found = report(cal, None if tare is None else tare.rest_ohm,
-                   0 if tare is None else tare.samples, args.rest_N,
-                   None if tare is None else tare.noise_ohm)
-    found.update(node_id=node, dataset=args.dataset, model=args.output)
-    save_model(cal.decoder, args.output, model_meta(found, node_id=node, dataset=args.dataset))
-    text = snippet(node, cal.mode, args.output, None if tare is None else tare.rest_ohm,
-                   args.config_snippet, constants.nominal_resistance_ohm)
+        return calibrate(x, f, constants, names=args.decoders, folds=args.folds,
+                         hidden=args.hidden, seed=args.seed, tie=args.tie,
+                         max_flagged=args.max_flagged, stage=stage, epochs=epochs)
+
+
+def _write_fit(args: argparse.Namespace, found: dict[str, Any], cal: Any, tare: Any,
+               node: int, r0: Any, text: str) -> int:
+    """The config snippet, the summary, the rest written to the patch (how many values),
+    the report."""
+    from skin.commands.calibrate.output import write_json, write_rest_to_node
+
     if args.config_snippet:
         from skin.atomic import atomic_write
 
@@ -190,10 +203,7 @@ def _fit(args: argparse.Namespace) -> int:
         print(text, end="")
     if args.report:
         write_json(args.report, found)
-    if args.json:
-        write_json(args.json, {**found, "seconds": time.perf_counter() - started,
-                               "written_to_node": written})
-    return 0
+    return written
 
 
 def _print_fit(args: argparse.Namespace, found: dict[str, Any], cal: Any, tare: Any,
@@ -228,9 +238,6 @@ def _fmt(value: float | None, digits: int = 3) -> str:
 
 
 def _check(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from decoder.metrics import evaluate
     from decoder.modelfile import read_model
     from decoder.protocol import BaseDecoder
     from decoder.registry import load_decoder
@@ -262,12 +269,7 @@ def _check(args: argparse.Namespace) -> int:
 
     def figures(rest_ohm: Any) -> dict[str, Any]:
         out = model.decode(normalise(r, rest_ohm, r0))
-        e = evaluate(f, out.force_N, out.valid, mode=mode, constants=constants)
-        flagged = float(1.0 - out.valid.mean())
-        floored = e.ave_rel_err_floored_pct if e.floored else math.nan  # none compared
-        fits = floored <= limit and 100 * flagged <= max(1.0, 2 * own.get("flagged_pct", 0.0))
-        return {"floored_pct": floored, "ave_rel_err_pct": e.ave_rel_err_pct,
-                "rmse_N": e.rmse_N, "flagged_pct": 100 * flagged, "fits": bool(fits)}
+        return _check_figures(f, out, mode, constants, limit, own.get("flagged_pct", 0.0))
 
     now = figures(rest)
     tare = tare_at_rest(r, f, own.get("tare", {}).get("rest_N", 0.01))
@@ -283,10 +285,7 @@ def _check(args: argparse.Namespace) -> int:
           f"{_fmt(now['floored_pct'])} % (its own held-out {own_pct:.3f} %, limit "
           f"{limit:.3f} %), refused {now['flagged_pct']:.2f} %")
     if retared is not None and tare is not None:
-        drift = 100.0 * (np.asarray(tare.rest_ohm) / np.asarray(rest) - 1.0)
-        print(f"after a tare on its {tare.samples} samples at rest (rest moved "
-              f"{np.min(drift):+.3f}..{np.max(drift):+.3f} %): floored "
-              f"{_fmt(retared['floored_pct'])} %, refused {retared['flagged_pct']:.2f} %")
+        _print_retared(tare, rest, retared)
     print(f"{args.check} {verdict}")
     if args.json:
         write_json(args.json, {"model": args.check, "dataset": args.dataset, "node_id": node,
@@ -294,3 +293,26 @@ def _check(args: argparse.Namespace) -> int:
                                "tolerance": args.tolerance, "now": now, "after_tare": retared,
                                "verdict": verdict, "exit_status": code})
     return code
+
+
+def _check_figures(f: Any, decoded: Any, mode: str, constants: Any, limit: float,
+                   own_flagged_pct: float) -> dict[str, Any]:
+    """How the model decodes the dataset, and whether that fits its own calibration: the
+    floored error within ``limit`` and no more than twice its own refusals (1 % at least)."""
+    from decoder.metrics import evaluate
+
+    e = evaluate(f, decoded.force_N, decoded.valid, mode=mode, constants=constants)
+    flagged = float(1.0 - decoded.valid.mean())
+    floored = e.ave_rel_err_floored_pct if e.floored else math.nan  # none compared
+    fits = floored <= limit and 100 * flagged <= max(1.0, 2 * own_flagged_pct)
+    return {"floored_pct": floored, "ave_rel_err_pct": e.ave_rel_err_pct,
+            "rmse_N": e.rmse_N, "flagged_pct": 100 * flagged, "fits": bool(fits)}
+
+
+def _print_retared(tare: Any, rest: Any, retared: dict[str, Any]) -> None:
+    import numpy as np
+
+    drift = 100.0 * (np.asarray(tare.rest_ohm) / np.asarray(rest) - 1.0)
+    print(f"after a tare on its {tare.samples} samples at rest (rest moved "
+          f"{np.min(drift):+.3f}..{np.max(drift):+.3f} %): floored "
+          f"{_fmt(retared['floored_pct'])} %, refused {retared['flagged_pct']:.2f} %")

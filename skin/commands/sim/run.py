@@ -218,21 +218,28 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
         print(f"truth: {log.writer.samples} samples -> {args.truth} ({log.late} answers sent "
               "over half a SYNC period late: no truth)")
     if args.json:
-        record = {"scene": scene.name, "patches": len(scene.node_ids), "mode": scene.mode,
-                  "seconds": elapsed, "syncs": server.sync_count,
-                  "frames": server.frames_sent, "cpu_share": cpu,
-                  "answer_ms": {"p50": p50, "p99": p99}, "late_answers": server.late_answers,
-                  "buses": [{"bus": _describe(each), "nodes": [n.node_id for n in bus.nodes],
-                             "syncs": bus.syncs, "frames": bus.frames_sent}
-                            for bus, each in zip(server.buses, flags, strict=True)],
-                  "plan": {"fits": planned.fits, "over_target": planned.over_target,
-                           "load_pct": [planned.load_best_pct, planned.load_worst_pct]},
-                  "stopped_by": stopped.signal}
+        record = _record(scene, server, flags, planned, elapsed, cpu)
+        record["stopped_by"] = stopped.signal
         if log is not None:
             record.update(truth_samples=log.writer.samples, truth_late=log.late)
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
     return 0
+
+
+def _record(scene: Scene, server: Any, flags: list[argparse.Namespace], planned: Plan,
+            elapsed: float, cpu: float) -> dict[str, Any]:
+    """The run's ``--json`` figures: what was served, per bus, against the plan."""
+    p50, p99 = server.answer_ms()
+    return {"scene": scene.name, "patches": len(scene.node_ids), "mode": scene.mode,
+            "seconds": elapsed, "syncs": server.sync_count,
+            "frames": server.frames_sent, "cpu_share": cpu,
+            "answer_ms": {"p50": p50, "p99": p99}, "late_answers": server.late_answers,
+            "buses": [{"bus": _describe(each), "nodes": [n.node_id for n in bus.nodes],
+                       "syncs": bus.syncs, "frames": bus.frames_sent}
+                      for bus, each in zip(server.buses, flags, strict=True)],
+            "plan": {"fits": planned.fits, "over_target": planned.over_target,
+                     "load_pct": [planned.load_best_pct, planned.load_worst_pct]}}
 
 
 def _announce(scene: Scene, server: Any, flags: list[argparse.Namespace]) -> None:

@@ -117,79 +117,121 @@ def moment_picture(state: ViewState, *, scale_N: float, time_s: float | None,
     """Draw ``state`` (module docstring); into ``figure`` (cleared) if given."""
     plt = pyplot("--png")
     from matplotlib import colormaps
-    from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
-    from matplotlib.patches import Rectangle
 
     if figure is None:
         figure = plt.figure(figsize=size or figure_size(state), dpi=DPI, layout="constrained")
     else:
         figure.clear()
     ax = figure.add_subplot()
-    cmap = colormaps["inferno"].with_extremes(bad="#d9d9d9")
-    norm = Normalize(0.0, scale_N)
     pitch = state.layout.pitch_m * 1000.0
-    half = 1.5 * pitch
-    arrow_scale = (scale_N / 4.0) / (0.5 * pitch)  # N per mm: a quarter of the scale (1.25 N
-    # of 5 N) reaches the taxel's edge, so arrows stay inside their taxel up to that shear
-    inside = _crowded(state, pitch)  # labels inside the patches' top edge, all alike
-    centres: dict[int, list[tuple[float, float]]] = {}
-    for patch, (x_m, y_m) in sorted(state.layout.positions.items()):
-        cx, cy = 1000.0 * x_m, 1000.0 * y_m
-        status = state.statuses.get(patch)
-        sample = status.last if status is not None else None
-        taxels = [(cx + (k % 3 - 1) * pitch, cy + (k // 3 - 1) * pitch) for k in range(9)]
-        centres[patch] = taxels
-        fz = np.full(9, np.nan)
-        if sample is not None:
-            fz = np.where(sample.valid, sample.force_N[:, 2], np.nan)
-        ax.imshow(np.ma.masked_invalid(fz.reshape(3, 3)), cmap=cmap, norm=norm, origin="lower",
-                  extent=(cx - half, cx + half, cy - half, cy + half), interpolation="nearest",
-                  zorder=1)
-        for edge in (-0.5 * pitch, 0.5 * pitch):  # the taxels' borders
-            ax.plot([cx + edge, cx + edge], [cy - half, cy + half], color="#8c8c8c",
-                    linewidth=0.6, zorder=2)
-            ax.plot([cx - half, cx + half], [cy + edge, cy + edge], color="#8c8c8c",
-                    linewidth=0.6, zorder=2)
-        ax.add_patch(Rectangle((cx - half, cy - half), 2 * half, 2 * half, fill=False,
-                               edgecolor="black", linewidth=1.2, zorder=3))
-        state_text = "waiting" if status is None else status.state
-        rate = "" if status is None or sample is None else f", {status.rate_hz:.0f} Hz"
-        label = f"patch {patch} · {state_text}{rate}"
-        tone = STATE_COLOURS.get(state_text, "black")
-        if inside:
-            ax.text(cx - half + 0.05 * pitch, cy + half - 0.05 * pitch, label, ha="left",
-                    va="top", fontsize=7, color=tone, zorder=6,
-                    bbox={"facecolor": "white", "alpha": 0.85, "pad": 1.0, "linewidth": 0})
-        else:
-            ax.text(cx, cy + half + 0.15 * pitch, label, ha="center", va="bottom", fontsize=9,
-                    color=tone, zorder=4)
-        if sample is None:
-            ax.text(cx, cy, "no sample", ha="center", va="center", fontsize=8, color="#555555")
+    # N per mm: a quarter of the scale (1.25 N of 5 N) reaches the taxel's edge, so arrows
+    # stay inside their taxel up to that shear
+    pen = _Pen(ax, colormaps["inferno"].with_extremes(bad="#d9d9d9"), Normalize(0.0, scale_N),
+               pitch, (scale_N / 4.0) / (0.5 * pitch), shear_min_N,
+               inside=_crowded(state, pitch))  # labels inside the patches' top edge, all alike
+    centres = {patch: _draw_patch(pen, patch, 1000.0 * x_m, 1000.0 * y_m,
+                                  state.statuses.get(patch))
+               for patch, (x_m, y_m) in sorted(state.layout.positions.items())}
+    _draw_frame(figure, pen, state, title, time_s)
+    return Picture(figure, ax, centres)
+
+
+@dataclass(frozen=True)
+class _Pen:
+    """What every patch of one picture is drawn with (lengths in mm)."""
+
+    ax: Any
+    cmap: Any
+    norm: Any
+    pitch: float
+    arrow_scale: float  # N per mm of arrow
+    shear_min_N: float
+    inside: bool  # patch labels inside the patch's top edge
+
+    @property
+    def half(self) -> float:
+        return 1.5 * self.pitch
+
+
+def _draw_patch(pen: _Pen, patch: int, cx: float, cy: float,
+                status: Any) -> list[tuple[float, float]]:
+    """One patch at (cx, cy): its Fz map, grid, outline and label, then its taxels; the
+    taxels' centres."""
+    from matplotlib.patches import Rectangle
+
+    ax, pitch, half = pen.ax, pen.pitch, pen.half
+    sample = status.last if status is not None else None
+    taxels = [(cx + (k % 3 - 1) * pitch, cy + (k // 3 - 1) * pitch) for k in range(9)]
+    fz = np.full(9, np.nan)
+    if sample is not None:
+        fz = np.where(sample.valid, sample.force_N[:, 2], np.nan)
+    ax.imshow(np.ma.masked_invalid(fz.reshape(3, 3)), cmap=pen.cmap, norm=pen.norm,
+              origin="lower", extent=(cx - half, cx + half, cy - half, cy + half),
+              interpolation="nearest", zorder=1)
+    for edge in (-0.5 * pitch, 0.5 * pitch):  # the taxels' borders
+        ax.plot([cx + edge, cx + edge], [cy - half, cy + half], color="#8c8c8c",
+                linewidth=0.6, zorder=2)
+        ax.plot([cx - half, cx + half], [cy + edge, cy + edge], color="#8c8c8c",
+                linewidth=0.6, zorder=2)
+    ax.add_patch(Rectangle((cx - half, cy - half), 2 * half, 2 * half, fill=False,
+                           edgecolor="black", linewidth=1.2, zorder=3))
+    state_text = "waiting" if status is None else status.state
+    rate = "" if status is None or sample is None else f", {status.rate_hz:.0f} Hz"
+    label = f"patch {patch} · {state_text}{rate}"
+    tone = STATE_COLOURS.get(state_text, "black")
+    if pen.inside:
+        ax.text(cx - half + 0.05 * pitch, cy + half - 0.05 * pitch, label, ha="left",
+                va="top", fontsize=7, color=tone, zorder=6,
+                bbox={"facecolor": "white", "alpha": 0.85, "pad": 1.0, "linewidth": 0})
+    else:
+        ax.text(cx, cy + half + 0.15 * pitch, label, ha="center", va="bottom", fontsize=9,
+                color=tone, zorder=4)
+    if sample is None:
+        ax.text(cx, cy, "no sample", ha="center", va="center", fontsize=8, color="#555555")
+    else:
+        _draw_taxels(pen, sample, taxels)
+    return taxels
+
+
+def _draw_taxels(pen: _Pen, sample: Any, taxels: list[tuple[float, float]]) -> None:
+    """Each taxel's Fz in N, or its hatched fault code; the shear arrows."""
+    from matplotlib.patches import Rectangle
+
+    ax, pitch = pen.ax, pen.pitch
+    u, v, xs, ys = [], [], [], []
+    for k, (tx, ty) in enumerate(taxels):
+        if not sample.valid[k]:
+            ax.add_patch(Rectangle((tx - pitch / 2, ty - pitch / 2), pitch, pitch,
+                                   facecolor=HATCH_GREY, hatch="///", edgecolor="#616161",
+                                   linewidth=0.0, zorder=2))
+            ax.text(tx, ty, reason_code(int(sample.reason[k]))[0], ha="center",
+                    va="center", fontsize=8, fontweight="bold", color="#b71c1c", zorder=4)
             continue
-        u, v, xs, ys = [], [], [], []
-        for k, (tx, ty) in enumerate(taxels):
-            if not sample.valid[k]:
-                ax.add_patch(Rectangle((tx - pitch / 2, ty - pitch / 2), pitch, pitch,
-                                       facecolor=HATCH_GREY, hatch="///", edgecolor="#616161",
-                                       linewidth=0.0, zorder=2))
-                ax.text(tx, ty, reason_code(int(sample.reason[k]))[0], ha="center",
-                        va="center", fontsize=8, fontweight="bold", color="#b71c1c", zorder=4)
-                continue
-            fx, fy, f = (float(c) for c in sample.force_N[k])
-            rgba = cmap(norm(f))
-            light = 0.2126 * rgba[0] + 0.7152 * rgba[1] + 0.0722 * rgba[2] > 0.45
-            ax.text(tx - 0.44 * pitch, ty - 0.44 * pitch, _decimal(f), ha="left",
-                    va="bottom", fontsize=8, color="black" if light else "white", zorder=4)
-            if math.hypot(fx, fy) >= shear_min_N:
-                xs.append(tx)
-                ys.append(ty)
-                u.append(fx)
-                v.append(fy)
-        if u:
-            ax.quiver(xs, ys, u, v, angles="xy", scale_units="xy", scale=arrow_scale,
-                      color=ARROW_COLOUR, edgecolor="black", linewidth=0.6, width=0.012,
-                      minlength=0.0, zorder=5)
+        fx, fy, f = (float(c) for c in sample.force_N[k])
+        rgba = pen.cmap(pen.norm(f))
+        light = 0.2126 * rgba[0] + 0.7152 * rgba[1] + 0.0722 * rgba[2] > 0.45
+        ax.text(tx - 0.44 * pitch, ty - 0.44 * pitch, _decimal(f), ha="left",
+                va="bottom", fontsize=8, color="black" if light else "white", zorder=4)
+        if math.hypot(fx, fy) >= pen.shear_min_N:
+            xs.append(tx)
+            ys.append(ty)
+            u.append(fx)
+            v.append(fy)
+    if u:
+        ax.quiver(xs, ys, u, v, angles="xy", scale_units="xy", scale=pen.arrow_scale,
+                  color=ARROW_COLOUR, edgecolor="black", linewidth=0.6, width=0.012,
+                  minlength=0.0, zorder=5)
+
+
+def _draw_frame(figure: Any, pen: _Pen, state: ViewState, title: str,
+                time_s: float | None) -> None:
+    """The axes around the patches: limits, labels, the 1 N shear key, the Fz colour bar
+    and the title."""
+    from matplotlib import colormaps
+    from matplotlib.cm import ScalarMappable
+
+    ax = pen.ax
     x0, x1, y0, y1 = _extent_mm(state)
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
@@ -197,16 +239,15 @@ def moment_picture(state: ViewState, *, scale_N: float, time_s: float | None,
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
     ax.quiver([x0 + 0.06 * (x1 - x0)], [y0 + 0.05 * (y1 - y0)], [1.0], [0.0],
-                    angles="xy", scale_units="xy", scale=arrow_scale, color=ARROW_COLOUR,
+                    angles="xy", scale_units="xy", scale=pen.arrow_scale, color=ARROW_COLOUR,
                     edgecolor="black", linewidth=0.6, width=0.012, zorder=5)
-    ax.text(x0 + 0.06 * (x1 - x0) + 1.0 / arrow_scale + 1.0, y0 + 0.05 * (y1 - y0),
+    ax.text(x0 + 0.06 * (x1 - x0) + 1.0 / pen.arrow_scale + 1.0, y0 + 0.05 * (y1 - y0),
             "shear 1 N", va="center", fontsize=8)
-    bar = figure.colorbar(ScalarMappable(norm=norm, cmap=colormaps["inferno"]), ax=ax,
+    bar = figure.colorbar(ScalarMappable(norm=pen.norm, cmap=colormaps["inferno"]), ax=ax,
                           extend="both", shrink=0.9, pad=0.02)
     bar.set_label("normal force Fz (N)")
     when = "" if time_s is None else f"  t = {time_s:.3f} s"
     ax.set_title(f"{title}{when}", fontsize=11, loc="left")
-    return Picture(figure, ax, centres)
 
 
 def _decimal(value: float) -> str:
