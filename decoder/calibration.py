@@ -50,7 +50,7 @@ def default_candidates() -> tuple[str, ...]:
     out = ["analytic"]
     for name in available_decoders():
         cls = decoder_class(name)
-        if name != "analytic" and issubclass(cls, BaseDecoder) and cls._state:
+        if name != "analytic" and issubclass(cls, BaseDecoder) and cls.needs_fitting:
             out.append(name)
     return tuple(out)
 

@@ -44,6 +44,9 @@ class Decoder(Protocol):
     """Resistances (samples, 9, P) or (samples, patches, 9, P) in ohm -> forces."""
 
     name: ClassVar[str]
+    needs_fitting: ClassVar[bool]
+    """It decodes only once fitted, or loaded from a model file (a learned decoder); a
+    decoder that decodes as built (``analytic``) says False."""
 
     def fit(self, resistance_ohm: ArrayLike, force_N: ArrayLike, *,
             progress: Progress | None = None) -> Self: ...
@@ -130,9 +133,15 @@ class BaseDecoder:
     """
 
     name: ClassVar[str] = ""
+    needs_fitting: ClassVar[bool] = False
     _params: ClassVar[tuple[str, ...]] = ("constants", "r0_ohm")
     _state: ClassVar[tuple[str, ...]] = ()
     _loaded_meta: dict[str, Any]
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "needs_fitting" not in cls.__dict__:  # a decoder with learned state needs fitting
+            cls.needs_fitting = bool(cls._state)
 
     def __init__(self, *, constants: SensorConstants = DEFAULT_CONSTANTS,
                  r0_ohm: ArrayLike | None = None) -> None:

@@ -112,6 +112,7 @@ class _Readings:
     sample carries what it assembled. Only :func:`read_patch_samples` uses it."""
 
     name: ClassVar[str] = "recorded-readings"
+    needs_fitting: ClassVar[bool] = False
 
     def __init__(self, pillars: int, constants: SensorConstants) -> None:
         self.pillars_ = pillars

@@ -30,7 +30,7 @@ def _untrained(names: tuple[str, ...]) -> list[str]:
     out = []
     for name in names:
         cls = decoder_class(name)
-        if isinstance(cls, type) and issubclass(cls, BaseDecoder) and not cls._state:
+        if isinstance(cls, type) and issubclass(cls, BaseDecoder) and not cls.needs_fitting:
             out.append(name)
     return out
 
