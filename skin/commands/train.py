@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from decoder.registry import create_decoder
-    from skin.commands.bench import limit_blas_threads
+    from skin.commands.common.blas import limit_blas_threads
     from skin.dataset import read_dataset
 
     limit_blas_threads()

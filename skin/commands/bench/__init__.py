@@ -7,12 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Callable
 from typing import Any
-
-SCENES = ("paper", "paper-noisy")
-"""The paper's protocol as published (noise-free), and the noise study (read noise, ADC)."""
-TABLE1_SCENES = ("paper", "paper-noisy", "indenter")
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -54,91 +49,6 @@ def _write_json(path: str, data: dict[str, Any]) -> None:
         handle.write(json.dumps(data, indent=2).encode() + b"\n")
 
 
-def _splits(scene: str, seeds: int) -> list[tuple[Any, ...]]:
-    import sim
-
-    out = []
-    for s in range(seeds):
-        train = sim.generate_dataset(scene, 1000, 2 * s + 1)
-        test = sim.generate_dataset(scene, 100, 2 * s + 2)
-        out.append((train.resistance_ohm, train.force_N, test.resistance_ohm, test.force_N))
-    return out
-
-
-def mlp_params(goal_units: str) -> dict[str, dict[str, Any]]:
-    return {name: {"goal_units": goal_units} for name in ("lm-mlp", "hybrid")}
-
-
-def hidden_auto(split: tuple[Any, ...], mode: str, params: dict[str, Any]) -> dict[str, Any]:
-    """lm-mlp with --hidden auto on one split: the choice, its curve, its test error."""
-    from decoder.metrics import evaluate
-    from decoder.registry import create_decoder
-
-    decoder = create_decoder("lm-mlp", **{**params, "hidden": "auto"})
-    decoder.fit(split[0], split[1])
-    decoded = decoder.decode(split[2])
-    report = evaluate(split[3], decoded.force_N, decoded.valid, mode=mode)
-    choice = getattr(decoder, "hidden_choice", None)
-    assert choice is not None
-    return {"hidden": choice.hidden, "candidates": list(choice.candidates),
-            "start": choice.start, "stopped": choice.stopped,
-            "curve": [{"hidden": st.hidden, "train_mse": st.train_mse, "val_mse": st.val_mse,
-                       "epochs": st.epochs, "kept": st.kept} for st in choice.steps],
-            "ave_rel_err_pct": report.ave_rel_err_pct,
-            "ave_rel_err_floored_pct": report.ave_rel_err_floored_pct}
-
-
-def run_decoders(quick: bool, goal_units: str = "N",
-                 stage: Callable[[str], None] = lambda label: None) -> dict[str, Any]:
-    """Every figure of ``skin bench``; ``stage(label)`` as each long part starts."""
-    import sim
-    from bench import decoders as benchmark
-    from decoder.registry import available_decoders, create_decoder
-    from decoder.speed import decode_speed
-
-    seeds, batch, repeats = (1, 20_000, 2) if quick else (3, 200_000, 5)
-    params = mlp_params(goal_units)
-    result: dict[str, Any] = {"goal_units": goal_units, "seeds": seeds, "scenes": []}
-    splits: dict[str, list[tuple[Any, ...]]] = {}
-    for name in SCENES:
-        stage(f"decoders on {name}")
-        scene = sim.load_scene(name)
-        splits[name] = _splits(name, seeds)
-        part = benchmark.bench_decoders(splits[name], scene.crosstalk_matrix(), scene.mode,
-                                        available_decoders(), batch=batch, repeats=repeats,
-                                        params=params, speed=name == "paper")
-        result["scenes"].append({"scene": name, "mode": scene.mode,
-                                 "noise": "noise" in scene.effects, **part})
-    paper = result["scenes"][0]
-    result.update(scene="paper", oracle=paper["oracle"], decoders=paper["decoders"])
-    table = []
-    for name in TABLE1_SCENES:
-        stage(f"Table 1 on {name}")
-        scene_splits = splits.get(name) or _splits(name, seeds)
-        table += benchmark.table1(scene_splits, sim.load_scene(name).mode, name,
-                                  params=params["lm-mlp"])
-    result["table1"] = table
-    stage("--hidden auto")
-    result["hidden_auto"] = hidden_auto(splits["paper"][0], "z", params["lm-mlp"])
-    result["analytic_taxel_samples_per_s"] = {
-        "z": benchmark.analytic_throughput(1, 10 * batch, repeats),
-        "xyz": benchmark.analytic_throughput(3, 5 * batch, repeats)}
-    stage("3-axis speed")
-    r_xyz, f_xyz, r_xyz_test, _ = _splits("indenter", 1)[0]
-    result["xyz_speed"] = [
-        dict(zip(("name", "decode_samples_per_s", "latency_us"),
-                 (name, *decode_speed(
-                     create_decoder(name, **params.get(name, {})).fit(r_xyz, f_xyz),
-                     r_xyz_test, batch, repeats)), strict=True))
-        for name in available_decoders()]
-    stage("LM against SciPy")
-    r_train, f_train = splits["paper"][0][0], splits["paper"][0][1]
-    result["lm_vs_scipy"] = benchmark.lm_vs_scipy(
-        r_train.reshape(r_train.shape[0], -1), f_train[..., 2].reshape(r_train.shape[0], -1),
-        10, 10 if quick else 30)
-    return result
-
-
 def print_dataplane(result: dict[str, Any]) -> None:
     from skin.commands.common.tables import show
 
@@ -162,17 +72,9 @@ def print_dataplane(result: dict[str, Any]) -> None:
                   f"frames/s, {result['pipeline_mean_batch']:.1f} samples per decode")
 
 
-def limit_blas_threads() -> None:
-    """LM's matrices are a few hundred wide: BLAS threads cost more than they give. SciPy
-    may bring its own OpenBLAS, loaded on first import: import it before limiting, or its
-    Cholesky keeps every core (10x slower per LM epoch on a busy 2-core machine)."""
-    import scipy.linalg  # noqa: F401
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(1, user_api="blas")
-
-
 def run(args: argparse.Namespace) -> int:
+    from skin.commands.common.blas import limit_blas_threads
+
     limit_blas_threads()
     if args.target == "sim":
         from bench.sim import run_benchmark
@@ -201,13 +103,15 @@ def run(args: argparse.Namespace) -> int:
             _write_json(args.json, result)
         return 0
     if args.target == "cross":
-        from skin.commands.bench.cross import print_cross, run_cross
+        from bench.runs import mlp_params, run_cross
+        from skin.commands.bench.cross import print_cross
 
         result = run_cross(args.quick, mlp_params(args.goal_units))
         print_cross(result)
         if args.json:
             _write_json(args.json, result)
         return 0
+    from bench.runs import SCENES, TABLE1_SCENES, run_decoders
     from skin.commands.bench.report import Stages, check_plot, plot, print_decoders
 
     if args.plot:

@@ -4,60 +4,13 @@ z-only: ``paper``, ``paper-noisy`` and ``indenter`` read through pillar z (their
 pure presses, which is what a z-only reading can decode). 3-axis: those three and
 ``slide`` and ``grasp`` (which shear the taxels, so they are read in 3-axis mode only).
 Each cell: the share of taxels the decoder flags EXTRAPOLATED, its floored AveRelErr on
-the taxels it does not flag, and the oracle's on the same taxels.
+the taxels it does not flag, and the oracle's on the same taxels. The run is
+:func:`bench.runs.run_cross`; this module prints it.
 """
 
 from __future__ import annotations
 
 from typing import Any
-
-Z_SCENES = ("paper", "paper-noisy", "indenter")
-XYZ_SCENES = ("paper", "paper-noisy", "indenter", "slide", "grasp")
-
-
-def _scene(name: str, mode: str) -> Any:
-    import sim
-
-    data = sim.load_scene(name).to_dict()
-    data["scene"]["mode"] = mode
-    return sim.scene_from_dict(data)
-
-
-def _untrained(names: tuple[str, ...]) -> list[str]:
-    from decoder.protocol import BaseDecoder
-    from decoder.registry import decoder_class
-
-    out = []
-    for name in names:
-        cls = decoder_class(name)
-        if isinstance(cls, type) and issubclass(cls, BaseDecoder) and not cls.needs_fitting:
-            out.append(name)
-    return out
-
-
-def run_cross(quick: bool, params: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    import sim
-    from bench import decoders as benchmark
-    from decoder.registry import available_decoders
-
-    n_train, n_test = (500, 200) if quick else (1000, 500)
-    names = available_decoders()
-    result: dict[str, Any] = {"train_samples": n_train, "test_samples": n_test,
-                              "train_seed": 1, "test_seed": 2, "oracle": [], "cells": []}
-    for mode, scenes in (("z", Z_SCENES), ("xyz", XYZ_SCENES)):
-        train, test = {}, {}
-        for name in scenes:
-            scene = _scene(name, mode)
-            a = sim.generate_dataset(scene, n_train, 1)
-            b = sim.generate_dataset(scene, n_test, 2)
-            train[name] = (a.resistance_ohm, a.force_N)
-            test[name] = (b.resistance_ohm, b.force_N, scene.crosstalk_matrix())
-        part = benchmark.cross_matrix(train, test, mode, names, params=params,
-                                      untrained=_untrained(names))
-        result["oracle"] += part["oracle"]
-        result["cells"] += part["cells"]
-    result["bars"] = benchmark.cross_bars(result["cells"])
-    return result
 
 
 def _pct(value: float | None) -> str:
@@ -65,6 +18,7 @@ def _pct(value: float | None) -> str:
 
 
 def print_cross(result: dict[str, Any]) -> None:
+    from bench.runs import XYZ_SCENES, Z_SCENES
     from skin.commands.common.tables import show
 
     oracle = {(o["mode"], o["test"]): o for o in result["oracle"]}

@@ -123,8 +123,8 @@ def _run(args: argparse.Namespace) -> int:
 def _fit(args: argparse.Namespace) -> int:
     from decoder.calibration import report
     from decoder.tare import nominal_r0, normalise, tare_at_rest
-    from skin.commands.bench import limit_blas_threads
     from skin.commands.calibrate.output import model_meta, save_model, snippet, write_json
+    from skin.commands.common.blas import limit_blas_threads
     from skin.constants import SensorConstants
     from skin.dataset import read_dataset
     from skin.errors import ConfigError
