@@ -18,7 +18,7 @@ import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,6 +31,9 @@ from decoder.protocol import Decoder
 from decoder.registry import decoder_class, load_decoder
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
 from skin.errors import ConfigError, ModelFileError, NotFittedError
+
+if TYPE_CHECKING:
+    from canbus.zenoh.config import ZenohSettings
 
 MODES = ("z", "xyz")
 ANSWER_ORDERS = ("cob-id", "tpdo")
@@ -92,6 +95,7 @@ class HostConfig:
     sync: str = "produce"  # "external": follow the SYNC another master produces
     drift: DriftConfig | None = None
     buses: tuple[BusConfig, ...] = (BusConfig(),)
+    zenoh: ZenohSettings | None = None  # [zenoh]: publish on Zenoh (canbus.zenoh.config)
     source: str = field(default="<config>", compare=False)
     checked: bool = field(default=False, compare=False, repr=False)
 
@@ -147,7 +151,7 @@ def load_host_config(path: str | os.PathLike[str]) -> HostConfig:
 def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
                           source: str = "<config>") -> HostConfig:
     """Validate a parsed TOML document into a :class:`HostConfig`."""
-    _known(data, ("host", "drift", "patches", "bus", "buses"), "config")
+    _known(data, ("host", "drift", "patches", "bus", "buses", "zenoh"), "config")
     host = data.get("host", {})
     if not isinstance(host, dict):
         raise ConfigError("host", "must be a table ([host])")
@@ -171,6 +175,11 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
         raise ConfigError("patches", "missing: list the patches as [[patches]] tables")
     buses = buses_from_dict(data)
     patches = tuple(_patch(t, f"patches[{i}]", base, buses) for i, t in enumerate(tables))
+    if "zenoh" in data:
+        from canbus.zenoh.config import zenoh_settings_from_table
+
+        kwargs["zenoh"] = zenoh_settings_from_table(data["zenoh"], base=base,
+                                                    buses=tuple(b.name for b in buses))
     return _checked(HostConfig(patches=patches, source=source, buses=buses, **kwargs))
 
 
