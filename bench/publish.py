@@ -41,6 +41,7 @@ import numpy as np
 from bench.codecs import measure_codecs
 from bench.publish_host import host_main, receive, send
 from bench.publish_reader import reader_main
+from skin.errors import BusError
 
 DEFAULT_HOSTS, DEFAULT_PATCHES, DEFAULT_SECONDS = 4, 32, 10.0
 WARMUP_S = 2.0
@@ -99,11 +100,11 @@ def run_publish_benchmark(hosts: int = DEFAULT_HOSTS, patches: int = DEFAULT_PAT
             if not ready["ready"]:
                 ended = "" if sim.poll() is None else \
                     f"; skin sim run ended: {sim.stderr.read().decode() if sim.stderr else ''}"
-                raise RuntimeError(f"host {k}: patches not operational: {ready['health']}"
+                raise BusError(f"host {k}: patches not operational: {ready['health']}"
                                    f"{ended}")
         heard = _wait(reader_conn, "the reader")
         if not heard["ready"]:
-            raise RuntimeError(f"the reader heard only {heard['heard']}")
+            raise BusError(f"the reader heard only {heard['heard']}")
         time.sleep(WARMUP_S)
         log(f"measuring {seconds:g} s")
         for conn in [*host_conns, reader_conn]:
@@ -165,10 +166,10 @@ def _processes(hosts: int, patches: int, seconds: float, group: str, port: int,
 def _wait(conn: Connection, who: str) -> dict[str, Any]:
     try:
         if not conn.poll(READY_TIMEOUT_S):
-            raise RuntimeError(f"{who} did not answer within {READY_TIMEOUT_S:g} s")
+            raise BusError(f"{who} did not answer within {READY_TIMEOUT_S:g} s")
         return receive(conn)
     except EOFError:
-        raise RuntimeError(f"{who} ended without an answer (its traceback is above)") from None
+        raise BusError(f"{who} ended without an answer (its traceback is above)") from None
 
 
 def _percentiles(values: np.ndarray) -> dict[str, float]:

@@ -16,6 +16,9 @@ from typing import Any
 import msgpack
 
 READY_TIMEOUT_S = 60.0
+HEARTBEAT_MS = 1000
+"""The patches' heartbeat: on a machine shared with other work a 100 ms heartbeat was
+overdue (1.5 periods) often enough to lose patches mid-run; the data path is the same."""
 
 
 def send(conn: Connection, message: dict[str, Any]) -> None:
@@ -43,7 +46,7 @@ def host_main(conn: Connection, index: int, group: str, port: int, patch_ids: li
         patches=tuple(PatchConfig(n, bus=name) for n in patch_ids),
         buses=(BusConfig(name=name, interface="udp_multicast", channel=group,
                          options={"port": port}),),
-        scan_ms=300, sdo_timeout_ms=2000)
+        scan_ms=300, sdo_timeout_ms=2000, heartbeat_ms=HEARTBEAT_MS)
     settings = ZenohSettings(listen=(listen,), host=f"host{index}", express=express)
     bus = can.Bus(interface="udp_multicast", channel=group, port=port)
     try:
