@@ -52,6 +52,7 @@ class Rig:
     endpoint: str
     bus: can.BusABC  # the host's bus
     patch_bus: can.BusABC  # the patches' bus: frames sent here reach the host
+    channel: str  # the virtual channel: another bus on it sees both sides
     frames: list[ForceFrame] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -84,7 +85,7 @@ def publishing_host(patches: tuple[int, ...] = (1, 2), *, period_ms: float = 20.
     server = PatchServer(network, ArraySource(presses(50, len(patches)), patches))
     try:
         with server, HostManager(bus, config) as host:
-            rig = Rig(host, ZenohPublisher(host, settings), endpoint, bus, network.bus)
+            rig = Rig(host, ZenohPublisher(host, settings), endpoint, bus, network.bus, channel)
 
             def keep(frame: ForceFrame) -> None:
                 with rig.lock:
