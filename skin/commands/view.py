@@ -47,6 +47,9 @@ def _check(args: argparse.Namespace) -> None:
     from skin.errors import ConfigError
 
     _positive(args, "scale", "seconds", "refresh", "fps")
+    from skin.commands.view_zenoh import check_zenoh_arguments
+
+    check_zenoh_arguments(args)
     pictures = [f for f in ("png", "gif", "mp4", "plot") if getattr(args, f)]
     if len(pictures) + args.snapshot > 1:
         chosen = ", ".join(f"--{f}" for f in pictures + ["snapshot"] * args.snapshot)
@@ -129,6 +132,10 @@ def _view(args: argparse.Namespace) -> int:
 
         config = load_host_config(args.config)
     layout = _layout(args, config)
+    if args.zenoh is not None:
+        from skin.commands.view_zenoh import run_zenoh
+
+        return run_zenoh(args, layout, _live)
     if args.file:
         from skin.commands.view_sources import recording_times
 
@@ -462,6 +469,9 @@ def add_subparser(subparsers: Any) -> None:
     pictures.add_argument("--raw", action="store_true",
                           help="also the taxel's raw resistances, from the patch's own PDOs")
     parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
+    from skin.commands.view_zenoh import add_zenoh_arguments
+
+    add_zenoh_arguments(parser)
     add_rcvbuf_argument(parser)
     can.cli.add_bus_arguments(parser)
     parser.set_defaults(func=_view, interface="virtual")
