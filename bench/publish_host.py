@@ -46,7 +46,7 @@ def host_main(conn: Connection, index: int, group: str, port: int, patch_ids: li
         patches=tuple(PatchConfig(n, bus=name) for n in patch_ids),
         buses=(BusConfig(name=name, interface="udp_multicast", channel=group,
                          options={"port": port}),),
-        scan_ms=300, sdo_timeout_ms=2000, heartbeat_ms=HEARTBEAT_MS)
+        scan_ms=300, sdo_timeout_ms=5000, heartbeat_ms=HEARTBEAT_MS)
     settings = ZenohSettings(listen=(listen,), host=f"host{index}", express=express)
     bus = can.Bus(interface="udp_multicast", channel=group, port=port)
     try:

@@ -120,3 +120,42 @@ def test_with_mtls_a_reader_needs_a_certificate_of_the_ca(certs: Path, tmp_path:
         assert _received(reader("reader")) >= 5
         assert _received(reader(None)) == 0
         assert _received(reader("stranger")) == 0  # signed by another CA
+
+
+def test_access_control_lets_only_the_named_reader_have_the_forces(certs: Path,
+                                                                   tmp_path: Path) -> None:
+    """docs/zenoh.md's access-control example: mTLS names the readers by their
+    certificate's common name; the rules let only `reader` receive the forces."""
+    _certificate("other-reader", certs)  # the same CA, another name
+    port = free_port()
+    config = _host_toml(certs, port, True, tmp_path)
+    config.write_text(config.read_text() + """
+[zenoh.options.access_control]
+enabled = true
+default_permission = "deny"
+[[zenoh.options.access_control.rules]]
+id = "forces out"
+permission = "allow"
+flows = ["egress", "ingress"]
+messages = ["put", "declare_subscriber", "liveliness_token"]
+key_exprs = ["canskin/**"]
+[[zenoh.options.access_control.subjects]]
+id = "controller"
+cert_common_names = ["reader"]
+[[zenoh.options.access_control.policies]]
+rules = ["forces out"]
+subjects = ["controller"]
+""")
+    settings = load_host_config(config).zenoh
+    assert settings is not None
+    endpoint = f"tls/localhost:{port}"
+
+    def reader(name: str) -> ZenohSettings:
+        return ZenohSettings(connect=(endpoint,), tls={
+            "root_ca_certificate": str(certs / "ca.pem"), "enable_mtls": True,
+            "connect_certificate": str(certs / f"{name}.pem"),
+            "connect_private_key": str(certs / f"{name}.key")})
+
+    with publishing_host((1,), settings=settings):
+        assert _received(reader("reader")) >= 5
+        assert _received(reader("other-reader")) == 0
