@@ -17,6 +17,7 @@ import msgpack
 
 READY_TIMEOUT_S = 60.0
 HEARTBEAT_MS = 1000
+RCVBUF = 4 << 20
 """The patches' heartbeat: on a machine shared with other work a 100 ms heartbeat was
 overdue (1.5 periods) often enough to lose patches mid-run; the data path is the same."""
 
@@ -38,6 +39,7 @@ def host_main(conn: Connection, index: int, group: str, port: int, patch_ids: li
     from canbus.master.busconfig import BusConfig
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig, PatchConfig
+    from canbus.tools.recorder import enlarge_receive_buffer
     from canbus.zenoh.config import ZenohSettings
     from canbus.zenoh.publisher import ZenohPublisher
 
@@ -49,6 +51,7 @@ def host_main(conn: Connection, index: int, group: str, port: int, patch_ids: li
         scan_ms=300, sdo_timeout_ms=5000, heartbeat_ms=HEARTBEAT_MS)
     settings = ZenohSettings(listen=(listen,), host=f"host{index}", express=express)
     bus = can.Bus(interface="udp_multicast", channel=group, port=port)
+    enlarge_receive_buffer(bus, RCVBUF)  # as skin run does
     try:
         host = HostManager(bus, config)
         publisher = ZenohPublisher(host, settings, measure_cpu=True)
