@@ -59,6 +59,20 @@ class ZenohSettings:
     def host_name(self) -> str:
         return self.host or default_host_name()
 
+    def listen_endpoints(self, *, reader: bool = False) -> tuple[str, ...]:
+        """Where the session listens: ``listen``, else none for a reader or a client and
+        ``DEFAULT_LISTEN`` for a host."""
+        if self.listen is not None:
+            return self.listen
+        return () if reader or self.mode == "client" else DEFAULT_LISTEN
+
+    def connect_endpoints(self, *, reader: bool = False) -> tuple[str, ...]:
+        """Where the session connects: ``connect``, else, for a reader that listens on
+        nothing, ``DEFAULT_CONNECT`` (this machine's host)."""
+        if self.connect or not reader or self.listen_endpoints(reader=True):
+            return self.connect
+        return DEFAULT_CONNECT
+
     def zenoh_config(self, *, reader: bool = False) -> zenoh.Config:
         """The Zenoh configuration: ``config_file`` (if any), then ``options``, then the
         fields. A reader's default is to connect to ``DEFAULT_CONNECT`` and listen on
@@ -69,11 +83,11 @@ class ZenohSettings:
                   else zenoh.Config())
         for key, value in self.options.items():
             config.insert_json5(key, json.dumps(value))
-        listen = self.listen if self.listen is not None else (() if reader else DEFAULT_LISTEN)
-        connect = self.connect or (DEFAULT_CONNECT if reader and not listen else ())
         config.insert_json5("mode", json.dumps(self.mode))
-        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
-        config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        config.insert_json5("listen/endpoints",
+                            json.dumps(list(self.listen_endpoints(reader=reader))))
+        config.insert_json5("connect/endpoints",
+                            json.dumps(list(self.connect_endpoints(reader=reader))))
         config.insert_json5("scouting/multicast/enabled", json.dumps(self.scouting))
         if "adminspace/enabled" not in self.options:
             config.insert_json5("adminspace/enabled", "false")
@@ -101,10 +115,9 @@ def open_zenoh(settings: ZenohSettings, *, reader: bool = False) -> zenoh.Sessio
     try:
         return zenoh.open(settings.zenoh_config(reader=reader))
     except zenoh.ZError as err:
-        listen = settings.listen if settings.listen is not None else \
-            (() if reader else DEFAULT_LISTEN)
-        where = ", ".join([*(f"listen {e}" for e in listen),
-                           *(f"connect {e}" for e in settings.connect)]) or "defaults"
+        where = ", ".join([*(f"listen {e}" for e in settings.listen_endpoints(reader=reader)),
+                           *(f"connect {e}"
+                             for e in settings.connect_endpoints(reader=reader))]) or "none"
         raise ZenohError(f"zenoh: cannot open a session ({where}): {err}") from err
 
 
@@ -133,7 +146,7 @@ def zenoh_settings_from_table(table: Any, *, base: Path = Path("."), where: str 
         kwargs["mode"] = mode
     for key in ("listen", "connect"):
         if key in table:
-            kwargs[key] = _endpoints(table[key], f"{where}.{key}")
+            kwargs[key] = check_endpoints(table[key], f"{where}.{key}")
     if "prefix" in table:
         prefix = _str(table["prefix"], f"{where}.prefix")
         if (problem := prefix_problem(prefix)) is not None:
@@ -190,7 +203,7 @@ def _str(value: Any, where: str) -> str:
     return value
 
 
-def _endpoints(value: Any, where: str) -> tuple[str, ...]:
+def check_endpoints(value: Any, where: str) -> tuple[str, ...]:
     if isinstance(value, str):
         value = [value]
     if not isinstance(value, list):

@@ -114,6 +114,13 @@ class ZenohPublisher:
 
     def start(self) -> None:
         """Open the session, declare a publisher per patch, subscribe to the host."""
+        try:
+            self._start()
+        except BaseException:
+            self.stop()
+            raise
+
+    def _start(self) -> None:
         import zenoh
 
         self._before = native_threads() if self.session is None else None
@@ -151,6 +158,8 @@ class ZenohPublisher:
             self.queue.ready.set()
             self._thread.join()
             self._thread = None
+        if self.session is None:
+            return
         self._publish_stats()
         for publisher, _ in self._publishers.values():
             publisher.undeclare()

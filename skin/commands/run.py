@@ -198,12 +198,10 @@ def _zenoh_publisher(host: HostManager, config: HostConfig,
 
     settings = replace(config.zenoh or ZenohSettings(), enabled=True)
     publisher = ZenohPublisher(host, settings)
-    listen = ", ".join(settings.listen if settings.listen is not None else
-                       ("tcp/127.0.0.1:7447",))
+    listen = ", ".join(settings.listen_endpoints()) or "nothing"
+    connect = ", ".join(settings.connect_endpoints())
     print(f"zenoh: publishing on {settings.prefix}/{publisher.host_name}/** ({settings.mode}, "
-          f"listen {listen or 'nothing'}"
-          f"{', connect ' + ', '.join(settings.connect) if settings.connect else ''})",
-          flush=True)
+          f"listen {listen}{', connect ' + connect if connect else ''})", flush=True)
     return publisher
 
 

@@ -70,11 +70,9 @@ def reader_settings(args: argparse.Namespace) -> ZenohSettings:
             raise ConfigError("--zenoh-config", f"{path}: has no [zenoh] table")
         settings = zenoh_settings_from_table(data["zenoh"], base=path.parent)
     if args.zenoh:
-        from canbus.zenoh.config import with_overrides, zenoh_settings_from_table
+        from canbus.zenoh.config import check_endpoints, with_overrides
 
-        endpoints = zenoh_settings_from_table({"connect": list(args.zenoh)},
-                                              where="--zenoh").connect
-        settings = with_overrides(settings, connect=endpoints)
+        settings = with_overrides(settings, connect=check_endpoints(args.zenoh, "--zenoh"))
     return settings
 
 

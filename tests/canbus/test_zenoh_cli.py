@@ -15,12 +15,12 @@ import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
-from canbus.master.hostconfig import host_config_from_dict  # noqa: E402
-from canbus.zenoh.config import ZenohSettings, zenoh_settings_from_table  # noqa: E402
-from canbus.zenoh.reader import subscribe  # noqa: E402
-from skin.cli import main  # noqa: E402
-from skin.errors import ConfigError  # noqa: E402
-from tests.canbus.zenoh_rig import free_port  # noqa: E402
+from canbus.master.hostconfig import host_config_from_dict
+from canbus.zenoh.config import ZenohSettings, zenoh_settings_from_table
+from canbus.zenoh.reader import subscribe
+from skin.cli import main
+from skin.errors import ConfigError
+from tests.canbus.zenoh_rig import free_port
 
 SKIN = [sys.executable, "-m", "skin.cli"]
 

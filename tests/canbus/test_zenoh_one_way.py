@@ -17,11 +17,10 @@ import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
-import zenoh  # noqa: E402
 
-from canbus.zenoh import schema  # noqa: E402
-from canbus.zenoh.reader import open_session  # noqa: E402
-from tests.canbus.zenoh_rig import Rig, publishing_host  # noqa: E402
+from canbus.zenoh import schema
+from canbus.zenoh.reader import open_session
+from tests.canbus.zenoh_rig import Rig, publishing_host
 
 SLOW_READER = Path(__file__).with_name("zenoh_slow_reader.py")
 SYNC = 0x080

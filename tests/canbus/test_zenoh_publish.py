@@ -11,9 +11,9 @@ import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
-from canbus.master.dataplane import ForceFrame  # noqa: E402
-from canbus.zenoh.reader import open_session, subscribe, subscribe_events  # noqa: E402
-from tests.canbus.zenoh_rig import publishing_host  # noqa: E402
+from canbus.master.dataplane import ForceFrame
+from canbus.zenoh.reader import open_session, subscribe, subscribe_events
+from tests.canbus.zenoh_rig import publishing_host
 
 
 def _same(a: ForceFrame, b: ForceFrame) -> None:

@@ -15,7 +15,7 @@ import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
-from tests.canbus.zenoh_rig import publishing_host  # noqa: E402
+from tests.canbus.zenoh_rig import publishing_host
 
 SCRIPT = Path(__file__).with_name("zenoh_raw_reader.py")
 COUNT = 40

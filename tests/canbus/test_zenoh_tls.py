@@ -13,10 +13,10 @@ import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
-from canbus.master.hostconfig import load_host_config  # noqa: E402
-from canbus.zenoh.config import ZenohSettings  # noqa: E402
-from canbus.zenoh.reader import subscribe  # noqa: E402
-from tests.canbus.zenoh_rig import free_port, publishing_host  # noqa: E402
+from canbus.master.hostconfig import load_host_config
+from canbus.zenoh.config import ZenohSettings
+from canbus.zenoh.reader import subscribe
+from tests.canbus.zenoh_rig import free_port, publishing_host
 
 OPENSSL = shutil.which("openssl")
 pytestmark = pytest.mark.skipif(OPENSSL is None, reason="no openssl to make certificates")
