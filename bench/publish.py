@@ -83,7 +83,7 @@ def spread(patches: int, hosts: int) -> list[list[int]]:
 
 
 def run_publish_benchmark(hosts: int = DEFAULT_HOSTS, patches: int = DEFAULT_PATCHES,
-                          seconds: float = DEFAULT_SECONDS, *, express: bool = True,
+                          seconds: float = DEFAULT_SECONDS, *, express: bool = False,
                           log: Any = print) -> dict[str, Any]:
     """Run the benchmark (module docstring); the figures."""
     codecs = measure_codecs()

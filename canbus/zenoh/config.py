@@ -50,7 +50,7 @@ class ZenohSettings:
     host: str = ""  # "": this machine's name
     queue_size: int = 4096  # samples the publisher holds when Zenoh or a reader is slow
     stats_period_s: float = 1.0
-    express: bool = True  # force samples leave at once, not batched with the next ones
+    express: bool = False  # True: each force sample leaves at once, never batched by Zenoh
     tls: Mapping[str, str | bool] = field(default_factory=dict)
     config_file: Path | None = None  # a Zenoh JSON5 config the fields above go over
     options: Mapping[str, Any] = field(default_factory=dict)  # Zenoh config paths -> values

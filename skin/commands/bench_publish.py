@@ -14,8 +14,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--hosts", type=int, default=None, metavar="H",
                        help="host processes, each with its patches on its own "
                             "udp_multicast bus (default 4)")
-    group.add_argument("--batched", action="store_true",
-                       help="let Zenoh batch force samples (express off)")
+    group.add_argument("--express", action="store_true",
+                       help="force samples with Zenoh's express flag (never batched; "
+                            "default: zenoh.express's default, off)")
 
 
 def run_publish(args: argparse.Namespace,
@@ -41,7 +42,7 @@ def run_publish(args: argparse.Namespace,
                           f"host), got {patches}")
     if not seconds > 0:
         raise ConfigError("--seconds", f"must be > 0, got {seconds}")
-    result = run_publish_benchmark(hosts, patches, seconds, express=not args.batched)
+    result = run_publish_benchmark(hosts, patches, seconds, express=args.express)
     print_publish(result)
     if args.json:
         write_json(args.json, result)
