@@ -54,13 +54,16 @@ def test_imports_flow_one_way(path: Path) -> None:
 # side uses only those; the master side also the device side (its force nodes are local
 # devices) and the bus tools (it decodes recordings); the bus tools and the timed bus only
 # the wire-level modules.
-CANBUS_SIDES = ("device", "master", "tools", "timed")
+# The Zenoh side publishes and reads the master's frames and events; the master reaches it
+# only through its config hook (hostconfig parses [zenoh] with canbus.zenoh.config).
+CANBUS_SIDES = ("device", "master", "tools", "timed", "zenoh")
 CANBUS_ALLOWED = {
     "": set(),
     "device": {"device"},
-    "master": {"device", "master", "tools"},
+    "master": {"device", "master", "tools", "zenoh"},
     "tools": {"tools"},
     "timed": {"timed"},
+    "zenoh": {"master", "zenoh"},
 }
 
 

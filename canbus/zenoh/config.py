@@ -33,6 +33,12 @@ TLS_KEYS = ("root_ca_certificate", "listen_certificate", "listen_private_key",
             "connect_certificate", "connect_private_key")
 TLS_FLAGS = ("enable_mtls", "verify_name_on_connect")
 _ENDPOINT = re.compile(r"[a-z][a-z0-9-]*/\S+")
+_DEFAULT_OPTIONS: dict[str, Any] = {
+    "adminspace/enabled": False,
+    # batches a link holds for the forces' priority (Zenoh's default 2): a reader's link
+    # rides out a publishing host or network stalled for a moment instead of dropping
+    "transport/link/tx/queue/size/data_high": 8,
+}
 _FIELDS = ("enabled", "mode", "listen", "connect", "scouting", "prefix", "host", "queue_size",
            "stats_period_s", "express", "tls", "config_file", "options")
 
@@ -89,8 +95,9 @@ class ZenohSettings:
         config.insert_json5("connect/endpoints",
                             json.dumps(list(self.connect_endpoints(reader=reader))))
         config.insert_json5("scouting/multicast/enabled", json.dumps(self.scouting))
-        if "adminspace/enabled" not in self.options:
-            config.insert_json5("adminspace/enabled", "false")
+        for key, value in _DEFAULT_OPTIONS.items():
+            if key not in self.options:
+                config.insert_json5(key, json.dumps(value))
         for key, value in self.tls.items():
             config.insert_json5(f"transport/link/tls/{key}", json.dumps(value))
         return config
