@@ -58,7 +58,7 @@ def host_main(conn: Connection, index: int, group: str, port: int, patch_ids: li
         gc.collect()
         gc.freeze()
         with publisher, host:
-            ok = host.wait_operational(timeout=READY_TIMEOUT_S)
+            ok = _operational(host)
             send(conn, {"ready": ok, "health": {str(k): v.state
                                                 for k, v in host.health().items()}})
             receive(conn)  # measure
@@ -71,6 +71,18 @@ def host_main(conn: Connection, index: int, group: str, port: int, patch_ids: li
         send(conn, result)
     finally:
         bus.shutdown()
+
+
+def _operational(host: Any, attempts: int = 3) -> bool:
+    """Every patch operational; a patch whose set-up failed (an SDO answer lost on a busy
+    machine) is reset by NMT, so that it boots and is configured again."""
+    for _ in range(attempts):
+        if host.wait_operational(timeout=READY_TIMEOUT_S / attempts):
+            return True
+        for node_id, health in host.health().items():
+            if health.state == "failed":
+                host.patches[node_id].node.nmt.send_command(0x81)  # reset node
+    return bool(host.wait_operational(timeout=READY_TIMEOUT_S / attempts))
 
 
 def _snapshot(host: Any, publisher: Any) -> dict[str, Any]:
