@@ -6,4 +6,5 @@ runs ``decoders``, ``sim``, ``dataplane`` and ``server``; the other benchmarks a
 scripts, each run as ``python -m bench.NAME`` (its docstring says how). ``bench.rigs``
 holds the set-ups that tests and benchmarks share: simulated patches and the host on a
 bus, recorders stopped mid-stream, independent canopen masters in processes of their own.
+``bench.publish`` runs hosts publishing on Zenoh and one reader (``skin bench publish``).
 """

@@ -62,14 +62,17 @@ def test_imports_flow_one_way(path: Path) -> None:
 # nodes are local devices); the offline side also the master (it feeds recordings to the
 # listen-only host) and the bus tools (it reads recordings); the bus tools and the timed bus
 # only the wire-level modules. So the master side uses neither offline nor bench/ code.
-CANBUS_SIDES = ("device", "master", "offline", "tools", "timed")
+# The Zenoh side publishes and reads the master's frames and events; the master reaches it
+# only through its config hook (hostconfig parses [zenoh] with canbus.zenoh.config).
+CANBUS_SIDES = ("device", "master", "offline", "tools", "timed", "zenoh")
 CANBUS_ALLOWED = {
     "": set(),
     "device": {"device"},
-    "master": {"device", "master"},
+    "master": {"device", "master", "zenoh"},
     "offline": {"device", "master", "offline", "tools"},
     "tools": {"tools"},
     "timed": {"timed"},
+    "zenoh": {"master", "zenoh"},
 }
 
 

@@ -51,6 +51,7 @@ from canbus.master.buslink import BusLink
 from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
 from canbus.master.decoders import DecoderCache
 from canbus.master.discovery import UnknownNode
+from canbus.master.events import EmcyEvent, EventCallback, EventHooks, StateEvent
 from canbus.master.fanout import FrameCallback, FrameFanout
 from canbus.master.follower import ListenOnly
 from canbus.master.forcenode import ForceNode
@@ -106,6 +107,7 @@ class HostManager:
         self.unknown_nodes: dict[int, UnknownNode] = {}
         self.decoders = DecoderCache()
         self.fanout = FrameFanout()
+        self.events = EventHooks()
         self.taxel_log = TaxelLog()
         self._lock = threading.RLock()
         self._changed = threading.Condition(self._lock)  # notified on every state change
@@ -255,10 +257,20 @@ class HostManager:
     def remove_callback(self, callback: FrameCallback) -> None:
         self.fanout.remove_callback(callback)
 
+    def on_event(self, callback: EventCallback) -> None:
+        """Call ``callback(event)`` for every patch state change
+        (:class:`~canbus.master.events.StateEvent`) and EMCY
+        (:class:`~canbus.master.events.EmcyEvent`), on the thread that saw it; keep it short.
+        """
+        self.events.add(callback)
+
+    def remove_event_callback(self, callback: EventCallback) -> None:
+        self.events.remove(callback)
+
     @property
     def callback_errors(self) -> int:
-        """Exceptions raised by force and ``on_unknown`` callbacks (logged)."""
-        return self.fanout.callback_errors
+        """Exceptions raised by force, event and ``on_unknown`` callbacks (logged)."""
+        return self.fanout.callback_errors + self.events.errors
 
     @property
     def api_dropped(self) -> int:
@@ -360,11 +372,15 @@ class HostManager:
 
     def set_state(self, patch: PatchRecord, state: str, error: str | None = None) -> None:
         with self._changed:
-            if patch.state != state:
+            previous = patch.state
+            if previous != state:
                 logger.info("patch %d: %s -> %s%s", patch.node_id, patch.state, state,
                             f" ({error})" if error else "")
             patch.state, patch.error = state, error
             self._changed.notify_all()
+        if previous != state:
+            self.events.emit(StateEvent(patch.node_id, patch.link.name, state, previous, error,
+                                        time.time()))
 
     def take_offline(self, patch: PatchRecord, state: str) -> None:
         """Stop decoding the patch: from now on its samples are all-invalid (``MISSING``),
@@ -487,11 +503,13 @@ class HostManager:
                     del consumer.log[:-EMCY_LOG_KEPT]
             taxel = entry.data[0] if entry.data else TAXELS_PER_PATCH
             _log_emcy(patch.node_id, entry)
-            if taxel >= TAXELS_PER_PATCH or entry.code not in (DEVICE_HARDWARE, ERROR_RESET):
-                return
-            which = np.zeros(TAXELS_PER_PATCH, dtype=bool)
-            which[taxel] = True
-            self.set_mask(patch, which, entry.code == DEVICE_HARDWARE)
+            if taxel < TAXELS_PER_PATCH and entry.code in (DEVICE_HARDWARE, ERROR_RESET):
+                which = np.zeros(TAXELS_PER_PATCH, dtype=bool)
+                which[taxel] = True
+                self.set_mask(patch, which, entry.code == DEVICE_HARDWARE)
+            # after the mask: the samples completed before the EMCY went out first
+            self.events.emit(EmcyEvent(patch.node_id, patch.link.name, entry.code,
+                                       entry.register, bytes(entry.data), time.time()))
         return on_emcy
 
 

@@ -18,7 +18,7 @@ import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from canbus.master.busconfig import BusConfig, buses_from_dict
 from canbus.master.cobids import check_cob_ids, restricted
@@ -26,6 +26,9 @@ from decoder.protocol import Decoder
 from decoder.registry import decoder_class, load_decoder, needs_fitting
 from skin.constants import TAXELS_PER_PATCH, SensorConstants
 from skin.errors import ConfigError, ModelFileError
+
+if TYPE_CHECKING:
+    from canbus.zenoh.config import ZenohSettings
 
 MODES = ("z", "xyz")
 ANSWER_ORDERS = ("cob-id", "tpdo")
@@ -87,6 +90,7 @@ class HostConfig:
     sync: str = "produce"  # "external": follow the SYNC another master produces
     drift: DriftConfig | None = None
     buses: tuple[BusConfig, ...] = (BusConfig(),)
+    zenoh: ZenohSettings | None = None  # [zenoh]: publish on Zenoh (canbus.zenoh.config)
     source: str = field(default="<config>", compare=False)
     checked: bool = field(default=False, compare=False, repr=False)
 
@@ -142,7 +146,7 @@ def load_host_config(path: str | os.PathLike[str]) -> HostConfig:
 def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
                           source: str = "<config>") -> HostConfig:
     """Validate a parsed TOML document into a :class:`HostConfig`."""
-    _known(data, ("host", "drift", "patches", "bus", "buses"), "config")
+    _known(data, ("host", "drift", "patches", "bus", "buses", "zenoh"), "config")
     host = data.get("host", {})
     if not isinstance(host, dict):
         raise ConfigError("host", "must be a table ([host])")
@@ -166,6 +170,11 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
         raise ConfigError("patches", "missing: list the patches as [[patches]] tables")
     buses = buses_from_dict(data)
     patches = tuple(_patch(t, f"patches[{i}]", base, buses) for i, t in enumerate(tables))
+    if "zenoh" in data:
+        from canbus.zenoh.config import zenoh_settings_from_table
+
+        kwargs["zenoh"] = zenoh_settings_from_table(data["zenoh"], base=base,
+                                                    buses=tuple(b.name for b in buses))
     return _checked(HostConfig(patches=patches, source=source, buses=buses, **kwargs))
 
 

@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from canbus.master.discovery import UnknownNode
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig
+    from canbus.zenoh.publisher import ZenohPublisher
 
 POLL_S = 0.1
 
@@ -109,6 +110,10 @@ def _run(args: argparse.Namespace) -> int:
     if args.status_every is not None and not args.status_every > 0:
         raise ConfigError("--status-every", f"must be > 0 s, got {args.status_every}")
     config = resolve(load_host_config(find_config(args.config)), args)
+    if args.zenoh or (config.zenoh is not None and config.zenoh.enabled):
+        from canbus.zenoh.config import require_zenoh
+
+        require_zenoh("--zenoh" if args.zenoh else "zenoh")
     with pinned(args.cpu):  # before the bus and the host start their threads
         return _run_host(args, config)
 
@@ -134,18 +139,13 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
         gc.freeze()
         stack.callback(gc.unfreeze)
         stack.enter_context(_host_events_shown())
-        n = len(config.patches)
-        patches = f"{n} patch{'es' if n > 1 else ''} on {describe(config)}"
+        publisher = _zenoh_publisher(host, config, args)
+        if publisher is not None:  # closed after the host stops: its last samples go out
+            stack.enter_context(publisher)
         # A stop (Ctrl-C, SIGTERM, SIGHUP) from the line that says how to stop on ends the
         # run as --seconds does: the summary and --json follow.
         with until_stopped() as stopped:
-            if host.listen_only:
-                print(f"host (listen-only): {patches}, following the SYNCs on the bus, "
-                      "decoding; nothing is sent; Ctrl-C stops", flush=True)
-            else:
-                forces = ", ".join(f"{p.node_id}->{p.force_node}" for p in config.patches)
-                print(f"host: {patches}, SYNC {sync_text(config)}, forces published as "
-                      f"nodes {forces}; Ctrl-C stops", flush=True)
+            _print_banner(host.listen_only, config, describe(config))
             with host:
                 _hint_if_nobody_answered(host, config)
                 _follow(host, args.seconds, args.status_every)
@@ -160,6 +160,10 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
           f"{stats['incomplete_samples']} incomplete) in {elapsed:.1f} s; frames in "
           f"{stats['frames_in']}, out {stats['frames_out']}, late {stats['late_frames']}, "
           f"duplicate {stats['duplicate_frames']}")
+    if publisher is not None:
+        z = publisher.counters()
+        print(f"zenoh: {z['sent']} samples sent on {publisher.settings.prefix}/"
+              f"{publisher.host_name}/**, {z['dropped']} dropped, {z['events_sent']} events")
     if args.json:
         record: dict[str, Any] = {
             "config": config.source, "listen_only": host.listen_only,
@@ -167,10 +171,42 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
             "buses": buses_stats,
             "patches": {str(n): dataclasses.asdict(h) for n, h in health.items()},
             "unknown_nodes": sorted(host.unknown_nodes),
+            "zenoh": None if publisher is None else publisher.counters(),
         }
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
     return 0
+
+
+def _print_banner(listen_only: bool, config: HostConfig, bus_text: str) -> None:
+    n = len(config.patches)
+    patches = f"{n} patch{'es' if n > 1 else ''} on {bus_text}"
+    if listen_only:
+        print(f"host (listen-only): {patches}, following the SYNCs on the bus, "
+              "decoding; nothing is sent; Ctrl-C stops", flush=True)
+    else:
+        forces = ", ".join(f"{p.node_id}->{p.force_node}" for p in config.patches)
+        print(f"host: {patches}, SYNC {sync_text(config)}, forces published as "
+              f"nodes {forces}; Ctrl-C stops", flush=True)
+
+
+def _zenoh_publisher(host: HostManager, config: HostConfig,
+                     args: argparse.Namespace) -> ZenohPublisher | None:
+    """The host's publisher on Zenoh when the config's [zenoh] or --zenoh asks for one."""
+    if not (args.zenoh or (config.zenoh is not None and config.zenoh.enabled)):
+        return None
+    from dataclasses import replace
+
+    from canbus.zenoh.config import ZenohSettings
+    from canbus.zenoh.publisher import ZenohPublisher
+
+    settings = replace(config.zenoh or ZenohSettings(), enabled=True)
+    publisher = ZenohPublisher(host, settings)
+    listen = ", ".join(settings.listen_endpoints()) or "nothing"
+    connect = ", ".join(settings.connect_endpoints())
+    print(f"zenoh: publishing on {settings.prefix}/{publisher.host_name}/** ({settings.mode}, "
+          f"listen {listen}{', connect ' + connect if connect else ''})", flush=True)
+    return publisher
 
 
 def sync_text(config: HostConfig) -> str:
@@ -225,6 +261,10 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
     parser.add_argument("--status-every", type=float, default=None, metavar="S",
                         help="print a health line every S seconds")
+    parser.add_argument("--zenoh", action="store_true",
+                        help="publish every force sample, state change, EMCY and the "
+                             "statistics on Zenoh (the config's [zenoh] table, else "
+                             "defaults: listen on tcp/127.0.0.1:7447; docs/zenoh.md)")
     add_cpu_argument(parser, default="all")
     add_rcvbuf_argument(parser)
     can.cli.add_bus_arguments(parser)

@@ -24,9 +24,10 @@ def add_subparser(subparsers: Any) -> None:
                     "canopen's PdoMap callbacks. server: N simulated patches served on "
                     "udp_multicast to a master in another process, the server's CPU per "
                     "frame against python-can's own send of the same frames in the same run, "
-                    "SYNC to the last TPDO, patches per core.")
+                    "SYNC to the last TPDO, patches per core. publish: H host processes "
+                    "publishing on Zenoh and one reader, on loopback (docs/zenoh.md).")
     parser.add_argument("target", nargs="?",
-                        choices=("decoders", "cross", "sim", "dataplane", "server"),
+                        choices=("decoders", "cross", "sim", "dataplane", "server", "publish"),
                         default="decoders")
     parser.add_argument("--quick", action="store_true",
                         help="one seed, smaller batches and sets (about a minute or less)")
@@ -39,6 +40,9 @@ def add_subparser(subparsers: Any) -> None:
     from skin.commands.bench.server import add_arguments
 
     add_arguments(parser)
+    from skin.commands.bench.publish import add_arguments as add_publish_arguments
+
+    add_publish_arguments(parser)
     parser.set_defaults(func=run)
 
 
@@ -94,6 +98,10 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             _write_json(args.json, figures)
         return 0
+    if args.target == "publish":
+        from skin.commands.bench.publish import run_publish
+
+        return run_publish(args, _write_json)
     if args.target == "server":
         from skin.commands.bench.server import print_server, run_server
 

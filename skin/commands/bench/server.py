@@ -12,8 +12,9 @@ SCENE = "indenter"  # 3-axis, 100 Hz; here on every patch (every one loaded, non
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("server", "skin bench server (udp_multicast, another "
                                                 "process as the master)")
-    group.add_argument("--patches", type=int, default=DEFAULT_PATCHES, metavar="N",
-                       help=f"patches served, 3-axis at 100 Hz (default {DEFAULT_PATCHES})")
+    group.add_argument("--patches", type=int, default=None, metavar="N",
+                       help=f"patches served, 3-axis at 100 Hz (default {DEFAULT_PATCHES}; "
+                            "publish: 32)")
     group.add_argument("--seconds", type=float, default=None, metavar="S",
                        help="length of each phase (default 3; --quick 1)")
     group.add_argument("--rounds", type=int, default=None, metavar="R",
@@ -31,15 +32,16 @@ def run_server(args: argparse.Namespace) -> dict[str, Any]:
     from skin.commands.sim.run import AHEAD_S, scene_on_patches
     from skin.errors import ConfigError
 
-    if not 1 <= args.patches <= 127:
-        raise ConfigError("--patches", f"must be in 1..127, got {args.patches}")
+    patches = args.patches if args.patches is not None else DEFAULT_PATCHES
+    if not 1 <= patches <= 127:
+        raise ConfigError("--patches", f"must be in 1..127, got {patches}")
     seconds = args.seconds if args.seconds is not None else (1.0 if args.quick else 3.0)
     rounds = args.rounds if args.rounds is not None else (1 if args.quick else 3)
     if not seconds > 0:
         raise ConfigError("--seconds", f"must be > 0, got {seconds}")
     if rounds < 1:
         raise ConfigError("--rounds", f"must be at least 1, got {rounds}")
-    scene = scene_on_patches(SCENE, args.patches)
+    scene = scene_on_patches(SCENE, patches)
     ahead = max(1, round(AHEAD_S * scene.rate_hz))  # as skin sim run serves it
     return run_server_benchmark(lambda: SimulatorSource(Simulator(scene), ahead=ahead),
                                 channel=args.channel, port=args.port or default_port(),

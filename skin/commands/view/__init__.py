@@ -47,6 +47,9 @@ def _check(args: argparse.Namespace) -> None:
     from skin.errors import ConfigError
 
     _positive(args, "scale", "seconds", "refresh", "fps")
+    from skin.commands.view.zenoh import check_zenoh_arguments
+
+    check_zenoh_arguments(args)
     pictures = [f for f in ("png", "gif", "mp4", "plot") if getattr(args, f)]
     if len(pictures) + args.snapshot > 1:
         chosen = ", ".join(f"--{f}" for f in pictures + ["snapshot"] * args.snapshot)
@@ -129,6 +132,10 @@ def _view(args: argparse.Namespace) -> int:
 
         config = load_host_config(args.config)
     layout = _layout(args, config)
+    if args.zenoh is not None:
+        from skin.commands.view.zenoh import run_zenoh
+
+        return run_zenoh(args, layout, _live)
     if args.file:
         from skin.commands.view.sources import recording_times
 
@@ -445,6 +452,17 @@ def add_subparser(subparsers: Any) -> None:
                              "a bus, at --at T in FILE")
     parser.add_argument("--at", type=float, default=None, metavar="T",
                         help="seconds from FILE's first frame (default: its end)")
+    _add_picture_arguments(parser)
+    parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
+    from skin.commands.view.zenoh import add_zenoh_arguments
+
+    add_zenoh_arguments(parser)
+    add_rcvbuf_argument(parser)
+    can.cli.add_bus_arguments(parser)
+    parser.set_defaults(func=_view, interface="virtual")
+
+
+def _add_picture_arguments(parser: argparse.ArgumentParser) -> None:
     pictures = parser.add_argument_group("pictures of FILE (matplotlib: the plot extra)")
     pictures.add_argument("--png", metavar="F.png", help="one moment (--at)")
     pictures.add_argument("--gif", metavar="F.gif", help="an animation (--from, --to, --fps)")
@@ -461,7 +479,3 @@ def add_subparser(subparsers: Any) -> None:
     pictures.add_argument("--taxel", type=int, default=None, metavar="K", help="taxel 0..8")
     pictures.add_argument("--raw", action="store_true",
                           help="also the taxel's raw resistances, from the patch's own PDOs")
-    parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
-    add_rcvbuf_argument(parser)
-    can.cli.add_bus_arguments(parser)
-    parser.set_defaults(func=_view, interface="virtual")
