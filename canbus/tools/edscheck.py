@@ -11,7 +11,10 @@ canopen uses; it must also load with ``canopen.import_od``. Rules:
 3. every DataType is a CiA 301 basic type and every AccessType is one of
    ro, wo, rw, rwr, rww, const;
 4. every PDO mapping entry names an existing, PDO-mappable object of the mapped size;
-5. the entries a PDO maps add up to at most 64 bits.
+5. the entries a PDO maps add up to at most 64 bits;
+6. what lely's ``dcfchk`` checks (``canbus.tools.edslint``): CiA 306 keys and sections,
+   object lists by range, values that parse as integers of their type and inside the
+   limits, and no REAL default that lely and python-canopen read as different numbers.
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ import os
 import re
 
 import canopen
+
+from canbus.tools.edslint import lint
 
 LISTS = ("MandatoryObjects", "OptionalObjects", "ManufacturerObjects")
 MANDATORY = (0x1000, 0x1001, 0x1018)
@@ -63,6 +68,7 @@ def check(path: str | os.PathLike[str]) -> list[str]:
         problems += _check_object(eds, index, section, subs.get(index, {}))
     for index in sorted(i for i in objects if 0x1600 <= i <= 0x17FF or 0x1A00 <= i <= 0x1BFF):
         problems += _check_mapping(eds, index, subs.get(index, {}))
+    problems += lint(eds)
     if not problems:
         try:
             canopen.import_od(os.fspath(path), 1)

@@ -8,12 +8,11 @@ from __future__ import annotations
 import json
 import math
 import os
-import struct
 from pathlib import Path
 from typing import Any
 
 NOMINAL = 0x2002
-"""The patch's nominal (rest) resistances R0, 27 REAL32 (eds/skin-patch.eds)."""
+"""The patch's nominal (rest) resistances R0, 27 UNSIGNED32 in mOhm (eds/skin-patch.eds)."""
 
 
 def plain(value: Any) -> Any:
@@ -140,8 +139,9 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
     from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
     from canbus.od import load_od
+    from canbus.patch_constants import encode_si
     from skin.commands.busargs import default_channel
-    from skin.errors import BusError
+    from skin.errors import BusError, ConfigError
 
     rest = np.asarray(rest_ohm, dtype=np.float64)
     default_channel(args)
@@ -155,7 +155,10 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
             for taxel in range(rest.shape[0]):
                 for pillar in range(rest.shape[1]):
                     sub = 3 * taxel + pillar + 1
-                    value = struct.pack("<f", float(rest[taxel, pillar]))
+                    try:
+                        value = encode_si(NOMINAL, sub, float(rest[taxel, pillar]))
+                    except ConfigError as err:
+                        raise ConfigError(f"rest 0x2002:{sub:02X}", err.problem) from err
                     try:
                         node.sdo.download(NOMINAL, sub, value)
                     except SdoAbortedError as err:

@@ -32,9 +32,10 @@ TRACE = [  # (COB-ID, payload, service, node label, label, text)
      "write 0x1017:00 Producer heartbeat time = 50 ms"),
     (0x581, "6017100000000000", "sdo", "patch 1", "SDO tx",
      "write 0x1017:00 Producer heartbeat time done"),
-    (0x601, "4001200000000000", "sdo", "patch 1", "SDO rx", "read 0x2001:00 Resistance LSB"),
-    (0x581, "43012000cdcc4c3d", "sdo", "patch 1", "SDO tx",
-     "0x2001:00 Resistance LSB = 0.05 Ω"),
+    (0x601, "4001200000000000", "sdo", "patch 1", "SDO rx",
+     "read 0x2001:00 Resistance LSB (uOhm)"),
+    (0x581, "4301200050c30000", "sdo", "patch 1", "SDO tx",
+     "0x2001:00 Resistance LSB (uOhm) = 0.05 Ω"),
     (0x581, "8000201c11000906", "sdo", "patch 1", "SDO tx",
      "abort 0x2000:1C: Code 0x06090011, Subindex does not exist"),
     (0x581, "0000000000000000", "sdo", "patch 1", "SDO tx", "upload segment, toggle 0"),
@@ -117,7 +118,7 @@ def test_pdo_mapping_follows_sdo() -> None:
     assert decoder.decode(_msg(0x185, "204e6e4e204e")).text == decoded.text
     # the LSB read back by SDO rescales the resistances
     decoder.decode(_msg(0x605, "4001200000000000"))
-    decoder.decode(_msg(0x585, "430120000ad7233c"))  # 0.01 ohm
+    decoder.decode(_msg(0x585, "4301200010270000"))  # 10000 uOhm = 0.01 ohm
     assert decoder.decode(_msg(0x185, "204e6e4e204e")).text == \
         "R0z=200.00 Ω R1z=200.78 Ω R2z=200.00 Ω"
 

@@ -144,20 +144,20 @@ def test_write_node_sets_the_rest_an_active_host_reads(folder: Path, tmp_path: P
             want = np.array(report["tare"]["rest_ohm"])
             store = server.nodes[0].store
             got = np.array([store.value(0x2002, s) for s in range(1, 28)]).reshape(9, 3)
-            np.testing.assert_array_equal(got, np.float32(want))
+            np.testing.assert_array_equal(got, np.rint(want * 1000))  # mOhm counts
             # an active host reads them when it configures the patch: its rest is the tare
             with HostManager(bus, HostConfig(patches=(PatchConfig(1),), scan_ms=50)) as host:
                 assert host.wait_operational(timeout=10.0)
                 baseline = host.dataplane.channel(1).baseline
                 assert baseline is not None
                 np.testing.assert_array_equal(baseline.baseline, want)
-            raw = struct.pack("<f", float("nan"))
+            raw = struct.pack("<I", 0)  # 0 mOhm: below LowLimit
             master = canopen.Network(can.Bus(interface="virtual", channel=channel))
             master.connect()
             try:
                 od = server.nodes[0].store.object_dictionary
                 node = master.add_node(canopen.RemoteNode(1, od))
-                with pytest.raises(canopen.SdoAbortedError, match="0x06090030"):
+                with pytest.raises(canopen.SdoAbortedError, match="0x06090032"):
                     node.sdo.download(0x2002, 1, raw)
             finally:
                 master.disconnect()
