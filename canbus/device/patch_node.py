@@ -23,7 +23,9 @@ from numpy.typing import ArrayLike, NDArray
 from canbus import codes
 from canbus.device.emcy import REGISTER_FAULT, FaultReporter
 from canbus.device.local_device import TPDO_COUNT, LocalDevice
+from canbus.device.lss_slave import LssSlave
 from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL
+from canbus.device.nv_store import NvStore
 from canbus.device.tpdo import EVENT_DRIVEN
 from canbus.patch_constants import LSB_SCALE, R0_SCALE, constant_counts
 from canbus.pdo_codec import TPDO_COMM, TPDO_MAP, PdoCodec
@@ -46,10 +48,12 @@ def z_only_mapping() -> list[list[int]]:
 
 
 class PatchNode(LocalDevice):
-    """A 3x3 patch (node-ID 1..127) in mode ``"xyz"`` (27 values) or ``"z"`` (9 values)."""
+    """A 3x3 patch (node-ID 1..127, or 0xFF: waiting for LSS) in mode ``"xyz"`` (27 values)
+    or ``"z"`` (9 values), with its serial number (0x1018 sub 4) and non-volatile store."""
 
     def __init__(self, node_id: int, *, mode: str = "xyz",
-                 constants: SensorConstants = DEFAULT_CONSTANTS, serial: int = 0) -> None:
+                 constants: SensorConstants = DEFAULT_CONSTANTS, serial: int = 0,
+                 nv: NvStore | None = None) -> None:
         if mode not in ("z", "xyz"):
             raise ConfigError("mode", f"must be 'z' or 'xyz', got {mode!r}")
         self.mode = mode
@@ -59,7 +63,10 @@ class PatchNode(LocalDevice):
         self.codes = np.full((9, 3), codes.OPEN, dtype=np.uint16)
         self.faults = FaultReporter()
         self.answered = 0  # 0x2006
-        super().__init__(node_id, "skin-patch")
+        super().__init__(node_id, "skin-patch", serial=serial, nv=nv)
+        self.lss = LssSlave(self)
+
+    def _on_store_built(self) -> None:
         self.store.validators.append(self._check_rest)
 
     def _check_rest(self, index: int, subindex: int, value: Any) -> None:
@@ -88,7 +95,7 @@ class PatchNode(LocalDevice):
                 return  # nothing to report, nothing to adopt
             emcy_live = self.nmt.state in (OPERATIONAL, PRE_OPERATIONAL)
             self.faults.update(status, self.network if emcy_live else None,
-                               int(self.store.value(0x1014)))
+                               int(self.store.value(0x1014)), self.history)
 
     def values(self) -> NDArray[np.float64]:
         """The current values of the variables the TPDOs map, in codec column order."""
@@ -121,9 +128,8 @@ class PatchNode(LocalDevice):
         return None
 
     def _apply_defaults(self) -> None:
-        """Power-on values that the EDS cannot know: constants, serial, z-only mapping."""
+        """Power-on values that the EDS cannot know: constants, z-only mapping."""
         c = self.constants
-        self.store.store(0x1018, 4, self.serial)
         self.store.store(LSB, 0, LSB_SCALE.to_count(c.resistance_lsb_ohm))
         for k, r0 in enumerate(np.tile(c.nominal_resistance_ohm, 9).tolist(), start=1):
             self.store.store(NOMINAL, k, R0_SCALE.to_count(r0))

@@ -25,6 +25,7 @@ them): another host's force PDOs never wake it (in the kernel on udp_multicast).
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import threading
@@ -40,7 +41,10 @@ import numpy as np
 
 from canbus import codes
 from canbus.busload import spread
+from canbus.device.local_device import UNCONFIGURED, eds_identity
+from canbus.device.lss_slave import LSS_MASTER
 from canbus.device.nmt_slave import OPERATIONAL
+from canbus.device.nv_store import Identity, NvStore
 from canbus.device.patch_node import (
     AnswerPlan,
     PatchNode,
@@ -89,6 +93,9 @@ class _Bus:
     """The receive stamp of its last SYNC."""
     send_lock: threading.Lock = field(default_factory=threading.Lock)
     own: ReceiveFilter | None = None
+    sync_of: dict[PatchNode, int] = field(default_factory=dict)
+    """The SYNC COB-ID each configured node consumes (0x1005)."""
+    sync_subscribed: set[int] = field(default_factory=set)
     gate: OwnFrameGate | None = None
     on_sync: SyncCallback | None = None
 
@@ -100,7 +107,9 @@ class PatchServer:
     def __init__(self, network: canopen.Network | Sequence[canopen.Network],
                  source: ResistanceSource, *, mode: str | None = None,
                  constants: SensorConstants = DEFAULT_CONSTANTS,
-                 event_rate_hz: float = 0.0, accept_only_consumed: bool = False) -> None:
+                 event_rate_hz: float = 0.0, accept_only_consumed: bool = False,
+                 serials: Sequence[int] | None = None, unconfigured: bool = False,
+                 nv: Callable[[Identity], NvStore] | None = None) -> None:
         networks = [network] if isinstance(network, canopen.Network) else list(network)
         if not networks:
             raise ValueError("no network to serve the patches on")
@@ -113,21 +122,28 @@ class PatchServer:
         self.network = networks[0]
         self.source = source
         mode = mode or ("z" if source.pillars == 1 else "xyz")
-        self.nodes = [PatchNode(n, mode=mode, constants=constants, serial=n)
-                      for n in source.node_ids]
+        serials = list(source.node_ids) if serials is None else list(serials)
+        if len(serials) != len(source.node_ids):
+            raise ValueError(f"{len(serials)} serial numbers for {len(source.node_ids)} patches")
+        self.nodes = [PatchNode(UNCONFIGURED if unconfigured else n, mode=mode,
+                                constants=constants, serial=serial,
+                                nv=None if nv is None else nv(patch_identity(serial)))
+                      for n, serial in zip(source.node_ids, serials, strict=True)]
         self._codes = np.stack([node.codes for node in self.nodes])
         for node, node_codes in zip(self.nodes, self._codes, strict=True):
             node.codes = node_codes  # a view: one copy updates every node's codes
         self._lsb = constants.resistance_lsb_ohm
         self._no_fault = np.zeros((len(self.nodes), 9), dtype=np.uint8)
         self._faulty = False  # some node's status is not all zero
-        by_id = {node.node_id: node for node in self.nodes}
-        self.buses = [_Bus(net, [by_id[n] for n in group])
-                      for net, group in zip(networks, spread(sorted(by_id), len(networks)),
-                                            strict=True)]
+        # The source's patches in its order (the nodes' node-IDs may change by LSS).
+        self.buses = [_Bus(net, [self.nodes[k] for k in group])
+                      for net, group in zip(networks, spread(list(range(len(self.nodes))),
+                                                             len(networks)), strict=True)]
+        for bus in self.buses:
+            bus.nodes.sort(key=_answer_order)
         self.sync_count = 0
         self.samples = 0
-        self._prepared: dict[int, _Prepared] = {}
+        self._prepared: dict[PatchNode, _Prepared] = {}
         self._lock = threading.Lock()
         self._quiet = threading.Condition()
         self._event_rate_hz = event_rate_hz
@@ -144,10 +160,12 @@ class PatchServer:
         self._tick()  # nodes hold a real sample before anyone can read them
         for bus in self.buses:
             for node in bus.nodes:
+                node.on_node_id_changed = self._node_id_changed
+                node.on_cob_ids_changed = functools.partial(self._cob_ids_changed, bus)
                 node.attach(bus.network)
             self._claim(bus)
             bus.on_sync = self._sync_handler(bus)
-            bus.network.subscribe(SYNC_COB_ID, bus.on_sync)
+            self._follow_sync(bus)
         if self._event_rate_hz > 0:
             self._thread = threading.Thread(target=self._sample_loop, daemon=True,
                                             name="patch-samples")
@@ -160,10 +178,13 @@ class PatchServer:
             self._thread = None
         for bus in self.buses:
             if bus.on_sync is not None:
-                bus.network.unsubscribe(SYNC_COB_ID, bus.on_sync)
+                for cob_id in bus.sync_subscribed:
+                    bus.network.unsubscribe(cob_id, bus.on_sync)
+                bus.sync_subscribed = set()
                 bus.on_sync = None
             for node in bus.nodes:
                 node.detach()
+                node.on_node_id_changed = node.on_cob_ids_changed = None
             self._release(bus)
 
     def __enter__(self) -> PatchServer:
@@ -175,7 +196,7 @@ class PatchServer:
 
     def on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         """One SYNC on the first bus: its nodes' synchronous TPDOs."""
-        self._answer(self.buses[0], data[0] if data else 0, timestamp)
+        self._answer(self.buses[0], data[0] if data else 0, timestamp, can_id)
 
     @property
     def late_answers(self) -> int:
@@ -196,14 +217,45 @@ class PatchServer:
         TPDO on every SYNC (the default mapping), in the order it would send them."""
         prepared = self._prepared
         return [msg for node in self.buses[bus].nodes
-                if node.nmt.state == OPERATIONAL and node.node_id in prepared
-                and prepared[node.node_id].plan.every_sync
-                for msg in prepared[node.node_id].messages]
+                if node.nmt.state == OPERATIONAL and node in prepared
+                and prepared[node].plan.every_sync
+                for msg in prepared[node].messages]
 
     def _sync_handler(self, bus: _Bus) -> SyncCallback:
         def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
-            self._answer(bus, data[0] if data else 0, timestamp)
+            self._answer(bus, data[0] if data else 0, timestamp, can_id)
         return on_sync
+
+    # --- node-IDs and SYNC COB-IDs that change (LSS, 0x1005) ----------------------------
+
+    def _node_id_changed(self, node: object) -> None:
+        """A node took a new node-ID: answers keep node-ID order."""
+        with self._lock:
+            for bus in self.buses:
+                if node in bus.nodes:
+                    bus.nodes.sort(key=_answer_order)
+
+    def _cob_ids_changed(self, bus: _Bus) -> None:
+        """A node's node-ID, SYNC or other COB-IDs changed: SYNCs to follow, own COB-IDs
+        and the acceptance list anew."""
+        if bus.on_sync is None:
+            return
+        self._follow_sync(bus)
+        if bus.own is not None and self._accept_only_consumed:
+            bus.own.accept_only(self.consumed_cob_ids(self.buses.index(bus)))
+        self._claim(bus)
+
+    def _follow_sync(self, bus: _Bus) -> None:
+        """Subscribe to the SYNC COB-ID of every configured node of the bus (0x1005)."""
+        with self._lock:
+            bus.sync_of = {node: node.sync_cob_id() for node in bus.nodes if node.configured}
+            wanted = set(bus.sync_of.values()) or {SYNC_COB_ID}
+            assert bus.on_sync is not None
+            for cob_id in wanted - bus.sync_subscribed:
+                bus.network.subscribe(cob_id, bus.on_sync)
+            for cob_id in bus.sync_subscribed - wanted:
+                bus.network.unsubscribe(cob_id, bus.on_sync)
+            bus.sync_subscribed = wanted
 
     # --- samples ----------------------------------------------------------------------
 
@@ -267,7 +319,7 @@ class PatchServer:
         for node, plan, node_payloads in zip(nodes, plans, payloads, strict=True):
             messages: list[can.Message] = [TxMessage.frame(plan.cob_ids[p], node_payloads[p])
                                            for p in plan.order]
-            prepared[node.node_id] = _Prepared(plan, node_payloads, messages)
+            prepared[node] = _Prepared(plan, node_payloads, messages)
         last, self._prepared = self._prepared, prepared
         return bool(last) and any(last[n].plan is not p.plan for n, p in prepared.items())
 
@@ -295,7 +347,8 @@ class PatchServer:
 
     # --- answers ----------------------------------------------------------------------
 
-    def _answer(self, bus: _Bus, sync_byte: int, received: float) -> None:
+    def _answer(self, bus: _Bus, sync_byte: int, received: float,
+                cob_id: int = SYNC_COB_ID) -> None:
         bus.last_sync = time.monotonic()
         with self._lock:
             self.sync_count += 1
@@ -307,11 +360,14 @@ class PatchServer:
         if self._thread is None and remapped:
             self._claim(bus)
         messages: list[can.Message] = []
+        sync_of = bus.sync_of
         for node in bus.nodes:
+            if sync_of.get(node) != cob_id:
+                continue  # not configured, or consumes another SYNC
             node.answered = sync_byte
             if node.nmt.state != OPERATIONAL:
                 continue
-            ready = prepared.get(node.node_id)
+            ready = prepared.get(node)
             if ready is None or ready.plan.codec is not node.tpdo.codec:
                 ready = self._prepare(node)  # remapped since the sample
             plan = ready.plan
@@ -339,7 +395,7 @@ class PatchServer:
         for bus in self.buses:
             messages: list[can.Message] = []
             for node in bus.nodes:
-                ready = prepared.get(node.node_id)
+                ready = prepared.get(node)
                 if ready is None or not ready.plan.event or node.nmt.state != OPERATIONAL:
                     continue
                 if ready.plan.codec is not node.tpdo.codec:
@@ -355,23 +411,28 @@ class PatchServer:
         network_bus = bus.network.bus
         assert network_bus is not None, "the network is not connected"
         send = network_bus.send
-        sent = 0
+        sent, failed = 0, False
         with bus.send_lock:
             for msg in messages:
                 try:
                     send(msg)
                 except can.CanError as err:
                     logger.warning("TPDO 0x%03X not sent: %s", msg.arbitration_id, err)
+                    failed = True
                 else:
                     sent += 1
             bus.frames_sent += sent
+        if failed:  # CiA 301 0x1029: the error behaviour of each node that could not send
+            for node in bus.nodes:
+                node.communication_error()
 
     # --- own frames -------------------------------------------------------------------
 
     def consumed_cob_ids(self, bus: int = 0) -> set[int]:
-        """What the nodes of bus ``bus`` receive: NMT, SYNC and their SDO requests."""
-        return {0x000, SYNC_COB_ID} | {int(node.store.sdo.rx_cobid)
-                                       for node in self.buses[bus].nodes}
+        """What the nodes of bus ``bus`` receive: NMT, SYNC, LSS and their SDO requests."""
+        nodes = self.buses[bus].nodes
+        return {0x000, SYNC_COB_ID, LSS_MASTER} | {node.sync_cob_id() for node in nodes} | \
+            {int(node.store.sdo.rx_cobid) for node in nodes if node.configured}
 
     def _claim(self, bus: _Bus) -> None:
         """Claim the COB-IDs the bus's nodes send, where the bus echoes them (and accept
@@ -407,6 +468,15 @@ class PatchServer:
                 listeners[listeners.index(bus.gate)] = bus.gate.listener
         bus.gate = None
         bus.own = None
+
+
+def _answer_order(node: PatchNode) -> int:
+    return node.node_id
+
+
+def patch_identity(serial: int) -> Identity:
+    """The LSS address of a patch with ``serial`` (vendor, product, revision of its EDS)."""
+    return Identity(*eds_identity("skin-patch"), serial=serial)
 
 
 def _answered(ready: _Prepared, sync_byte: int) -> list[bytes]:

@@ -128,8 +128,8 @@ def _object(eds: configparser.RawConfigParser, section: str) -> list[str]:
     composite = object_type in (0x8, 0x9)
     if object_type in (0x5, 0x7) and not eds.get(section, "DataType", fallback=""):
         problems.append(f"[{section}]: a VAR needs a DataType")
-    if composite and eds.get(section, "AccessType", fallback="") and \
-            not eds.get(section, "CompactSubObj", fallback=""):
+    own_access = bool(eds.get(section, "AccessType", fallback=""))
+    if composite and own_access and not eds.has_option(section, "CompactSubObj"):
         problems.append(f"[{section}]: an ARRAY or RECORD has no AccessType of its own")
     if sub_number and not composite:
         problems.append(f"[{section}]: SubNumber on an object that is not an ARRAY or RECORD")
