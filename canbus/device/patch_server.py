@@ -96,6 +96,7 @@ class _Bus:
     sync_of: dict[PatchNode, int] = field(default_factory=dict)
     """The SYNC COB-ID each configured node consumes (0x1005)."""
     sync_subscribed: set[int] = field(default_factory=set)
+    sync_lock: threading.Lock = field(default_factory=threading.Lock)
     gate: OwnFrameGate | None = None
     on_sync: SyncCallback | None = None
 
@@ -229,11 +230,12 @@ class PatchServer:
     # --- node-IDs and SYNC COB-IDs that change (LSS, 0x1005) ----------------------------
 
     def _node_id_changed(self, node: object) -> None:
-        """A node took a new node-ID: answers keep node-ID order."""
-        with self._lock:
-            for bus in self.buses:
-                if node in bus.nodes:
-                    bus.nodes.sort(key=_answer_order)
+        """A node took a new node-ID: answers keep node-ID order. (On the network's thread,
+        the node's lock held: no lock of the server's here, the sample thread takes them
+        the other way round; the new list replaces the old one whole.)"""
+        for bus in self.buses:
+            if node in bus.nodes:
+                bus.nodes = sorted(bus.nodes, key=_answer_order)
 
     def _cob_ids_changed(self, bus: _Bus) -> None:
         """A node's node-ID, SYNC or other COB-IDs changed: SYNCs to follow, own COB-IDs
@@ -247,7 +249,7 @@ class PatchServer:
 
     def _follow_sync(self, bus: _Bus) -> None:
         """Subscribe to the SYNC COB-ID of every configured node of the bus (0x1005)."""
-        with self._lock:
+        with bus.sync_lock:
             bus.sync_of = {node: node.sync_cob_id() for node in bus.nodes if node.configured}
             wanted = set(bus.sync_of.values()) or {SYNC_COB_ID}
             assert bus.on_sync is not None

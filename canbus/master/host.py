@@ -55,6 +55,7 @@ from canbus.master.fanout import FrameCallback, FrameFanout
 from canbus.master.follower import ListenOnly
 from canbus.master.forcenode import ForceNode
 from canbus.master.hostconfig import HostConfig, load_host_config
+from canbus.master.lss_assign import Assignment, assign_at_start
 from canbus.master.patch_setup import PatchSetup
 from canbus.master.patch_setup import configured_info as configured_info  # re-exported
 from canbus.master.patch_setup import warn_if_unlike_config as _warn_if_unlike_config  # noqa: F401
@@ -131,6 +132,7 @@ class HostManager:
             self.patches[patch.node_id] = record
             node.emcy.add_callback(self._emcy_handler(record))
         self.force_ids = {p.force_node: p.node_id for p in config.patches}
+        self.lss_assignments: list[Assignment] = []
         self.policy: ActiveMaster | ListenOnly = \
             ListenOnly(self) if self.listen_only else ActiveMaster(self)
 
@@ -175,6 +177,8 @@ class HostManager:
                 follower = (SyncFollower(dataplane.on_sync)
                             if dataplane is not None and self.config.sync_following else None)
                 link.listen(dataplane, follower)
+            if not self.listen_only:  # node-IDs by serial number (LSS) before the scan
+                self.lss_assignments = assign_at_start(self)
             self.policy.start()
         except BaseException:
             self.stop()

@@ -1,0 +1,137 @@
+# canopen 2.4 leaves LssMaster's methods unannotated.
+# mypy: disable-error-code="no-untyped-call"
+"""Node-IDs by identity (LSS, CiA 305) with canopen's ``LssMaster``: by hand or at start.
+
+* :func:`assign` gives the patch with a serial number a node-ID: switch state selective
+  (vendor, product and revision of the shipped patch EDS, and the serial), configure
+  node-ID, optionally store configuration, switch state global to waiting. A patch waiting
+  for LSS boots at once with its node-ID; a patch that had another node-ID is reset (NMT
+  reset communication) so that it takes the new one.
+* :func:`assign_at_start` is the host's step before it scans the bus: every patch the
+  config names by serial number (``[[patches]] serial``) gets its node-ID; with
+  ``lss = "auto"`` every other patch waiting for LSS (found by ``LssMaster.fast_scan``)
+  gets the next free node-ID: first the config's patches without a serial that did not
+  answer the bus scan, then the lowest node-ID that nothing uses. ``lss_store = true``
+  stores each assignment in the patch (it keeps its node-ID across power cycles).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import canopen
+from canopen.lss import LssError
+
+from canbus.device.local_device import eds_identity
+from canbus.master.discovery import scan
+from skin.errors import BusError
+
+if TYPE_CHECKING:
+    from canbus.master.host import HostManager
+
+logger = logging.getLogger(__name__)
+
+UNCONFIGURED = 0xFF
+MAX_AUTO = 127
+
+
+@dataclass(frozen=True)
+class Assignment:
+    """A node-ID given by LSS: to the patch with ``serial``, ``how`` = "serial" or "auto"."""
+
+    serial: int
+    node_id: int
+    how: str
+    stored: bool
+    previous: int | None = None  # the node-ID it had (None: it waited for LSS)
+
+
+def assign(network: canopen.Network, serial: int, node_id: int, *, store: bool = False,
+           revision: int | None = None) -> Assignment:
+    """Give the patch with ``serial`` node-ID ``node_id``; BusError when it does not answer
+    or refuses (the message says which step)."""
+    if not 1 <= node_id <= 127:
+        raise BusError(f"node-ID must be 1..127, got {node_id}")
+    vendor, product, eds_revision = eds_identity("skin-patch")
+    lss = network.lss
+    try:
+        lss.send_switch_state_global(lss.WAITING_STATE)
+        if not lss.send_switch_state_selective(vendor, product, eds_revision
+                                               if revision is None else revision, serial):
+            raise BusError(f"no patch with serial number 0x{serial:08X} answered LSS")
+        previous = lss.inquire_node_id()
+        lss.configure_node_id(node_id)
+        if store:
+            lss.store_configuration()
+        lss.send_switch_state_global(lss.WAITING_STATE)
+    except LssError as err:
+        raise BusError(f"LSS with the patch of serial number 0x{serial:08X}: {err}") from err
+    if previous not in (UNCONFIGURED, node_id):
+        network.send_message(0x000, bytes([0x82, previous]))  # reset communication
+    logger.info("LSS: patch 0x%08X -> node-ID %d%s", serial, node_id,
+                " (stored)" if store else "")
+    return Assignment(serial, node_id, "serial", store,
+                      None if previous == UNCONFIGURED else previous)
+
+
+def assign_auto(network: canopen.Network, free: Iterable[int], *,
+                store: bool = False) -> list[Assignment]:
+    """Every patch waiting for LSS, found one by one by ``LssMaster.fast_scan``, gets the
+    next of ``free``; stops when none is left waiting (or no node-ID is)."""
+    lss = network.lss
+    out: list[Assignment] = []
+    ids = iter(free)
+    for _ in range(MAX_AUTO):
+        found, identity = lss.fast_scan()
+        if not found:
+            break
+        node_id = next(ids, None)
+        if node_id is None:
+            lss.send_switch_state_global(lss.WAITING_STATE)
+            logger.warning("LSS: no free node-ID left for the patch of serial 0x%08X",
+                           identity[3])
+            break
+        try:
+            lss.configure_node_id(node_id)
+            if store:
+                lss.store_configuration()
+        except LssError as err:
+            raise BusError(f"LSS with the patch of serial number 0x{identity[3]:08X}: "
+                           f"{err}") from err
+        finally:
+            lss.send_switch_state_global(lss.WAITING_STATE)
+        logger.info("LSS: patch 0x%08X -> node-ID %d (auto)", identity[3], node_id)
+        out.append(Assignment(identity[3], node_id, "auto", store))
+    return out
+
+
+def assign_at_start(host: HostManager) -> list[Assignment]:
+    """The host's LSS step (see the module's docstring), on every bus with patches."""
+    config = host.config
+    done: list[Assignment] = []
+    for link in host.links.values():
+        patches = [r.config for r in host.patches.values() if r.link is link]
+        named = [p for p in patches if p.serial is not None]
+        if not named and config.lss != "auto":
+            continue
+        for patch in named:
+            assert patch.serial is not None
+            try:
+                done.append(assign(link.network, patch.serial, patch.node_id,
+                                   store=config.lss_store))
+            except BusError as err:
+                logger.warning("%s", err)
+        if config.lss == "auto":
+            present = set(scan(link.network, config.scan_ms / 1000.0))
+            taken = present | {a.node_id for a in done} | set(config.other_nodes) | \
+                {p.force_node for p in config.patches} | \
+                {p.node_id for p in config.patches if p.serial is not None}
+            unnamed = [p.node_id for p in patches if p.serial is None and
+                       p.node_id not in taken]
+            spare = [n for n in range(1, 128) if n not in taken and
+                     n not in {p.node_id for p in config.patches}]
+            done += assign_auto(link.network, [*unnamed, *spare], store=config.lss_store)
+    return done
