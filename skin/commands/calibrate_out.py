@@ -131,8 +131,9 @@ def snippet(node_id: int, mode: str, model: str, rest_ohm: Any, snippet_path: st
 
 
 def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
-    """SDO downloads of the rest values to the patch's 0x2002 (sub taxel·3 + pillar + 1);
-    returns how many were written. BusError names the sub-index a patch refused."""
+    """SDO downloads of the rest values to the patch's 0x2002 (sub taxel·3 + pillar + 1),
+    then with ``args.store`` 0x1010 sub 4 "save"; returns how many were written. BusError
+    names the sub-index a patch refused."""
     import can.cli
     import canopen
     import numpy as np
@@ -169,6 +170,22 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
                         raise BusError(f"patch {node_id} did not answer on "
                                        f"{args.interface}:{args.channel}: {err}") from err
                     written += 1
+            if getattr(args, "store", False):
+                _save_manufacturer_parameters(node, node_id)
         finally:
             network.disconnect()
     return written
+
+
+def _save_manufacturer_parameters(node: Any, node_id: int) -> None:
+    """0x1010 sub 4 "save": the patch keeps its manufacturer parameters (R0) across
+    power-off (CiA 301's signature, 0x65766173)."""
+    from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+    from skin.errors import BusError
+
+    try:
+        node.sdo.download(0x1010, 4, b"save")
+    except (SdoAbortedError, SdoCommunicationError) as err:
+        raise BusError(f"patch {node_id} did not save its parameters (0x1010:04): {err}") \
+            from err

@@ -138,8 +138,11 @@ def test_write_node_sets_the_rest_an_active_host_reads(folder: Path, tmp_path: P
     try:
         with PatchServer(device, ArraySource(rest[None, None], (1,))) as server:
             assert main(["calibrate", str(folder / "d1.npz"), "-o", str(tmp_path / "m.msgpack"),
-                         *FAST, "--write-node", "-i", "virtual", "-c", channel]) == 0
+                         *FAST, "--write-node", "--store", "-i", "virtual",
+                         "-c", channel]) == 0
             assert "wrote 27 rest values to patch 1's 0x2002" in capsys.readouterr().out
+            saved = server.nodes[0].nv.content.objects  # 0x1010 sub 4 "save": R0 kept
+            assert sorted(s for i, s in saved if i == 0x2002) == list(range(1, 28))
             report = json.loads((folder / "r.json").read_text())
             want = np.array(report["tare"]["rest_ohm"])
             store = server.nodes[0].store
