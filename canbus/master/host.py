@@ -55,7 +55,7 @@ from canbus.master.fanout import FrameCallback, FrameFanout
 from canbus.master.follower import ListenOnly
 from canbus.master.forcenode import ForceNode
 from canbus.master.hostconfig import HostConfig, load_host_config
-from canbus.master.lss_assign import Assignment, assign_at_start
+from canbus.master.lss_assign import Assignment, assign_at_start, force_node_store
 from canbus.master.patch_setup import PatchSetup
 from canbus.master.patch_setup import configured_info as configured_info  # re-exported
 from canbus.master.patch_setup import warn_if_unlike_config as _warn_if_unlike_config  # noqa: F401
@@ -126,7 +126,8 @@ class HostManager:
             node = canopen.RemoteNode(patch.node_id, load_od("skin-patch", patch.node_id))
             node.sdo.RESPONSE_TIMEOUT = config.sdo_timeout_ms / 1000.0
             force = ForceNode(patch.force_node, patch.node_id,
-                              heartbeat_ms=config.force_heartbeat_ms)
+                              heartbeat_ms=config.force_heartbeat_ms,
+                              nv=force_node_store(config.state_dir, patch.force_node))
             record = PatchRecord(patch, self.links[patch.bus], self.links[patch.force_bus],
                                  node, force)
             self.patches[patch.node_id] = record

@@ -93,6 +93,7 @@ class HostConfig:
     sync: str = "produce"  # "external": follow the SYNC another master produces
     lss: str = ""  # "auto": patches waiting for LSS get the next free node-IDs
     lss_store: bool = False  # LSS store configuration after each assignment
+    state_dir: str = ""  # the force nodes' non-volatile stores ("": in memory)
     drift: DriftConfig | None = None
     buses: tuple[BusConfig, ...] = (BusConfig(),)
     source: str = field(default="<config>", compare=False)
@@ -162,6 +163,8 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
             kwargs[key] = tuple(_int_list(value, "host.other_nodes"))
         else:
             kwargs[key] = _typed(value, kind, f"host.{key}")
+    if kwargs.get("state_dir"):  # relative to the config file, as model paths are
+        kwargs["state_dir"] = str(base / kwargs["state_dir"])
     drift = data.get("drift")
     if drift is not None:
         if not isinstance(drift, dict):
@@ -187,7 +190,7 @@ _HOST_FIELDS: dict[str, type] = {
     "sync_period_ms": float, "sync_window_ms": float, "sync_counter": bool,
     "heartbeat_ms": int, "force_heartbeat_ms": int, "sdo_timeout_ms": int, "scan": bool,
     "scan_ms": int, "other_nodes": list, "tare_threshold_N": float, "queue_size": int,
-    "listen_only": bool, "sync": str, "lss": str, "lss_store": bool,
+    "listen_only": bool, "sync": str, "lss": str, "lss_store": bool, "state_dir": str,
 }
 LSS_MODES = ("", "auto")
 SYNC_MODES = ("produce", "external")

@@ -26,6 +26,7 @@ import canopen
 from canopen.lss import LssError
 
 from canbus.device.local_device import eds_identity
+from canbus.device.nv_store import Identity, NvStore
 from canbus.master.discovery import scan
 from skin.errors import BusError
 
@@ -47,6 +48,15 @@ class Assignment:
     how: str
     stored: bool
     previous: int | None = None  # the node-ID it had (None: it waited for LSS)
+
+
+def force_node_store(state_dir: str, node_id: int) -> NvStore | None:
+    """A force node's non-volatile store in the host's ``state_dir`` (None: in memory):
+    ``forces-<node-ID as 8 hex digits>.json``, its serial number being its node-ID."""
+    if not state_dir:
+        return None
+    return NvStore.in_dir(state_dir, "forces", Identity(*eds_identity("skin-forces"),
+                                                         serial=node_id))
 
 
 def assign(network: canopen.Network, serial: int, node_id: int, *, store: bool = False,

@@ -193,3 +193,28 @@ def test_skin_sim_run_refuses_a_corrupt_state_file_in_one_line(
     err = capsys.readouterr().err
     assert code != 0 and err.count("\n") == 1 and "patch-00000001.json" in err
     assert "Traceback" not in err
+
+
+def test_the_host_config_names_serials_lss_and_the_state_dir(tmp_path: Path) -> None:
+    from canbus.master.hostconfig import host_config_from_dict
+    from canbus.master.lss_assign import force_node_store
+    from skin.errors import ConfigError
+
+    config = host_config_from_dict({"host": {"lss": "auto", "lss_store": True,
+                                             "state_dir": "state"},
+                                    "patches": [{"node_id": 1, "serial": 0x1001},
+                                                {"node_id": 2}]}, base=tmp_path)
+    assert config.lss == "auto" and config.lss_store
+    assert config.patches[0].serial == 0x1001 and config.patches[1].serial is None
+    assert config.state_dir == str(tmp_path / "state")
+    store = force_node_store(config.state_dir, 65)
+    assert store is not None and store.path == tmp_path / "state" / "forces-00000041.json"
+    for doc, field in (
+            ({"host": {"lss": "sometimes"}, "patches": [{"node_id": 1}]}, "host.lss"),
+            ({"patches": [{"node_id": 1, "serial": -1}]}, "patches[0].serial"),
+            ({"patches": [{"node_id": 1, "serial": 7}, {"node_id": 2, "serial": 7}]},
+             "patches[1].serial"),
+            ({"patches": [{"node_id": 1, "serial": "7"}]}, "patches[0].serial")):
+        with pytest.raises(ConfigError) as err:
+            host_config_from_dict(doc)
+        assert err.value.field == field
