@@ -228,7 +228,9 @@ class NodeView:
         unit = (var.unit if var is not None else "") or _CIA301_UNITS.get(index, "")
         scale = scale_of(index, subindex) if product == PATCH_PRODUCT else None
         if scale is not None:  # a physical constant as a count of a small unit: in SI
-            factor, unit = scale.si_per_count, scale.si_unit
+            digits = max(0, round(-math.log10(scale.si_per_count)))
+            return functools.partial(_counted, name, scale.si_per_count, digits,
+                                     scale.si_unit)
         return functools.partial(_scaled, name, factor, unit)
 
     def object_name(self, index: int, subindex: int) -> str:
@@ -263,8 +265,8 @@ class NodeView:
             return obj if subindex == 0 else None
         if isinstance(obj, canopen.objectdictionary.ODArray) and subindex > 0:
             count = obj[0].default  # canopen invents any sub-index of an ARRAY; we do not
-            if count is None or subindex > int(count):
-                return None
+            if subindex not in obj.subindices and (count is None or subindex > int(count)):
+                return None  # (0x1003's entries are in the EDS, its count starts at 0)
         try:
             return obj[subindex]
         except KeyError:
@@ -406,6 +408,13 @@ def _valid_taxels(value: float) -> NamedValue:
 def _scaled(name: str, factor: float, unit: str, value: float) -> NamedValue:
     scaled = value * factor
     number = f"{int(scaled)}" if float(scaled).is_integer() else f"{scaled:g}"
+    return NamedValue(name, scaled, unit, f"{name}={number}{' ' + unit if unit else ''}")
+
+
+def _counted(name: str, factor: float, digits: int, unit: str, value: float) -> NamedValue:
+    """A count of a small unit in SI, every digit the count has and no more."""
+    scaled = value * factor
+    number = f"{scaled:.{digits}f}".rstrip("0").rstrip(".") if digits else f"{int(scaled)}"
     return NamedValue(name, scaled, unit, f"{name}={number}{' ' + unit if unit else ''}")
 
 

@@ -61,6 +61,22 @@ TRACE = [  # (COB-ID, payload, service, node label, label, text)
     (0x100, "00000000 0100".replace(" ", ""), "time", "", "TIME",
      "TIME 1984-01-02T00:00:00.000+00:00"),
     (0x123, "01", "unknown", "", "0x123", "01"),
+    (0x601, "2310100173617665", "sdo", "patch 1", "SDO rx",
+     "write 0x1010:01 Store parameters.Save all parameters = 0x65766173"),
+    (0x601, "4003100100000000", "sdo", "patch 1", "SDO rx",
+     "read 0x1003:01 Pre-defined error field.Standard error field 1"),
+    (0x581, "4303100100500407", "sdo", "patch 1", "SDO tx",
+     "0x1003:01 Pre-defined error field.Standard error field 1 = 0x07045000"),
+    (0x581, "4f29100102000000", "sdo", "patch 1", "SDO tx",
+     "0x1029:01 Error behavior.Communication error = 2"),
+    (0x581, "4302200546941500", "sdo", "patch 1", "SDO tx",
+     "0x2002:05 Nominal resistances R0.Taxel 1 pillar x (mOhm) = 1414.214 Ω"),
+    (0x581, "43032001404b4c00", "sdo", "patch 1", "SDO tx",
+     "0x2003:01 Sensor constants.Youngs modulus (Pa) = 5000000 Pa"),
+    (0x7E5, "4301100000000000", "lss", "", "LSS master",
+     "switch state selective serial 0x00001001"),
+    (0x7E4, "4400000000000000", "lss", "", "LSS slave",
+     "switch state selective: the slave is in configuration state"),
 ]
 
 
