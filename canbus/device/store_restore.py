@@ -13,6 +13,7 @@ of the area whose value is not its default (the error history 0x1003 is not a pa
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
@@ -23,6 +24,7 @@ from canbus.device.object_store import ObjectStore
 
 STORE, RESTORE = 0x1010, 0x1011
 SAVE, LOAD = 0x6576_6173, 0x6461_6F6C
+logger = logging.getLogger(__name__)
 CANNOT_STORE = 0x0800_0020
 NOT_PARAMETERS = (0x1003, STORE, RESTORE)
 COMMUNICATION, MANUFACTURER, APPLICATION = (0x1000, 0x1FFF), (0x2000, 0x5FFF), (0x6000, 0x9FFF)
@@ -64,11 +66,15 @@ class StoreRestore:
         if index not in (STORE, RESTORE) or not subindex or self.store is None:
             return
         self.store.data_store[index].pop(subindex, None)  # reads keep answering 1
-        for first, last in AREAS[subindex]:
-            if index == STORE:
-                self.nv.save_objects(self.saved_values(first, last), first, last)
-            else:
-                self.nv.forget_objects(first, last)
+        try:
+            for first, last in AREAS[subindex]:
+                if index == STORE:
+                    self.nv.save_objects(self.saved_values(first, last), first, last)
+                else:
+                    self.nv.forget_objects(first, last)
+        except OSError as err:  # the state file cannot be written: the SDO write aborts
+            logger.warning("cannot write %s: %s", self.nv.path, err)
+            raise SdoAbortedError(CANNOT_STORE) from err
 
     def saved_values(self, first: int, last: int) -> dict[tuple[int, int], bytes]:
         """The area's writable objects whose value differs from the EDS default."""

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 
 import canopen
 from canopen.lss import LssError
+from canopen.sdo.exceptions import SdoError
 
 from canbus.device.local_device import eds_identity
 from canbus.device.nv_store import Identity, NvStore
@@ -48,6 +49,14 @@ class Assignment:
     how: str
     stored: bool
     previous: int | None = None  # the node-ID it had (None: it waited for LSS)
+
+
+def _serial_of(node: canopen.RemoteNode) -> int | None:
+    """The serial number (0x1018 sub 4) of a node that answers SDO; None if it does not."""
+    try:
+        return int.from_bytes(node.sdo.upload(0x1018, 4)[:4], "little")
+    except (SdoError, LssError):
+        return None
 
 
 def force_node_store(state_dir: str, node_id: int) -> NvStore | None:
@@ -127,8 +136,12 @@ def assign_at_start(host: HostManager) -> list[Assignment]:
         named = [p for p in patches if p.serial is not None]
         if not named and config.lss != "auto":
             continue
+        present = set(scan(link.network, config.scan_ms / 1000.0))
         for patch in named:
             assert patch.serial is not None
+            if patch.node_id in present and \
+                    _serial_of(host.patches[patch.node_id].node) == patch.serial:
+                continue  # already there with its node-ID (stored): no LSS needed
             try:
                 done.append(assign(link.network, patch.serial, patch.node_id,
                                    store=config.lss_store))

@@ -79,7 +79,8 @@ def master(channel: str, port: int) -> Iterator[canopen.Network]:
     try:
         yield network
     finally:
-        network.disconnect()
+        if network.bus is not None:
+            network.disconnect()
 
 
 class Boots:
@@ -177,6 +178,14 @@ def test_the_host_assigns_from_its_serial_table_and_stored_ids_survive_a_restart
         assert boots.wait(set(table.values())) == set(table.values())
         assert _serials_by_sdo(network, sorted(table.values())) == \
             {node_id: serial for serial, node_id in table.items()}
+        network.disconnect()
+        bus = can.Bus(interface="udp_multicast", channel=udp_channel, port=udp_port)
+        try:  # the host finds every patch at its stored node-ID: no LSS needed
+            with HostManager(bus, load_host_config(config)) as host:
+                assert host.lss_assignments == []
+                assert host.wait_operational(timeout=60.0)
+        finally:
+            bus.shutdown()
 
 
 @pytest.mark.slow
