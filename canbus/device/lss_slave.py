@@ -67,6 +67,7 @@ class LssSlave:
         self._selective: list[int] = []  # the identity parts matched so far, in order
         self._identify: list[int] = []  # the remote-slave request values so far
         self._fastscan_at: int | None = None  # the LSS sub the next fastscan step checks
+        self._adopting = False
         self._lock = threading.RLock()
 
     @property
@@ -90,7 +91,7 @@ class LssSlave:
         if len(data) != 8:
             logger.info("ignored LSS frame of %d bytes", len(data))
             return
-        with self.device.lock, self._lock:
+        with self._lock:  # not the device's: a node-ID being taken must not hold up LSS
             self._dispatch(bytes(data))
 
     def _dispatch(self, data: bytes) -> None:
@@ -136,8 +137,20 @@ class LssSlave:
         self.state = WAITING
         self._selective.clear()
         unconfigured = self.device.node_id == UNCONFIGURED
-        if unconfigured and self.pending_node_id != UNCONFIGURED:
-            self.device.adopt_node_id(self.pending_node_id)
+        if unconfigured and self.pending_node_id != UNCONFIGURED and not self._adopting:
+            # Building the object store anew takes a while (the EDS is read for the new
+            # node-ID): not on the network's thread, where the other patches' LSS answers
+            # would wait for it. Meanwhile the pending node-ID keeps the device out of
+            # fastscan and the non-configured identification.
+            self._adopting = True
+            threading.Thread(target=self._adopt, args=(self.pending_node_id,), daemon=True,
+                             name=f"lss-node-{self.pending_node_id}").start()
+
+    def _adopt(self, node_id: int) -> None:
+        try:
+            self.device.adopt_node_id(node_id)
+        finally:
+            self._adopting = False
 
     def _switch_selective(self, part: int, value: int) -> None:
         if self.state != WAITING:
@@ -174,7 +187,8 @@ class LssSlave:
         confirmation (bit check 0x80), then every step whose ID bits 31..bit_check of LSS
         sub ``sub`` match its own; the last step (bit 0 of the serial, next 0) puts the
         one device so identified into configuration state."""
-        if self.device.node_id != UNCONFIGURED or self.state != WAITING:
+        if self.device.node_id != UNCONFIGURED or self.pending_node_id != UNCONFIGURED or \
+                self.state != WAITING:
             return
         if not (bit_check <= 31 or bit_check == FASTSCAN_CONFIRM) or sub > 3 or nxt > 3:
             return

@@ -18,12 +18,14 @@
 from __future__ import annotations
 
 import logging
+import queue
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import canopen
-from canopen.lss import LssError
+from canopen.lss import CS_IDENTIFY_NON_CONFIGURED_SLAVE as IDENTIFY_NON_CONFIGURED_SLAVE
+from canopen.lss import LssError, LssMaster
 from canopen.sdo.exceptions import SdoError
 
 from canbus.device.local_device import eds_identity
@@ -38,6 +40,7 @@ logger = logging.getLogger(__name__)
 
 UNCONFIGURED = 0xFF
 MAX_AUTO = 127
+RETRIES = 3
 
 
 @dataclass(frozen=True)
@@ -57,6 +60,18 @@ def _serial_of(node: canopen.RemoteNode) -> int | None:
         return int.from_bytes(node.sdo.upload(0x1018, 4)[:4], "little")
     except (SdoError, LssError):
         return None
+
+
+def _any_waiting(lss: LssMaster) -> bool:
+    """Whether any patch answers "identify non-configured remote slave" (CiA 305)."""
+    while not lss.responses.empty():
+        lss.responses.get_nowait()
+    lss.send_identify_non_configured_remote_slave()
+    try:
+        answer = lss.responses.get(timeout=lss.RESPONSE_TIMEOUT)
+    except queue.Empty:
+        return False
+    return bool(answer) and answer[0] == IDENTIFY_NON_CONFIGURED_SLAVE
 
 
 def force_node_store(state_dir: str, node_id: int) -> NvStore | None:
@@ -103,10 +118,16 @@ def assign_auto(network: canopen.Network, free: Iterable[int], *,
     lss = network.lss
     out: list[Assignment] = []
     ids = iter(free)
-    for _ in range(MAX_AUTO):
+    misses = 0
+    for _ in range(MAX_AUTO + RETRIES):
         found, identity = lss.fast_scan()
         if not found:
-            break
+            # A scan also fails when one answer came late (a busy patch): go on while a
+            # patch still says it waits for LSS.
+            misses += 1
+            if misses > RETRIES or not _any_waiting(lss):
+                break
+            continue
         node_id = next(ids, None)
         if node_id is None:
             lss.send_switch_state_global(lss.WAITING_STATE)

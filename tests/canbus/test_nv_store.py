@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import struct
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -42,6 +43,21 @@ class Pair:
         self.server.start()
         self.node = self.master.add_node(canopen.RemoteNode(1, load_od("skin-patch", 1)))
         self.node.sdo.RESPONSE_TIMEOUT = 2.0
+
+    def reset(self, command: int) -> None:
+        """NMT reset node (0x81) or communication (0x82), then its boot-up (waited for)."""
+        booted = threading.Event()
+
+        def on_boot(cob_id: int, data: bytearray, timestamp: float) -> None:
+            if bytes(data) == b"\x00":
+                booted.set()
+
+        self.master.subscribe(0x701, on_boot)
+        try:
+            self.node.nmt.send_command(command)
+            assert booted.wait(10.0), "no boot-up after the reset"
+        finally:
+            self.master.unsubscribe(0x701, on_boot)
 
     def close(self) -> None:
         self.server.stop()
@@ -83,8 +99,7 @@ def test_save_keeps_written_values_across_a_restart_and_load_brings_defaults_bac
         assert pair.server.nodes[0].heartbeat.period_ms == 250
         sdo.download(0x1011, 1, LOAD)  # restore all defaults: from the next reset on
         assert sdo.upload(0x1017, 0) == struct.pack("<H", 250)
-        pair.node.nmt.send_command(0x81)  # reset node
-        pair.node.nmt.wait_for_bootup(5.0)
+        pair.reset(0x81)  # reset node
         assert sdo.upload(0x1017, 0) == struct.pack("<H", 1000)
         assert sdo.upload(0x2002, 5) == struct.pack("<I", 1_414_214)
     finally:
@@ -96,8 +111,7 @@ def test_an_unsaved_value_is_lost_at_reset_a_saved_one_is_not(pair: Pair) -> Non
     sdo.download(0x1017, 0, struct.pack("<H", 300))
     sdo.download(0x1010, 1, SAVE)
     sdo.download(0x1017, 0, struct.pack("<H", 400))  # not saved
-    pair.node.nmt.send_command(0x82)  # reset communication
-    pair.node.nmt.wait_for_bootup(5.0)
+    pair.reset(0x82)  # reset communication
     assert sdo.upload(0x1017, 0) == struct.pack("<H", 300)
 
 
