@@ -1,9 +1,8 @@
 """The communication objects a SYNC consumer checks and follows (CiA 301).
 
-* 0x1005 COB-ID SYNC (rw): bits 0..10 the SYNC's CAN-ID, which the node then consumes;
-  bit 30 (the node generates SYNC) and bit 29 (a 29-bit ID) abort with 0x06090030, as
-  does a change of the ID while the node's TPDOs answer (bit 31 of every valid TPDO's COB-ID
-  is not involved: CiA 301 allows the change at any time for a consumer, so it is taken);
+* 0x1005 COB-ID SYNC (rw): bits 0..10 the SYNC's CAN-ID, which the node consumes from
+  then on; bit 30 (the node would generate SYNC) and bit 29 (a 29-bit ID) abort with
+  0x06090030;
 * 0x1019 synchronous counter overflow value (rw): 0 (the SYNC carries no counter) or
   2..240; 1 and 241..255 abort with 0x06090030. The node answers a SYNC with or without a
   counter byte either way (the host's CAN FD answer tells the cycle by it);

@@ -207,7 +207,8 @@ def _span(text: str) -> tuple[int, int] | None:
     m = _VALUE.match(text.strip())
     if m is None:
         return None
-    value = int(m.group(2), 0)
+    digits = m.group(2)
+    value = int(digits, 16 if "x" in digits.lower() else 10)
     return (value + 1, value + 127) if m.group(1) else (value, value)
 
 

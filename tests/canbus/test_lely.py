@@ -161,3 +161,29 @@ def test_skin_eds_check_refuses_what_dcfchk_warns_about(tmp_path: Path, old: str
     path = _broken(tmp_path, old, new, "broken.eds")
     assert _dcfchk_warnings(path) or _run(_tool("dcfchk"), str(path)).returncode != 0
     assert check(path), "skin eds check let through what lely's dcfchk refuses"
+
+
+_LINES = (EDS / "skin-patch.eds").read_text().splitlines()
+
+
+@settings(max_examples=60)
+@given(st.lists(st.tuples(st.integers(0, len(_LINES) - 1),
+                          st.one_of(st.text(max_size=12),
+                                    st.sampled_from(["0x", "0012", "-0x10", "$NODEID+",
+                                                     "$NODEID+0x80", "1e3", "0.5", "", "[",
+                                                     "ObjectType=0x8", "SubNumber=200",
+                                                     "DataType=0x0008", "AccessType=rw"]))),
+                min_size=1, max_size=4))
+def test_skin_eds_check_reads_any_broken_file_into_lines(edits: list[tuple[int, str]]) -> None:
+    """Broken files are judged, never crash the checker: one line per problem."""
+    lines = list(_LINES)
+    for at, text in edits:
+        key = lines[at].split("=", 1)[0] if "=" in lines[at] else ""
+        lines[at] = f"{key}={text}" if key and "=" not in text else text
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "broken.eds"
+        path.write_text("\n".join(lines) + "\n")
+        problems = check(path)
+    assert all(isinstance(p, str) and "\n" not in p for p in problems)

@@ -309,7 +309,7 @@ lss_frames = st.one_of(
 ANSWERS = {0x11, 0x13, 0x17, 0x44, 0x4F, 0x50, 0x5A, 0x5B, 0x5C, 0x5D, 0x5E}
 
 
-@settings(max_examples=60)
+@settings(max_examples=30)
 @given(st.lists(lss_frames, max_size=40))
 def test_any_lss_sequence_keeps_the_slave_sound(frames: list[bytes]) -> None:
     patch = PatchNode(0xFF, serial=0x1001)
