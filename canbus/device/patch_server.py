@@ -30,9 +30,7 @@ import logging
 import math
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import can
@@ -41,7 +39,7 @@ import numpy as np
 
 from canbus import codes
 from canbus.busload import spread
-from canbus.device.local_device import UNCONFIGURED, eds_identity
+from canbus.device.local_device import UNCONFIGURED
 from canbus.device.lss_slave import LSS_MASTER
 from canbus.device.nmt_slave import OPERATIONAL
 from canbus.device.nv_store import Identity, NvStore
@@ -52,15 +50,21 @@ from canbus.device.patch_node import (
     locked,
     pack_payloads,
 )
+from canbus.device.server_bus import (
+    SYNC_COB_ID,
+    ServerBus,
+    SyncCallback,
+    answer_order,
+    follow_sync,
+    patch_identity,
+)
 from canbus.device.source import ResistanceSource
-from canbus.rxfilter import OwnFrameGate, ReceiveFilter, receive_filter
+from canbus.rxfilter import OwnFrameGate, receive_filter
 from canbus.txmessage import TxMessage
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 
 logger = logging.getLogger(__name__)
 
-SYNC_COB_ID = 0x080
-SyncCallback = Callable[[int, bytearray, float], None]
 
 
 class _Prepared(NamedTuple):
@@ -70,35 +74,6 @@ class _Prepared(NamedTuple):
     plan: AnswerPlan
     payloads: list[bytes]
     messages: list[can.Message]
-
-
-@dataclass(eq=False)
-class _Bus:
-    """One bus of the server: its network, its nodes in node-ID order, its SYNC count."""
-
-    network: canopen.Network
-    nodes: list[PatchNode]
-    syncs: int = 0
-    frames_sent: int = 0
-    last_sync: float = -math.inf
-    """``time.monotonic()`` of its last SYNC."""
-    answered_at: float = -math.inf
-    """``time.monotonic()`` of the end of its last answer."""
-    answer_s: deque[float] = field(default_factory=lambda: deque(maxlen=1 << 17))
-    """Per answered SYNC: from the SYNC's receive stamp to the return of the last send."""
-    late: int = 0
-    """Answers that ended after the next SYNC was due (one SYNC interval after theirs):
-    more traffic than this process sends in a cycle."""
-    last_received: float = 0.0
-    """The receive stamp of its last SYNC."""
-    send_lock: threading.Lock = field(default_factory=threading.Lock)
-    own: ReceiveFilter | None = None
-    sync_of: dict[PatchNode, int] = field(default_factory=dict)
-    """The SYNC COB-ID each configured node consumes (0x1005)."""
-    sync_subscribed: set[int] = field(default_factory=set)
-    sync_lock: threading.Lock = field(default_factory=threading.Lock)
-    gate: OwnFrameGate | None = None
-    on_sync: SyncCallback | None = None
 
 
 class PatchServer:
@@ -137,11 +112,11 @@ class PatchServer:
         self._no_fault = np.zeros((len(self.nodes), 9), dtype=np.uint8)
         self._faulty = False  # some node's status is not all zero
         # The source's patches in its order (the nodes' node-IDs may change by LSS).
-        self.buses = [_Bus(net, [self.nodes[k] for k in group])
+        self.buses = [ServerBus(net, [self.nodes[k] for k in group])
                       for net, group in zip(networks, spread(list(range(len(self.nodes))),
                                                              len(networks)), strict=True)]
         for bus in self.buses:
-            bus.nodes.sort(key=_answer_order)
+            bus.nodes.sort(key=answer_order)
         self.sync_count = 0
         self.samples = 0
         self._prepared: dict[PatchNode, _Prepared] = {}
@@ -166,7 +141,7 @@ class PatchServer:
                 node.attach(bus.network)
             self._claim(bus)
             bus.on_sync = self._sync_handler(bus)
-            self._follow_sync(bus)
+            follow_sync(bus)
         if self._event_rate_hz > 0:
             self._thread = threading.Thread(target=self._sample_loop, daemon=True,
                                             name="patch-samples")
@@ -222,7 +197,7 @@ class PatchServer:
                 and prepared[node].plan.every_sync
                 for msg in prepared[node].messages]
 
-    def _sync_handler(self, bus: _Bus) -> SyncCallback:
+    def _sync_handler(self, bus: ServerBus) -> SyncCallback:
         def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
             self._answer(bus, data[0] if data else 0, timestamp, can_id)
         return on_sync
@@ -235,29 +210,18 @@ class PatchServer:
         the other way round; the new list replaces the old one whole.)"""
         for bus in self.buses:
             if node in bus.nodes:
-                bus.nodes = sorted(bus.nodes, key=_answer_order)
+                bus.nodes = sorted(bus.nodes, key=answer_order)
 
-    def _cob_ids_changed(self, bus: _Bus) -> None:
+    def _cob_ids_changed(self, bus: ServerBus) -> None:
         """A node's node-ID, SYNC or other COB-IDs changed: SYNCs to follow, own COB-IDs
         and the acceptance list anew."""
         if bus.on_sync is None:
             return
-        self._follow_sync(bus)
+        follow_sync(bus)
         if bus.own is not None and self._accept_only_consumed:
             bus.own.accept_only(self.consumed_cob_ids(self.buses.index(bus)))
         self._claim(bus)
 
-    def _follow_sync(self, bus: _Bus) -> None:
-        """Subscribe to the SYNC COB-ID of every configured node of the bus (0x1005)."""
-        with bus.sync_lock:
-            bus.sync_of = {node: node.sync_cob_id() for node in bus.nodes if node.configured}
-            wanted = set(bus.sync_of.values()) or {SYNC_COB_ID}
-            assert bus.on_sync is not None
-            for cob_id in wanted - bus.sync_subscribed:
-                bus.network.subscribe(cob_id, bus.on_sync)
-            for cob_id in bus.sync_subscribed - wanted:
-                bus.network.unsubscribe(cob_id, bus.on_sync)
-            bus.sync_subscribed = wanted
 
     # --- samples ----------------------------------------------------------------------
 
@@ -349,7 +313,7 @@ class PatchServer:
 
     # --- answers ----------------------------------------------------------------------
 
-    def _answer(self, bus: _Bus, sync_byte: int, received: float,
+    def _answer(self, bus: ServerBus, sync_byte: int, received: float,
                 cob_id: int = SYNC_COB_ID) -> None:
         bus.last_sync = time.monotonic()
         with self._lock:
@@ -409,7 +373,7 @@ class PatchServer:
             if messages:
                 self._send(bus, messages)
 
-    def _send(self, bus: _Bus, messages: list[can.Message]) -> None:
+    def _send(self, bus: ServerBus, messages: list[can.Message]) -> None:
         network_bus = bus.network.bus
         assert network_bus is not None, "the network is not connected"
         send = network_bus.send
@@ -436,7 +400,7 @@ class PatchServer:
         return {0x000, SYNC_COB_ID, LSS_MASTER} | {node.sync_cob_id() for node in nodes} | \
             {int(node.store.sdo.rx_cobid) for node in nodes if node.configured}
 
-    def _claim(self, bus: _Bus) -> None:
+    def _claim(self, bus: ServerBus) -> None:
         """Claim the COB-IDs the bus's nodes send, where the bus echoes them (and accept
         only what they consume, if asked)."""
         network_bus = bus.network.bus
@@ -457,7 +421,7 @@ class PatchServer:
                 bus.gate = OwnFrameGate(listener, bus.own)
                 notifier.listeners[k] = bus.gate
 
-    def _release(self, bus: _Bus) -> None:
+    def _release(self, bus: ServerBus) -> None:
         if bus.own is None:
             return
         bus.own.release(bus)
@@ -470,15 +434,6 @@ class PatchServer:
                 listeners[listeners.index(bus.gate)] = bus.gate.listener
         bus.gate = None
         bus.own = None
-
-
-def _answer_order(node: PatchNode) -> int:
-    return node.node_id
-
-
-def patch_identity(serial: int) -> Identity:
-    """The LSS address of a patch with ``serial`` (vendor, product, revision of its EDS)."""
-    return Identity(*eds_identity("skin-patch"), serial=serial)
 
 
 def _answered(ready: _Prepared, sync_byte: int) -> list[bytes]:
