@@ -232,3 +232,30 @@ def test_the_host_config_names_serials_lss_and_the_state_dir(tmp_path: Path) -> 
         with pytest.raises(ConfigError) as err:
             host_config_from_dict(doc)
         assert err.value.field == field
+
+
+def test_a_saved_pdo_mapping_and_an_lss_bit_timing_survive_a_restart(
+        pair: Pair, request: pytest.FixtureRequest, tmp_path: Path) -> None:
+    sdo = pair.node.sdo
+    sdo.download(0x1800, 1, struct.pack("<I", 0x8000_0181))  # CiA 301 remap sequence
+    sdo.download(0x1A00, 0, b"\x00")
+    sdo.download(0x1A00, 1, struct.pack("<I", 0x2004_0108))
+    sdo.download(0x1A00, 2, struct.pack("<I", 0x2004_0208))
+    sdo.download(0x1A00, 0, b"\x02")
+    sdo.download(0x1800, 1, struct.pack("<I", 0x181))
+    sdo.download(0x1010, 2, SAVE)
+    lss = pair.master.lss  # bit timing 3 (250 kbit/s), stored by LSS
+    assert lss.send_switch_state_selective(0, 1, 0x0001_0000, 0x1234)
+    lss.configure_bit_timing(3)
+    lss.store_configuration()
+    lss.send_switch_state_global(lss.WAITING_STATE)
+    pair = _restart(pair, request, tmp_path)
+    try:
+        patch = pair.server.nodes[0]
+        assert [(e.index, e.subindex) for e in patch.tpdo.codec.layouts[0].entries] == \
+            [(0x2004, 1), (0x2004, 2)]
+        assert pair.node.sdo.upload(0x1A00, 0) == b"\x02"
+        assert patch.lss is not None and patch.lss.bit_timing == 3
+        assert patch.node_id == 1  # stored with it: the node-ID it had
+    finally:
+        pair.close()
