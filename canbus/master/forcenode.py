@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from canbus.device.local_device import TPDO_COUNT, LocalDevice
 from canbus.device.nmt_slave import OPERATIONAL, START
+from canbus.device.nv_store import NvStore
 from canbus.mappings import force_fd_entries
 from canbus.od import load_od
 from canbus.pdo_codec import (
@@ -198,7 +199,10 @@ def force_node_cob_ids(node_id: int) -> frozenset[int]:
 class ForceNode(LocalDevice):
     """The force node of patch ``source_patch`` at node-ID ``node_id`` (1..127)."""
 
-    def __init__(self, node_id: int, source_patch: int, *, heartbeat_ms: int = 1000) -> None:
+    NOT_STORED = frozenset({TARE})
+
+    def __init__(self, node_id: int, source_patch: int, *, heartbeat_ms: int = 1000,
+                 nv: NvStore | None = None) -> None:
         if not 1 <= source_patch <= 127:
             raise ConfigError("source_patch", f"must be a node-ID in 1..127, got {source_patch}")
         if not 0 <= heartbeat_ms <= 0xFFFF:
@@ -209,7 +213,9 @@ class ForceNode(LocalDevice):
         """Called when a master writes 1 to 0x2007 (on the SDO server's thread); an
         exception refuses the write: :class:`SkinError` with abort 0x08000022."""
         self._clear_application()
-        super().__init__(node_id, "skin-forces")
+        super().__init__(node_id, "skin-forces", serial=node_id, nv=nv)
+
+    def _on_store_built(self) -> None:
         self.store.validators.append(self._tare)
 
     @property
@@ -300,8 +306,7 @@ class ForceNode(LocalDevice):
         self._answered = 0
 
     def _apply_defaults(self) -> None:
-        """Power-on values the EDS cannot know: serial, source patch, heartbeat period."""
-        self.store.store(0x1018, 4, self.node_id)
+        """Power-on values the EDS cannot know: source patch, heartbeat period."""
         self.store.store(SOURCE, 0, self.source_patch)
         self.store.store(0x1017, 0, self.heartbeat_ms)
         self.tpdo.reset()

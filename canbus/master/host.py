@@ -56,6 +56,7 @@ from canbus.master.fanout import FrameCallback, FrameFanout
 from canbus.master.follower import ListenOnly
 from canbus.master.forcenode import ForceNode
 from canbus.master.hostconfig import HostConfig, load_host_config
+from canbus.master.lss_assign import Assignment, assign_at_start, force_node_store
 from canbus.master.patch_setup import PatchSetup
 from canbus.master.records import STATES, PatchHealth, PatchRecord
 from canbus.master.sync_producer import SyncFollower, SyncProducer
@@ -125,12 +126,14 @@ class HostManager:
             node = canopen.RemoteNode(patch.node_id, load_od("skin-patch", patch.node_id))
             node.sdo.RESPONSE_TIMEOUT = config.sdo_timeout_ms / 1000.0
             force = ForceNode(patch.force_node, patch.node_id,
-                              heartbeat_ms=config.force_heartbeat_ms)
+                              heartbeat_ms=config.force_heartbeat_ms,
+                              nv=force_node_store(config.state_dir, patch.force_node))
             record = PatchRecord(patch, self.links[patch.bus], self.links[patch.force_bus],
                                  node, force)
             self.patches[patch.node_id] = record
             node.emcy.add_callback(self._emcy_handler(record))
         self.force_ids = {p.force_node: p.node_id for p in config.patches}
+        self.lss_assignments: list[Assignment] = []
         self.policy: ActiveMaster | ListenOnly = \
             ListenOnly(self) if self.listen_only else ActiveMaster(self)
 
@@ -175,6 +178,8 @@ class HostManager:
                 follower = (SyncFollower(dataplane.on_sync)
                             if dataplane is not None and self.config.sync_following else None)
                 link.listen(dataplane, follower)
+            if not self.listen_only:  # node-IDs by serial number (LSS) before the scan
+                self.lss_assignments = assign_at_start(self.config, self.patches)
             self.policy.start()
         except BaseException:
             self.stop()

@@ -52,6 +52,7 @@ class PatchConfig:
     position_m: tuple[float, float] | None = None  # where the patch sits on the skin (views)
     bus: str = ""  # the bus the patch is on ("": the host's first bus)
     force_bus: str = ""  # the bus its force node publishes on ("": the patch's)
+    serial: int | None = None  # LSS: the patch with this serial number gets node_id
     prototype: Decoder | None = field(default=None, compare=False, repr=False)
     """The model file's decoder, read once when the config was checked."""
 
@@ -88,6 +89,9 @@ class HostConfig:
     queue_size: int = 1024
     listen_only: bool = False  # follow another master's patches; transmit nothing
     sync: str = "produce"  # "external": follow the SYNC another master produces
+    lss: str = ""  # "auto": patches waiting for LSS get the next free node-IDs
+    lss_store: bool = False  # LSS store configuration after each assignment
+    state_dir: str = ""  # the force nodes' non-volatile stores ("": in memory)
     drift: DriftConfig | None = None
     buses: tuple[BusConfig, ...] = (BusConfig(),)
     zenoh: ZenohSettings | None = None  # [zenoh]: publish on Zenoh (canbus.zenoh.config)
@@ -158,6 +162,8 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
             kwargs[key] = tuple(_int_list(value, "host.other_nodes"))
         else:
             kwargs[key] = _typed(value, kind, f"host.{key}")
+    if kwargs.get("state_dir"):  # relative to the config file, as model paths are
+        kwargs["state_dir"] = str(base / kwargs["state_dir"])
     drift = data.get("drift")
     if drift is not None:
         if not isinstance(drift, dict):
@@ -188,11 +194,13 @@ _HOST_FIELDS: dict[str, type] = {
     "sync_period_ms": float, "sync_window_ms": float, "sync_counter": bool,
     "heartbeat_ms": int, "force_heartbeat_ms": int, "sdo_timeout_ms": int, "scan": bool,
     "scan_ms": int, "other_nodes": list, "tare_threshold_N": float, "queue_size": int,
-    "listen_only": bool, "sync": str,
+    "listen_only": bool, "sync": str, "lss": str, "lss_store": bool, "state_dir": str,
 }
+LSS_MODES = ("", "auto")
 SYNC_MODES = ("produce", "external")
 _PATCH_FIELDS = ("node_id", "decoder", "model", "mode", "force_node", "force_cob_ids",
-                 "constants", "r0_ohm", "answer_order", "position_m", "bus", "force_bus")
+                 "constants", "r0_ohm", "answer_order", "position_m", "bus", "force_bus",
+                 "serial")
 # What a patch reports about itself: 0x2001 (LSB) and 0x2003 (adc_bits is not reported).
 CONSTANT_KEYS = ("resistance_lsb_ohm", "youngs_modulus_pa", "resistivity_ohm_m", "length_m",
                  "area_m2", "max_strain", "full_scale_force_N", "taxel_pitch_m")
@@ -209,6 +217,8 @@ def _patch(table: dict[str, Any], where: str, base: Path,
             kwargs[key] = _typed(table[key], str, f"{where}.{key}")
     if "force_node" in table:
         kwargs["force_node"] = _typed(table["force_node"], int, f"{where}.force_node")
+    if "serial" in table:
+        kwargs["serial"] = _typed(table["serial"], int, f"{where}.serial")
     if "force_cob_ids" in table:
         kwargs["force_cob_ids"] = tuple(_int_list(table["force_cob_ids"],
                                                   f"{where}.force_cob_ids"))
@@ -253,6 +263,9 @@ def _check_patch(patch: PatchConfig, where: str, buses: tuple[BusConfig, ...]) -
     if patch.answer_order not in ANSWER_ORDERS:
         raise ConfigError(f"{where}.answer_order", f"must be one of {', '.join(ANSWER_ORDERS)}, "
                           f"got {patch.answer_order!r}")
+    if patch.serial is not None and not 0 <= patch.serial <= 0xFFFF_FFFF:
+        raise ConfigError(f"{where}.serial", f"must be a serial number in 0..0xFFFFFFFF, got "
+                          f"{patch.serial!r}")
     if patch.force_cob_ids is not None:
         if len(patch.force_cob_ids) != TPDO_COUNT:
             raise ConfigError(f"{where}.force_cob_ids", f"must list {TPDO_COUNT} COB-IDs "
@@ -327,6 +340,13 @@ def _check_host(config: HostConfig) -> None:
     if config.sync not in SYNC_MODES:
         raise ConfigError("host.sync", f"must be one of {', '.join(SYNC_MODES)}, got "
                           f"{config.sync!r}")
+    if config.lss not in LSS_MODES:
+        raise ConfigError("host.lss", f"must be \"auto\" or absent, got {config.lss!r}")
+    serials: dict[int, int] = {}
+    for i, patch in enumerate(config.patches):
+        if patch.serial is not None and serials.setdefault(patch.serial, i) != i:
+            raise ConfigError(f"patches[{i}].serial", f"0x{patch.serial:08X} is also "
+                              f"patches[{serials[patch.serial]}].serial")
     if config.sync_window_ms > config.sync_period_ms:
         raise ConfigError("host.sync_window_ms", f"{config.sync_window_ms:g} is longer than "
                           f"the SYNC period {config.sync_period_ms:g}")

@@ -11,7 +11,10 @@ canopen uses; it must also load with ``canopen.import_od``. Rules:
 3. every DataType is a CiA 301 basic type and every AccessType is one of
    ro, wo, rw, rwr, rww, const;
 4. every PDO mapping entry names an existing, PDO-mappable object of the mapped size;
-5. the entries a PDO maps add up to at most 64 bits.
+5. the entries a PDO maps add up to at most 64 bits;
+6. what lely's ``dcfchk`` checks (``canbus.tools.edslint``): CiA 306 keys and sections,
+   object lists by range, values that parse as integers of their type and inside the
+   limits, and no REAL default that lely and python-canopen read as different numbers.
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ import os
 import re
 
 import canopen
+
+from canbus.tools.edslint import lint
 
 LISTS = ("MandatoryObjects", "OptionalObjects", "ManufacturerObjects")
 MANDATORY = (0x1000, 0x1001, 0x1018)
@@ -41,16 +46,31 @@ def _read(path: str | os.PathLike[str]) -> configparser.RawConfigParser:
     return eds
 
 
-def _int(text: str) -> int:
-    return int(text.replace("$NODEID", "0").replace("+", " + ").split("+")[-1].strip(), 0)
+class _NotANumberError(ValueError):
+    """A value the rules need as a number is none: the problem names where it is."""
+
+
+def _int(text: str, where: str = "") -> int:
+    number = text.replace("$NODEID", "0").replace("+", " + ").split("+")[-1].strip()
+    try:
+        return int(number, 16 if number.lower().startswith(("0x", "-0x")) else 10)
+    except ValueError:
+        raise _NotANumberError(f"{where} {text!r} is not a number".strip()) from None
 
 
 def check(path: str | os.PathLike[str]) -> list[str]:
     """One line per problem found in the EDS at ``path``; empty when it is valid."""
     try:
         eds = _read(path)
-    except (OSError, configparser.Error) as err:
-        return [f"cannot read: {err}"]
+    except (OSError, configparser.Error, UnicodeError) as err:
+        return ["cannot read: " + "; ".join(str(err).split("\n"))]
+    try:
+        return _check(path, eds)
+    except _NotANumberError as err:
+        return [str(err)]
+
+
+def _check(path: str | os.PathLike[str], eds: configparser.RawConfigParser) -> list[str]:
     problems: list[str] = []
     objects = {int(m.group(1), 16): s for s in eds.sections() if (m := _OBJECT.match(s))}
     subs: dict[int, dict[int, str]] = {}
@@ -63,6 +83,7 @@ def check(path: str | os.PathLike[str]) -> list[str]:
         problems += _check_object(eds, index, section, subs.get(index, {}))
     for index in sorted(i for i in objects if 0x1600 <= i <= 0x17FF or 0x1A00 <= i <= 0x1BFF):
         problems += _check_mapping(eds, index, subs.get(index, {}))
+    problems += lint(eds)
     if not problems:
         try:
             canopen.import_od(os.fspath(path), 1)
@@ -78,11 +99,12 @@ def _check_lists(eds: configparser.RawConfigParser, objects: dict[int, str]) -> 
             problems.append(f"[{name}] is missing")
             continue
         entries = {k: v for k, v in eds.items(name) if k != "SupportedObjects"}
-        count = _int(eds.get(name, "SupportedObjects", fallback="0"))
+        count = _int(eds.get(name, "SupportedObjects", fallback="0"),
+                     f"[{name}] SupportedObjects")
         if count != len(entries):
             problems.append(f"[{name}] SupportedObjects={count} but lists {len(entries)} objects")
-        for value in entries.values():
-            index = _int(value)
+        for key, value in entries.items():
+            index = _int(value, f"[{name}] {key}")
             listed.add(index)
             if index not in objects:
                 problems.append(f"[{name}] lists 0x{index:04X}, which has no section")
@@ -92,9 +114,9 @@ def _check_lists(eds: configparser.RawConfigParser, objects: dict[int, str]) -> 
 
 def _check_object(eds: configparser.RawConfigParser, index: int, section: str,
                   subs: dict[int, str]) -> list[str]:
-    object_type = _int(eds.get(section, "ObjectType", fallback="0x7"))
+    object_type = _int(eds.get(section, "ObjectType", fallback="0x7"), f"[{section}] ObjectType")
     if object_type in (0x8, 0x9):
-        claimed = _int(eds.get(section, "SubNumber", fallback="0"))
+        claimed = _int(eds.get(section, "SubNumber", fallback="0"), f"[{section}] SubNumber")
         problems = []
         if claimed != len(subs):
             problems.append(f"[{section}] SubNumber={claimed} but has {len(subs)} sub-objects")
@@ -126,13 +148,13 @@ def _check_mapping(eds: configparser.RawConfigParser, index: int,
                    subs: dict[int, str]) -> list[str]:
     if 0 not in subs:
         return [f"[{index:04X}] has no sub-index 0 (number of mapped objects)"]
-    count = _int(eds.get(subs[0], "DefaultValue", fallback="0"))
+    count = _int(eds.get(subs[0], "DefaultValue", fallback="0"), f"[{subs[0]}] DefaultValue")
     problems, total = [], 0
     for s in range(1, count + 1):
         if s not in subs:
             problems.append(f"[{index:04X}] maps {count} objects but has no sub-index {s}")
             continue
-        raw = _int(eds.get(subs[s], "DefaultValue", fallback="0"))
+        raw = _int(eds.get(subs[s], "DefaultValue", fallback="0"), f"[{subs[s]}] DefaultValue")
         target, sub, bits = raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF
         total += bits
         name = f"0x{target:04X}:{sub:02X}"
@@ -142,9 +164,9 @@ def _check_mapping(eds: configparser.RawConfigParser, index: int,
         if found is None:
             problems.append(f"[{subs[s]}] maps {name}, which does not exist")
             continue
-        if not _int(eds.get(found, "PDOMapping", fallback="0")):
+        if not _int(eds.get(found, "PDOMapping", fallback="0"), f"[{found}] PDOMapping"):
             problems.append(f"[{subs[s]}] maps {name}, which is not PDO-mappable")
-        size = TYPE_BITS.get(_int(eds.get(found, "DataType", fallback="0")))
+        size = TYPE_BITS.get(_int(eds.get(found, "DataType", fallback="0"), f"[{found}] DataType"))
         if size != bits:
             problems.append(f"[{subs[s]}] maps {bits} bits of {name}, which has {size}")
     if total > 64:

@@ -31,6 +31,7 @@ import numpy as np
 from canbus import codes
 from canbus.mappings import force_fd_entries, patch_fd_entries
 from canbus.od import load_od
+from canbus.patch_constants import LSB_SCALE, scale_of
 from canbus.pdo_codec import (
     COB_ID_INVALID,
     PdoCodec,
@@ -47,8 +48,6 @@ SHIPPED_BY_PRODUCT = {PATCH_PRODUCT: "skin-patch", FORCES_PRODUCT: "skin-forces"
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
 NO_FORCE = -0x8000
 _PDO_LAST = 0x1BFF  # RPDO/TPDO communication and mapping parameters: 0x1400..0x1BFF
-_PATCH_UNITS = {0x2001: "Ω", 0x2002: "Ω"}
-_PATCH_CONSTANT_UNITS = ("Pa", "Ω·m", "m", "m²", "", "N", "m")  # 0x2003 sub 1..7
 _PILLARS, _AXES = "zxy", "xyz"
 EdsChoice = str | os.PathLike[str]
 
@@ -99,8 +98,8 @@ class NodeView:
         self.seen: dict[tuple[int, int], int] = {}
         self.heartbeat_ms: int | None = self._default(0x1017, 0)
         lsb = self._variable(0x2001, 0)
-        self.lsb_ohm = float(lsb.default) if self.product == PATCH_PRODUCT and lsb is not None \
-            and lsb.default is not None else 0.05
+        self.lsb_ohm = LSB_SCALE.to_si(int(lsb.default)) if self.product == PATCH_PRODUCT \
+            and lsb is not None and lsb.default is not None else 0.05
         self.pdos: dict[int, PdoEntry] = {}
         self._namers: dict[tuple[int, int], Callable[[float], NamedValue]] = {}
         self._rebuild()
@@ -120,8 +119,9 @@ class NodeView:
             return False
         if index == 0x1017 and subindex == 0 and isinstance(value, int):
             self.heartbeat_ms = value
-        if index == 0x2001 and self.product == PATCH_PRODUCT and isinstance(value, float):
-            self.lsb_ohm = value
+        if index == 0x2001 and self.product == PATCH_PRODUCT and isinstance(value, int) \
+                and value > 0:
+            self.lsb_ohm = LSB_SCALE.to_si(value)
             self._namers.clear()
         if not RPDO_COMM <= index <= _PDO_LAST or not isinstance(value, int):
             return False
@@ -226,10 +226,11 @@ class NodeView:
         name = var.name if var is not None else f"0x{index:04X}:{subindex:02X}"
         factor = var.factor if var is not None else 1.0
         unit = (var.unit if var is not None else "") or _CIA301_UNITS.get(index, "")
-        if product == PATCH_PRODUCT and index in _PATCH_UNITS:
-            unit = _PATCH_UNITS[index]
-        if product == PATCH_PRODUCT and index == 0x2003 and 1 <= subindex <= 7:
-            unit = _PATCH_CONSTANT_UNITS[subindex - 1]
+        scale = scale_of(index, subindex) if product == PATCH_PRODUCT else None
+        if scale is not None:  # a physical constant as a count of a small unit: in SI
+            digits = max(0, round(-math.log10(scale.si_per_count)))
+            return functools.partial(_counted, name, scale.si_per_count, digits,
+                                     scale.si_unit)
         return functools.partial(_scaled, name, factor, unit)
 
     def object_name(self, index: int, subindex: int) -> str:
@@ -264,8 +265,8 @@ class NodeView:
             return obj if subindex == 0 else None
         if isinstance(obj, canopen.objectdictionary.ODArray) and subindex > 0:
             count = obj[0].default  # canopen invents any sub-index of an ARRAY; we do not
-            if count is None or subindex > int(count):
-                return None
+            if subindex not in obj.subindices and (count is None or subindex > int(count)):
+                return None  # (0x1003's entries are in the EDS, its count starts at 0)
         try:
             return obj[subindex]
         except KeyError:
@@ -407,6 +408,13 @@ def _valid_taxels(value: float) -> NamedValue:
 def _scaled(name: str, factor: float, unit: str, value: float) -> NamedValue:
     scaled = value * factor
     number = f"{int(scaled)}" if float(scaled).is_integer() else f"{scaled:g}"
+    return NamedValue(name, scaled, unit, f"{name}={number}{' ' + unit if unit else ''}")
+
+
+def _counted(name: str, factor: float, digits: int, unit: str, value: float) -> NamedValue:
+    """A count of a small unit in SI, every digit the count has and no more."""
+    scaled = value * factor
+    number = f"{scaled:.{digits}f}".rstrip("0").rstrip(".") if digits else f"{int(scaled)}"
     return NamedValue(name, scaled, unit, f"{name}={number}{' ' + unit if unit else ''}")
 
 

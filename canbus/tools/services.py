@@ -21,6 +21,7 @@ import can
 from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoAbortedError
 
+from canbus.tools.lss_names import describe_lss
 from canbus.tools.pdo_names import PATCH_PRODUCT, Dictionary, NodeView, describe_taxel_fault
 
 
@@ -321,6 +322,8 @@ class ServiceDecoder:
             text = describe_emcy(data, view)
         elif service is Service.TIME:
             text = describe_time(data)
+        elif service is Service.LSS:
+            text = describe_lss(msg.arbitration_id, data)
         elif service is Service.ERROR:
             text = f"error frame class 0x{msg.arbitration_id:08X} {data.hex(' ')}".rstrip()
         else:

@@ -72,6 +72,10 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--write-node", action="store_true",
                         help="also write the rest values to the patch's 0x2002 by SDO (bus "
                              "flags below)")
+    parser.add_argument("--store", action="store_true",
+                        help="with --write-node: then save the patch's manufacturer "
+                             "parameters (0x1010 sub 4 \"save\"), so the rest survives "
+                             "power-off")
     parser.add_argument("--sdo-timeout", type=float, default=1.0, metavar="S",
                         help="SDO response time-out for --write-node (default 1 s)")
     can.cli.add_bus_arguments(parser)
@@ -115,6 +119,8 @@ def _run(args: argparse.Namespace) -> int:
         return _check(args)
     if not args.output:
         raise ConfigError("-o", "give the model file to write (or --check MODEL)")
+    if args.store and not args.write_node:
+        raise ConfigError("--store", "saves what --write-node writes: give --write-node")
     if not (math.isfinite(args.rest_N) and args.rest_N >= 0):
         raise ConfigError("--rest-N", f"must be >= 0 N, got {args.rest_N}")
     return _fit(args)
@@ -197,8 +203,9 @@ def _write_fit(args: argparse.Namespace, found: dict[str, Any], cal: Any, tare: 
     if args.write_node and tare is not None:
         written = write_rest_to_node(args, node, tare.rest_ohm)
         print(f"wrote {written} rest values to patch {node}'s 0x2002 on "
-              f"{args.interface}:{args.channel}; an active host reads them when it next "
-              "configures the patch")
+              f"{args.interface}:{args.channel}"
+              f"{' and saved them (0x1010)' if args.store else ''}; an active host reads "
+              "them when it next configures the patch")
     if not args.config_snippet:
         print(text, end="")
     if args.report:

@@ -8,12 +8,11 @@ from __future__ import annotations
 import json
 import math
 import os
-import struct
 from pathlib import Path
 from typing import Any
 
 NOMINAL = 0x2002
-"""The patch's nominal (rest) resistances R0, 27 REAL32 (eds/skin-patch.eds)."""
+"""The patch's nominal (rest) resistances R0, 27 UNSIGNED32 in mOhm (eds/skin-patch.eds)."""
 
 
 def plain(value: Any) -> Any:
@@ -132,16 +131,18 @@ def snippet(node_id: int, mode: str, model: str, rest_ohm: Any, snippet_path: st
 
 
 def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
-    """SDO downloads of the rest values to the patch's 0x2002 (sub taxel·3 + pillar + 1);
-    returns how many were written. BusError names the sub-index a patch refused."""
+    """SDO downloads of the rest values to the patch's 0x2002 (sub taxel·3 + pillar + 1),
+    then with ``args.store`` 0x1010 sub 4 "save"; returns how many were written. BusError
+    names the sub-index a patch refused."""
     import can.cli
     import canopen
     import numpy as np
     from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
     from canbus.od import load_od
+    from canbus.patch_constants import encode_si
     from skin.commands.common.busargs import default_channel
-    from skin.errors import BusError
+    from skin.errors import BusError, ConfigError
 
     rest = np.asarray(rest_ohm, dtype=np.float64)
     default_channel(args)
@@ -155,7 +156,10 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
             for taxel in range(rest.shape[0]):
                 for pillar in range(rest.shape[1]):
                     sub = 3 * taxel + pillar + 1
-                    value = struct.pack("<f", float(rest[taxel, pillar]))
+                    try:
+                        value = encode_si(NOMINAL, sub, float(rest[taxel, pillar]))
+                    except ConfigError as err:
+                        raise ConfigError(f"rest 0x2002:{sub:02X}", err.problem) from err
                     try:
                         node.sdo.download(NOMINAL, sub, value)
                     except SdoAbortedError as err:
@@ -166,6 +170,22 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
                         raise BusError(f"patch {node_id} did not answer on "
                                        f"{args.interface}:{args.channel}: {err}") from err
                     written += 1
+            if getattr(args, "store", False):
+                _save_manufacturer_parameters(node, node_id)
         finally:
             network.disconnect()
     return written
+
+
+def _save_manufacturer_parameters(node: Any, node_id: int) -> None:
+    """0x1010 sub 4 "save": the patch keeps its manufacturer parameters (R0) across
+    power-off (CiA 301's signature, 0x65766173)."""
+    from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+    from skin.errors import BusError
+
+    try:
+        node.sdo.download(0x1010, 4, b"save")
+    except (SdoAbortedError, SdoCommunicationError) as err:
+        raise BusError(f"patch {node_id} did not save its parameters (0x1010:04): {err}") \
+            from err

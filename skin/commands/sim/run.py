@@ -180,6 +180,7 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
     from sim import Simulator
     from skin.atomic import atomic_write
     from skin.commands.common.signals import until_stopped
+    from skin.commands.sim.identity import patch_identities
 
     simulator = Simulator(scene, seed=args.seed)
     truth = TruthSource(simulator) if args.truth else None
@@ -188,7 +189,7 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
     stop = threading.Event()
     # With --truth each SYNC reads its own step in the SYNC handler (no sample thread).
     server = PatchServer(networks, source, event_rate_hz=0.0 if truth else scene.rate_hz,
-                         accept_only_consumed=True)
+                         accept_only_consumed=True, **patch_identities(args, scene))
     # The nodes' object dictionaries are tens of thousands of long-lived objects, and every
     # sample allocates: a full collection walking them would stall the answers. Freeze them.
     gc.collect()
@@ -244,7 +245,14 @@ def _record(scene: Scene, server: Any, flags: list[argparse.Namespace], planned:
 
 def _announce(scene: Scene, server: Any, flags: list[argparse.Namespace]) -> None:
     for bus, each in zip(server.buses, flags, strict=True):
-        ids = _ids([node.node_id for node in bus.nodes])
+        waiting = [node for node in bus.nodes if not node.configured]
+        if waiting:
+            serials = ", ".join(f"0x{node.identity.serial:08X}" for node in waiting)
+            print(f"scene {scene.name}: {len(waiting)} patches wait for LSS (serial numbers "
+                  f"{serials}) on {_describe(each)}", flush=True)
+        ids = _ids([node.node_id for node in bus.nodes if node.configured])
+        if not ids:
+            continue
         print(f"scene {scene.name}: nodes {ids} ({server.nodes[0].mode}) on "
               f"{_describe(each)}", flush=True)
     print("Ctrl-C stops", flush=True)
@@ -260,6 +268,7 @@ def add_subparser(group_subparsers: Any) -> None:
     import can.cli
 
     from skin.commands.common.cpu import add_cpu_argument
+    from skin.commands.sim.identity import add_identity_arguments
 
     parser = group_subparsers.add_parser(
         "run", help="the scene's patches as nodes on a bus",
@@ -281,6 +290,7 @@ def add_subparser(group_subparsers: Any) -> None:
                         help="also write the true forces of every answer as reference forces "
                              "(docs/calibrate.md); each SYNC then steps the simulator once "
                              "(one bus only)")
+    add_identity_arguments(parser)
     add_cpu_argument(parser, default="all")
     can.cli.add_bus_arguments(parser)
     parser.set_defaults(func=_run, interface="virtual")
