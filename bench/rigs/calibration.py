@@ -1,6 +1,6 @@
 """The calibration loop end to end, as a user runs it, in separate processes on udp_multicast.
 
-``python -m bench.rigs.calibration [--fd] [--seconds S] [--folder DIR]`` prints the
+``python -m bench.rigs.calibration [--fd] [--samples N] [--folder DIR]`` prints the
 figures of docs/calibrate.md; ``tests/skin/test_calibrate_e2e.py`` asserts them.
 
 1. ``skin run host.toml`` (the host; classic CAN, or CAN FD with ``--fd``) and, for each of two
@@ -19,15 +19,18 @@ import argparse
 import json
 import os
 import signal
-import subprocess
 import sys
 import tempfile
-import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from bench.rigs.children import Child, spawn
+from bench.rigs.ports import udp_bus
+from bench.rigs.waiting import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENE = "calibration"
@@ -45,47 +48,56 @@ def _skin(*args: str) -> list[str]:
     return [sys.executable, "-m", "skin.cli", *args]
 
 
-def _wait_for(path: Path, text: str, proc: subprocess.Popen[bytes], timeout: float) -> None:
-    deadline = time.monotonic() + timeout
-    while text not in (path.read_text() if path.exists() else ""):
-        if proc.poll() is not None or time.monotonic() > deadline:
-            raise RuntimeError(f"{proc.args!r} did not say {text!r}: {path.read_text()}")
-        time.sleep(0.05)
-
-
-def record(folder: Path, *, classic: bool, seconds: float, group: str, port: int) -> None:
-    """Two recordings with a host running: runN.log, truthN.csv (N = 1, 2)."""
+def record(folder: Path, *, classic: bool, samples: int, group: str, port: int,
+           timeout: float = 180.0) -> None:
+    """Two recordings with a host running: runN.log, truthN.csv (N = 1, 2), each until the
+    simulator has answered ``samples`` SYNCs in time (its truth holds them): a busy machine
+    takes longer, never gives fewer samples. Each process's output: NAME.out."""
     bus = ["-i", "udp_multicast", "-c", group, "--bus-kwargs", f"port={port}"]
     (folder / "host.toml").write_text(HOST.format(listen="", fd=str(not classic).lower())
                                       + "\n[[patches]]\nnode_id = 1\n")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    logs = {name: (folder / f"{name}.out").open("w") for name in ("host", "sniff1", "sniff2",
-                                                                  "sim1", "sim2")}
-    host = subprocess.Popen(_skin("run", "host.toml", *bus), cwd=folder, env=env,
-                            stdout=logs["host"], stderr=subprocess.STDOUT)
+    started: dict[str, Child] = {}
+
+    def start(name: str, *args: str) -> Child:
+        started[name] = spawn(_skin(*args), cwd=folder, env=env)
+        return started[name]
+
     try:
+        host = start("host", "run", "host.toml", *bus)
+        host.wait_for("Ctrl-C stops", timeout=60)
         for run in (1, 2):
-            sniff = subprocess.Popen(
-                _skin("sniff", "--record", f"run{run}.log", "--view", "none", *bus),
-                cwd=folder, env=env, stdout=logs[f"sniff{run}"], stderr=subprocess.STDOUT)
-            time.sleep(1.5)  # the sniffer and the host (first run) are listening
-            sim = subprocess.Popen(
-                _skin("sim", "run", SCENE, "--truth", f"truth{run}.csv", "--seed", str(run),
-                      *bus), cwd=folder, env=env, stdout=logs[f"sim{run}"],
-                stderr=subprocess.STDOUT)
-            _wait_for(folder / f"sim{run}.out", "Ctrl-C stops", sim, 30.0)
-            time.sleep(seconds + 0.5)  # the host configures the patch in the first 0.5 s
-            sim.send_signal(signal.SIGTERM)  # as a service manager stops it
-            sim.wait(timeout=20)
-            time.sleep(0.2)
-            sniff.send_signal(signal.SIGINT)
-            if sniff.wait(timeout=20) != 0:
-                raise RuntimeError((folder / f"sniff{run}.out").read_text())
+            _one_recording(start, run, bus, folder / f"truth{run}.csv", samples, timeout)
+        if host.stop(signal.SIGINT) != 0:
+            raise RuntimeError(host.output())
     finally:
-        host.send_signal(signal.SIGINT)
-        host.wait(timeout=20)
-        for handle in logs.values():
-            handle.close()
+        for name, child in started.items():
+            if child.running():
+                child.kill()
+            (folder / f"{name}.out").write_text(child.output())
+
+
+def _one_recording(start: Callable[..., Child], run: int, bus: list[str], truth: Path,
+                   samples: int, timeout: float) -> None:
+    """runN.log by ``skin sniff`` while ``skin sim run`` answers ``samples`` SYNCs."""
+    sniff = start(f"sniff{run}", "sniff", "--record", f"run{run}.log", "--view", "none", *bus)
+    sniff.wait_for("Ctrl-C stops", stream="stderr", timeout=60)
+    sim = start(f"sim{run}", "sim", "run", SCENE, "--truth", truth.name, "--seed", str(run),
+                *bus)
+    wait_until(lambda: _truth_samples(truth) >= samples or not sim.running(),
+               what=f"{samples} answered SYNCs in {truth}", timeout=timeout)
+    if sim.stop(signal.SIGTERM) != 0:  # as a service manager stops it
+        raise RuntimeError(sim.output())
+    if sniff.stop(signal.SIGINT) != 0:
+        raise RuntimeError(sniff.output())
+
+
+def _truth_samples(path: Path) -> int:
+    """Samples in a truth file being written (nine rows each, flushed whole)."""
+    if not path.exists():
+        return 0
+    with path.open("rb") as handle:
+        return max(0, sum(1 for _ in handle) - 1) // 9
 
 
 @dataclass
@@ -166,14 +178,14 @@ def loop(folder: Path, *, classic: bool, decoders: list[str] | None = None) -> F
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--fd", action="store_true", help="CAN FD, not classic CAN")
-    parser.add_argument("--seconds", type=float, default=4.0, help="seconds per recording")
+    parser.add_argument("--samples", type=int, default=400,
+                        help="answered SYNCs per recording (100 a second)")
     parser.add_argument("--folder", help="where to work (default: a temporary folder)")
     args = parser.parse_args()
     folder = Path(args.folder or tempfile.mkdtemp(prefix="calibration-"))
     folder.mkdir(parents=True, exist_ok=True)
-    port = 44000 + os.getpid() % 1000
-    record(folder, classic=not args.fd, seconds=args.seconds,
-           group=f"239.74.{os.getpid() % 250}.77", port=port)
+    group, port = udp_bus()
+    record(folder, classic=not args.fd, samples=args.samples, group=group, port=port)
     f = loop(folder, classic=not args.fd)
     print(f"\nfolder {folder}")
     for run, d in ((1, f.dataset1), (2, f.dataset2)):

@@ -18,7 +18,6 @@ import json
 import logging
 import os
 import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -27,6 +26,8 @@ from pathlib import Path
 
 import can
 
+from bench.rigs.children import Child, spawn
+from bench.rigs.ports import udp_bus
 from canbus.tools.replay import Recording
 
 IDS = frozenset((0x181, 0x182, 0x183))
@@ -53,21 +54,8 @@ def numbers(path: Path, *, partial: bool) -> list[int]:
                 if m.arbitration_id in IDS and len(m.data) == 4]
 
 
-def _wait_ready(procs: list[subprocess.Popen[str]], files: list[Path], logger_out: Path) -> None:
-    deadline = time.monotonic() + 30
-    while not (all(f.exists() for f in files) and "Connected to" in logger_out.read_text()):
-        for proc in procs:
-            if proc.poll() is not None:
-                raise RuntimeError(f"a recorder ended early: {proc.args!r}")
-        if time.monotonic() > deadline:
-            raise RuntimeError("the recorders did not start")
-        time.sleep(0.02)
-    time.sleep(0.3)  # the sniffers' Notifier starts just after their recording file
-
-
 def _send(bus: can.BusABC, rate: float, seconds: float, signal_at: float,
-          stop: list[subprocess.Popen[str]], kill: subprocess.Popen[str]
-          ) -> tuple[float, list[float]]:
+          stop: list[Child], kill: Child) -> tuple[float, list[float]]:
     """Numbered frames at ``rate`` for ``seconds``; at ``signal_at`` SIGTERM ``stop`` and
     SIGKILL ``kill``. (when the signals went, when each frame went)."""
     sent_at: list[float] = []
@@ -85,7 +73,7 @@ def _send(bus: can.BusABC, rate: float, seconds: float, signal_at: float,
             bus.send(can.Message(arbitration_id=0x181 + k % 3, data=k.to_bytes(4, "little"),
                                  is_extended_id=False))
             sent_at.append(time.monotonic())
-        time.sleep(0.001)
+        time.sleep(0.001)  # pacing: the frames go out at ``rate``
     return signalled, sent_at
 
 
@@ -94,32 +82,26 @@ def run(suffix: str, channel: str, port: int, folder: Path, *, rate: float = 200
     bus_args = ["-i", "udp_multicast", "-c", channel, "--bus-kwargs", f"port={port}"]
     theirs, termed, killed = (folder / f"{name}{suffix}" for name in
                               ("logger", "termed", "killed"))
-    summary, logger_out = folder / "termed.json", folder / "logger.out"
-    logger_out.write_text("")
+    summary = folder / "termed.json"
     sniff = [sys.executable, "-m", "skin.cli", "sniff", *bus_args, "--view", "none"]
     env = os.environ | {"PYTHONUNBUFFERED": "1"}  # can.logger's "Connected to" line
-    with logger_out.open("w") as out:
-        procs = [
-            subprocess.Popen([sys.executable, "-m", "can.logger", *bus_args, "-f", str(theirs)],
-                             stdout=out, stderr=subprocess.STDOUT, text=True, env=env),
-            subprocess.Popen([*sniff, "--record", str(termed), "--json", str(summary)],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True),
-            subprocess.Popen([*sniff, "--record", str(killed)], stdout=subprocess.DEVNULL,
-                             stderr=subprocess.DEVNULL, text=True)]
-        try:
-            _wait_ready(procs, [termed, killed], logger_out)
-            with can.Bus(interface="udp_multicast", channel=channel, port=port) as bus:
-                signalled, sent_at = _send(bus, rate, seconds, signal_at, procs[:2], procs[2])
-            stdout, stderr = procs[1].communicate(timeout=30)
-            procs[0].wait(timeout=30)
-            procs[2].wait(timeout=30)
-        finally:
-            for proc in procs:
-                if proc.poll() is None:
-                    proc.kill()
-                    proc.wait()
-    if procs[1].returncode != 0 or procs[2].returncode != -signal.SIGKILL:
-        raise RuntimeError(f"skin sniff ended with {procs[1].returncode}: {stderr}")
+    procs = [spawn([sys.executable, "-m", "can.logger", *bus_args, "-f", str(theirs)], env=env),
+             spawn([*sniff, "--record", str(termed), "--json", str(summary)]),
+             spawn([*sniff, "--record", str(killed)])]
+    try:
+        procs[0].wait_for("Connected to", timeout=60)
+        for proc in procs[1:]:  # the line comes once the sniffer receives
+            proc.wait_for("Ctrl-C stops", stream="stderr", timeout=60)
+        with can.Bus(interface="udp_multicast", channel=channel, port=port) as bus:
+            signalled, sent_at = _send(bus, rate, seconds, signal_at, procs[:2], procs[2])
+        codes = [proc.wait() for proc in procs]
+    finally:
+        for proc in procs:
+            if proc.running():
+                proc.kill()
+    if codes[1] != 0 or codes[2] != -signal.SIGKILL:
+        raise RuntimeError(f"skin sniff ended with {codes[1:]}: {procs[1].output()}")
+    stdout = procs[1].stdout()
     return StopRun(
         sent=len(sent_at), sent_before_signal=sum(t <= signalled for t in sent_at),
         sent_before={lead: sum(t <= signalled - lead for t in sent_at) for lead in (0.5, 1.0)},
@@ -135,8 +117,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=2.0)
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)  # the cut tails are counted below
-    channel = f"239.74.{os.getpid() % 250}.{(os.getpid() // 250) % 250 + 1}"
-    port = 20000 + os.getpid() % 20000
+    channel, port = udp_bus()
     with tempfile.TemporaryDirectory() as tmp:
         result = run(f".{args.format}", channel, port, Path(tmp), rate=args.rate,
                      seconds=args.seconds, signal_at=0.8 * args.seconds)

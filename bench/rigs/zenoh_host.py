@@ -1,13 +1,12 @@
 """A host publishing on Zenoh over loopback, for the Zenoh tests: patches served on a
-private virtual bus, presses of known forces, the publisher on a free TCP port of
-127.0.0.1, multicast scouting off."""
+private virtual bus, presses of known forces, the publisher on a TCP port of 127.0.0.1 of
+its own (``bench.rigs.ports``), multicast scouting off."""
 
 from __future__ import annotations
 
 import contextlib
 import itertools
 import os
-import socket
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -16,6 +15,7 @@ import can
 import canopen
 import numpy as np
 
+from bench.rigs.ports import tcp_port
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.dataplane import ForceFrame
@@ -27,13 +27,6 @@ from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 
 _channels = itertools.count()
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 def presses(samples: int, patches: int, seed: int = 5) -> np.ndarray:
@@ -78,7 +71,7 @@ def publishing_host(patches: tuple[int, ...] = (1, 2), *, period_ms: float = 20.
     config = HostConfig(patches=tuple(PatchConfig(n) for n in patches),
                         sync_period_ms=period_ms, scan_ms=300, sdo_timeout_ms=2000,
                         heartbeat_ms=500)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = f"tcp/127.0.0.1:{tcp_port()}"
     settings = settings or ZenohSettings(listen=(endpoint,), host=host_name)
     if settings.listen:
         endpoint = settings.listen[0]

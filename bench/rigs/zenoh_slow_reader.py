@@ -19,11 +19,11 @@ def main() -> None:
         nonlocal count
         count += 1
         print(f"got {count}", flush=True)
-        time.sleep(delay)
+        time.sleep(delay)  # pacing: the slow reader holds Zenoh's thread this long
 
     with subscribe(settings=ZenohSettings(connect=(endpoint,)), ring=1, on_sample=slow):
         print("subscribed", flush=True)
-        time.sleep(120.0)
+        time.sleep(120.0)  # pacing: reads until killed
 
 
 if __name__ == "__main__":

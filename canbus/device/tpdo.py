@@ -37,6 +37,7 @@ NOT_MAPPABLE = 0x0604_0041
 EXCEEDS_PDO = 0x0604_0042
 INVALID_VALUE = 0x0609_0030
 EVENT_DRIVEN = (254, 255)
+_DUE_S = 1e-9  # a clock read exactly at a period's end is due, whatever float rounding says
 
 
 class TpdoTable:
@@ -121,9 +122,9 @@ class TpdoTable:
                 continue
             last = self._last_sent.get(p, -np.inf)
             if timer_ms:
-                fire = now - last >= timer_ms / 1000.0
+                fire = now - last >= timer_ms / 1000.0 - _DUE_S
             else:
-                fire = (now - last >= inhibit_100us / 10_000.0
+                fire = (now - last >= inhibit_100us / 10_000.0 - _DUE_S
                         and self._changed(p, payloads[p]))
             if fire:
                 due.append(p)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
-import os
 import threading
 from collections.abc import Iterator
 
@@ -12,9 +10,6 @@ import pytest
 
 from bench.rigs.dataplane import Host
 
-_groups = itertools.count(43000 + (os.getpid() % 1000) * 16)
-_udp_ports = itertools.count(20000 + (os.getpid() % 750) * 16)  # below Linux's ephemeral ports
-
 
 @pytest.fixture(autouse=True)
 def _no_open_virtual_channels() -> Iterator[None]:
@@ -22,19 +17,6 @@ def _no_open_virtual_channels() -> Iterator[None]:
     left = dict(can.interfaces.virtual.channels)
     can.interfaces.virtual.channels.clear()
     assert not left, f"test left virtual channels open: {sorted(map(str, left))}"
-
-
-@pytest.fixture
-def udp_channel() -> str:
-    """A multicast group on loopback unique to this test."""
-    return f"239.74.{os.getpid() % 250}.{next(_groups) % 250 + 1}"
-
-
-@pytest.fixture
-def udp_port() -> int:
-    """A UDP port unique to this test: Linux hands a socket every group joined on its port,
-    so tests, and two suites running at once, keep apart by port as well as by group."""
-    return next(_udp_ports)
 
 
 @pytest.fixture

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import queue
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import can
 import canopen
@@ -10,9 +10,12 @@ import numpy as np
 import pytest
 from canopen.sdo.exceptions import SdoAbortedError
 
+from bench.rigs.waiting import wait_until
 from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL, STOPPED
+from canbus.device.patch_node import PatchNode
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
+from canbus.device.tpdo import TpdoTable
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 
@@ -47,6 +50,7 @@ class Bench:
         self.node.sdo.RESPONSE_TIMEOUT = 1.0
 
     def collect(self, seconds: float) -> list[can.Message]:
+        """Every frame of the next ``seconds`` (for what must NOT come: a span to watch)."""
         end, got = time.monotonic() + seconds, []
         while (left := end - time.monotonic()) > 0:
             try:
@@ -54,6 +58,22 @@ class Bench:
             except queue.Empty:
                 break
         return got
+
+    def collect_until(self, enough: Callable[[list[can.Message]], bool], what: str,
+                      timeout: float = 30.0) -> list[can.Message]:
+        """Frames from now until ``enough(frames)`` (AssertionError naming ``what`` after
+        ``timeout`` s): waits for the event, however busy the machine."""
+        end, got = time.monotonic() + timeout, []
+        while not enough(got):
+            try:
+                got.append(self.frames.get(timeout=max(0.0, end - time.monotonic())))
+            except queue.Empty:
+                raise AssertionError(f"{what}: not within {timeout} s; got {got}") from None
+        return got
+
+    def state(self, node: int, state: str) -> None:
+        wait_until(lambda: self.server.nodes[node - 1].state == state,
+                   what=f"node {node} {state}")
 
     def close(self) -> None:
         self.server.stop()
@@ -76,6 +96,14 @@ def events(request: pytest.FixtureRequest) -> Iterator[Bench]:
     b = Bench(request.node.name, event_rate_hz=200.0)
     yield b
     b.close()
+
+
+def _count(cob_id: int, n: int) -> Callable[[list[can.Message]], bool]:
+    return lambda got: sum(m.arbitration_id == cob_id for m in got) >= n
+
+
+def _tpdos(n: int) -> Callable[[list[can.Message]], bool]:
+    return lambda got: sum(0x180 <= m.arbitration_id < 0x580 for m in got) >= n
 
 
 def _abort(node: canopen.RemoteNode, index: int, sub: int, data: bytes) -> int:
@@ -105,7 +133,10 @@ def test_malformed_frames_are_answered_or_ignored(bench: Bench) -> None:
     bench.raw.send(can.Message(arbitration_id=0x601, data=b"\x60" + bytes(7)))  # stray segment
     bench.raw.send(can.Message(arbitration_id=0x000, data=b"\x01"))  # short NMT frame
     bench.raw.send(can.Message(arbitration_id=0x7E5, data=bytes(8)))  # unknown COB-ID
-    answers = [m for m in bench.collect(0.3) if m.arbitration_id == 0x581]
+    answers = [m for m in bench.collect_until(
+        lambda got: sum(m.arbitration_id == 0x581 for m in got) >= 2, "two aborts")
+        if m.arbitration_id == 0x581]
+    answers += [m for m in bench.collect(0.1) if m.arbitration_id == 0x581]  # and no more
     assert [bytes(m.data[:1]) + bytes(m.data[4:]) for m in answers] == [
         b"\x80\x01\x00\x04\x05", b"\x80\x01\x00\x04\x05"]
     assert bench.server.nodes[0].state == PRE_OPERATIONAL
@@ -114,31 +145,35 @@ def test_malformed_frames_are_answered_or_ignored(bench: Bench) -> None:
 
 def test_nmt_sync_stop_and_reset(bench: Bench) -> None:
     bench.node.nmt.send_command(0x01)
-    time.sleep(0.05)
-    assert bench.server.nodes[0].state == OPERATIONAL
+    bench.state(1, OPERATIONAL)
     bench.master.sync.transmit()
-    tpdos = [m for m in bench.collect(0.2) if 0x180 <= m.arbitration_id < 0x580]
+    tpdos = [m for m in bench.collect_until(_tpdos(3), "node 1's answer")
+             if 0x180 <= m.arbitration_id < 0x580]
+    tpdos += [m for m in bench.collect(0.1) if 0x180 <= m.arbitration_id < 0x580]
     assert sorted(m.arbitration_id for m in tpdos) == [0x181, 0x281, 0x381]  # node 1 only
     assert all(len(m.data) == 6 for m in tpdos)  # z-only: a grid row per TPDO
     bench.node.nmt.send_command(0x02)
-    time.sleep(0.05)
-    assert bench.server.nodes[0].state == STOPPED
+    bench.state(1, STOPPED)
     bench.master.sync.transmit()
     assert not [m for m in bench.collect(0.2) if 0x180 <= m.arbitration_id < 0x580]
     bench.node.nmt.send_command(0x81)
-    frames = bench.collect(0.2)
-    assert any(m.arbitration_id == 0x701 and bytes(m.data) == b"\x00" for m in frames)
+    bench.collect_until(lambda got: any(m.arbitration_id == 0x701 and bytes(m.data) == b"\x00"
+                                        for m in got), "node 1's boot-up")
     assert bench.server.nodes[0].state == PRE_OPERATIONAL
 
 
 def test_heartbeat_period_and_sdo_change(bench: Bench) -> None:
-    bench.node.sdo[0x1017].raw = 50
-    beats = [m.timestamp for m in bench.collect(0.6) if m.arbitration_id == 0x701]
-    assert np.mean(np.diff(beats[1:])) == pytest.approx(0.050, rel=0.1)
-    bench.node.sdo[0x1017].raw = 100
-    bench.collect(0.05)
-    beats = [m.timestamp for m in bench.collect(0.8) if m.arbitration_id == 0x701]
-    assert np.mean(np.diff(beats)) == pytest.approx(0.100, rel=0.1)
+    """The heartbeat runs at the period 0x1017 says, changed by SDO (python-can's periodic
+    task keeps the time: its accuracy is python-can's, not asserted on a shared machine)."""
+    node = bench.server.nodes[0]
+    for period_ms in (50, 100):
+        bench.node.sdo[0x1017].raw = period_ms
+        assert node.heartbeat.period_ms == period_ms
+        assert node.heartbeat._task.period == period_ms / 1000.0
+        bench.collect_until(lambda got: sum(m.arbitration_id == 0x701 and m.data == b"\x7f"
+                                            for m in got) >= 3, "three heartbeats")
+    bench.node.sdo[0x1017].raw = 0  # 0 stops the heartbeat
+    assert node.heartbeat._task is None
 
 
 def test_remap_to_status_by_cia301_sequence(bench: Bench) -> None:
@@ -153,9 +188,10 @@ def test_remap_to_status_by_cia301_sequence(bench: Bench) -> None:
     sdo[0x1A00][0].raw = 2
     sdo[0x1800][1].raw = 0x181
     bench.node.nmt.send_command(0x01)
-    time.sleep(0.05)
+    bench.state(1, OPERATIONAL)
     bench.master.sync.transmit()
-    first = [m for m in bench.collect(0.2) if m.arbitration_id == 0x181]
+    first = [m for m in bench.collect_until(_count(0x181, 1), "TPDO 1") +
+             bench.collect(0.1) if m.arbitration_id == 0x181]
     assert [bytes(m.data) for m in first] == [b"\x00\x00"]
 
 
@@ -170,7 +206,8 @@ def test_emcy_on_fault_and_recovery(bench: Bench, ohm: float, status: int) -> No
     assert bench.node.sdo[0x2004][5].raw == status
     r[4, 0] = 1000.0
     patch.update(r)
-    emcy = [bytes(m.data) for m in bench.collect(0.2) if m.arbitration_id == 0x81]
+    emcy = [bytes(m.data) for m in bench.collect_until(_count(0x81, 2), "two EMCYs")
+            + bench.collect(0.1) if m.arbitration_id == 0x81]
     assert emcy == [b"\x00\x50\x81\x04" + bytes([status]) + b"\x00\x00\x00",
                     b"\x00\x00\x00\x04\x00\x00\x00\x00"]
     assert bench.node.sdo[0x1001].raw == 0
@@ -187,7 +224,8 @@ def test_emcy_error_register_stays_set_until_the_last_fault_recovers(bench: Benc
     patch.update(r)
     r[7, 0] = 1000.0
     patch.update(r)
-    emcy = [bytes(m.data) for m in bench.collect(0.2) if m.arbitration_id == 0x81]
+    emcy = [bytes(m.data) for m in bench.collect_until(_count(0x81, 4), "four EMCYs")
+            + bench.collect(0.1) if m.arbitration_id == 0x81]
     assert emcy == [b"\x00\x50\x81\x02\x02\x00\x00\x00", b"\x00\x50\x81\x07\x03\x00\x00\x00",
                     b"\x00\x00\x81\x02\x00\x00\x00\x00", b"\x00\x00\x00\x07\x00\x00\x00\x00"]
 
@@ -208,38 +246,69 @@ def _tpdo_times(frames: list[can.Message], cob_id: int) -> np.ndarray:
     return np.array([m.timestamp for m in frames if m.arbitration_id == cob_id])
 
 
+def _tpdo_table(trans: int, *, inhibit_100us: int = 0, timer_ms: int = 0) -> TpdoTable:
+    """A patch's TPDO table with TPDO 1 event-driven, the CiA 301 way (by SDO writes)."""
+    node = PatchNode(1)
+    comm = node.store.object_dictionary[0x1800]
+    for sub, value in ((1, 0x8000_0181), (2, trans), (3, inhibit_100us), (5, timer_ms),
+                       (1, 0x181)):
+        node.store.set_data(0x1800, sub, comm[sub].encode_raw(value), check_writable=True)
+    return node.tpdo
+
+
 @pytest.mark.parametrize("trans", [254, 255])
-def test_event_timer_paces_tpdos_and_stop_silences_them(events: Bench, trans: int) -> None:
+def test_the_event_timer_sends_every_period_of_the_clock_changed_or_not(trans: int) -> None:
+    table = _tpdo_table(trans, timer_ms=50)
+    same = [bytes(6)] * 7
+    sent = [k for k in range(0, 301) if 0 in table.due_on_event(k / 1000.0, same)]
+    assert sent == [0, 50, 100, 150, 200, 250, 300]  # ms of the caller's clock
+
+
+def test_the_inhibit_time_spaces_changes_on_the_clock() -> None:
+    table = _tpdo_table(255, inhibit_100us=400)
+    sent = [k for k in range(0, 200, 5)  # a new payload every 5 ms tick
+            if 0 in table.due_on_event(k / 1000.0, [k.to_bytes(6, "little")] * 7)]
+    assert sent == [0, 40, 80, 120, 160]
+    assert table.due_on_event(0.300, [(195).to_bytes(6, "little")] * 7) == [0]  # changed
+    assert table.due_on_event(0.400, [(195).to_bytes(6, "little")] * 7) == []  # unchanged
+
+
+@pytest.mark.parametrize("trans", [254, 255])
+def test_event_driven_tpdos_flow_and_stop_silences_them(events: Bench, trans: int) -> None:
     _event_driven(events.node, 1, trans, timer_ms=50)
+    started = time.monotonic()
     events.node.nmt.send_command(0x01)
-    frames = events.collect(0.45)
-    times = _tpdo_times(frames, 0x181)
-    assert len(times) >= 6
-    assert np.mean(np.diff(times)) == pytest.approx(0.050, rel=0.3)
+    frames = events.collect_until(_count(0x181, 4), "four timed TPDOs")
+    span = time.monotonic() - started
+    # never faster than the timer, however the machine runs (the rate itself: above)
+    assert len(_tpdo_times(frames, 0x181)) <= span / 0.050 + 1  # any machine: an upper bound
     assert not [m for m in frames if m.arbitration_id in (0x281, 0x381)]  # still on SYNC
     events.node.nmt.send_command(0x02)
-    events.collect(0.02)
+    events.state(1, STOPPED)
+    events.collect(0.06)  # what the sample thread was sending as the stop came
     assert not [m for m in events.collect(0.25) if 0x180 <= m.arbitration_id < 0x580]
     events.node.nmt.send_command(0x01)
-    assert len(_tpdo_times(events.collect(0.2), 0x181)) >= 2  # and start resumes them
+    events.collect_until(_count(0x181, 2), "TPDOs again after NMT start")
 
 
 def test_inhibit_time_spaces_tpdos_on_change(events: Bench) -> None:
     # The source changes every 5 ms tick; without the inhibit time every tick would send.
     _event_driven(events.node, 2, 255, inhibit_100us=400)
+    started = time.monotonic()
     events.node.nmt.send_command(0x01)
-    times = _tpdo_times(events.collect(0.45), 0x281)
-    assert len(times) >= 6
-    gaps = np.diff(times)
-    assert np.mean(gaps) == pytest.approx(0.040, rel=0.3)
-    assert gaps.min() >= 0.9 * 0.040
+    frames = events.collect_until(_count(0x281, 6), "six TPDOs on change")
+    span = time.monotonic() - started
+    assert len(_tpdo_times(frames, 0x281)) <= span / 0.040 + 1  # any machine: an upper bound
 
 
 def test_event_driven_without_timer_or_change_sends_once(events: Bench) -> None:
     events.server.source = ArraySource(_resistances(1), (1, 2))  # a constant signal
     _event_driven(events.node, 3, 254)
     events.node.nmt.send_command(0x01)
-    assert len(_tpdo_times(events.collect(0.3), 0x381)) == 1
+    events.collect_until(_count(0x381, 1), "the first TPDO")
+    ticks = events.server.samples
+    wait_until(lambda: events.server.samples >= ticks + 20, what="20 more samples")
+    assert not _tpdo_times(events.collect(0.05), 0x381).size  # no change: no more
 
 
 def test_a_heartbeat_period_written_during_the_boot_leaves_one_heartbeat(
@@ -258,7 +327,7 @@ def test_a_heartbeat_period_written_during_the_boot_leaves_one_heartbeat(
 
     def slow_send_periodic(*args: object, **kwargs: object) -> canopen.network.PeriodicMessageTask:
         booted.set()  # the boot-up is out: the master's write comes now
-        time.sleep(0.05)
+        time.sleep(0.05)  # pacing: holds the boot inside the window the write lands in
         task = send_periodic(*args, **kwargs)  # type: ignore[arg-type]
         tasks.append(task)
         return task

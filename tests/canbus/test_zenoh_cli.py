@@ -6,16 +6,16 @@ from __future__ import annotations
 
 import json
 import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
-from bench.rigs.zenoh_host import free_port
+from bench.rigs.children import run, spawn
+from bench.rigs.ports import tcp_port
+from bench.rigs.waiting import wait_until
 from canbus.master.hostconfig import host_config_from_dict
 from canbus.zenoh.config import ZenohSettings, zenoh_settings_from_table
 from canbus.zenoh.reader import subscribe
@@ -25,19 +25,9 @@ from skin.errors import ConfigError
 SKIN = [sys.executable, "-m", "skin.cli"]
 
 
-def _stop(proc: subprocess.Popen[str]) -> tuple[str, str]:
-    try:
-        proc.send_signal(signal.SIGTERM)
-        return proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-
-
 def test_skin_run_publishes_and_skin_view_draws_it(tmp_path: Path, udp_channel: str,
                                                    udp_port: int) -> None:
-    port = free_port()
+    port = tcp_port()
     config = tmp_path / "host.toml"
     config.write_text(f"""
 [host]
@@ -56,36 +46,29 @@ position_m = [0.0, 0.05]
 host = "cli-host"
 listen = ["tcp/127.0.0.1:{port}"]
 """)
-    sim = subprocess.Popen([*SKIN, "sim", "run", "indenter", "--patches", "2", "-i",
-                            "udp_multicast", "-c", udp_channel, "--bus-kwargs",
-                            f"port={udp_port}"], stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, text=True)
-    host = subprocess.Popen([*SKIN, "run", str(config)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    sim = spawn([*SKIN, "sim", "run", "indenter", "--patches", "2", "-i", "udp_multicast",
+                 "-c", udp_channel, "--bus-kwargs", f"port={udp_port}"])
+    host = spawn([*SKIN, "run", str(config)])
     try:
-        assert host.stdout is not None
-        line = host.stdout.readline()
+        line = host.wait_for("zenoh: publishing", timeout=60)
         assert line.startswith(f"zenoh: publishing on canskin/cli-host/** (peer, listen "
                                f"tcp/127.0.0.1:{port}"), line
         endpoint = f"tcp/127.0.0.1:{port}"
         with subscribe(settings=ZenohSettings(connect=(endpoint,))) as sub:
-            deadline = time.monotonic() + 30
-            while sub.received < 20 and time.monotonic() < deadline:
-                time.sleep(0.1)
-        assert sub.received >= 20
+            wait_until(lambda: sub.received >= 20, what="20 samples on Zenoh")
         out = tmp_path / "view.json"
-        view = subprocess.run([*SKIN, "view", "--zenoh", endpoint, "--snapshot", "--seconds",
-                               "1.5", "--json", str(out)], capture_output=True, text=True,
-                              timeout=60)
+        view = run([*SKIN, "view", "--zenoh", endpoint, "--snapshot", "--seconds", "1.5",
+                    "--json", str(out)], timeout=120)
         assert view.returncode == 0, view.stderr
         record = json.loads(out.read_text())
         assert record["figures"]["hosts"] == ["cli-host"] and record["samples"] > 20
         assert set(record["patches"]) == {"1", "2"}
         assert "patch 2" in view.stdout
     finally:
-        host_out, host_err = _stop(host)
-        _stop(sim)
-    assert host.returncode == 0, host_err
+        host.stop(signal.SIGTERM)
+        sim.stop(signal.SIGTERM)
+    assert host.returncode == 0, host.output()
+    host_out = host.stdout()
     assert "zenoh: " in host_out and " samples sent on canskin/cli-host/**, 0 dropped" in host_out
 
 

@@ -3,14 +3,13 @@ as the host's own API, by patch, bus, host or the whole skin; the ring buffer; e
 
 from __future__ import annotations
 
-import time
-
 import can
 import numpy as np
 import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
+from bench.rigs.waiting import wait_until
 from bench.rigs.zenoh_host import publishing_host
 from canbus.master.dataplane import ForceFrame
 from canbus.zenoh.reader import open_session, subscribe, subscribe_events
@@ -27,12 +26,6 @@ def _same(a: ForceFrame, b: ForceFrame) -> None:
     assert (a.complete, a.published) == (b.complete, b.published)
 
 
-def _wait_for(predicate: object, seconds: float = 10.0) -> None:
-    deadline = time.monotonic() + seconds
-    while not predicate() and time.monotonic() < deadline:  # type: ignore[operator]
-        time.sleep(0.02)
-
-
 def test_subscribers_get_the_frames_the_api_gives_by_patch_bus_host_and_skin() -> None:
     with publishing_host((1, 2)) as rig:
         settings = rig.reader_settings
@@ -40,11 +33,12 @@ def test_subscribers_get_the_frames_the_api_gives_by_patch_bus_host_and_skin() -
                 subscribe(patch=2, settings=settings) as one, \
                 subscribe(host="test-host", bus="default", settings=settings) as bus, \
                 subscribe(host="another-host", settings=settings) as nobody:
-            _wait_for(lambda: skin.received >= 40 and one.received >= 20)
-            time.sleep(0.2)
-            got = list(skin.samples(timeout=0.2))
-            got_one = list(one.frames(timeout=0.2))
-            got_bus = list(bus.frames(timeout=0.2))
+            wait_until(lambda: skin.received >= 40 and one.received >= 20 and bus.received,
+                       what="40 samples of the skin, 20 of patch 2")
+        # closed: each iterator ends once it handed out what its subscription held
+        got = list(skin.samples(timeout=0))
+        got_one = list(one.frames(timeout=0))
+        got_bus = list(bus.frames(timeout=0))
         assert nobody.received == 0
     api = rig.by_cycle()
     assert len(got) >= 40
@@ -63,7 +57,7 @@ def test_subscribers_get_the_frames_the_api_gives_by_patch_bus_host_and_skin() -
 
 def test_a_ring_buffer_keeps_the_newest_and_counts_the_rest() -> None:
     with publishing_host((1,)) as rig, subscribe(settings=rig.reader_settings, ring=3) as sub:
-        _wait_for(lambda: sub.received >= 10)
+        wait_until(lambda: sub.received >= 10, what="10 samples")
         held = sub.newest()
         latest = sub.latest()
     assert len(held) == 3
@@ -79,14 +73,15 @@ def test_state_changes_emcys_and_statistics_arrive_as_events() -> None:
         try:
             subscribe_events(lambda key, fields: events.append((key, fields)),
                              session=session)
-            time.sleep(0.5)
+            wait_until(lambda: any(k.endswith("/stats") for k, _ in events),
+                       what="the first statistics event: the subscription is live")
             emcy = can.Message(arbitration_id=0x81, is_extended_id=False,
                                data=[0x00, 0x50, 0x81, 4, 0x01, 0, 0, 0])
             rig.patch_bus.send(emcy)
-            _wait_for(lambda: any("/emcy/" in k for k, _ in events))
+            wait_until(lambda: any("/emcy/" in k for k, _ in events), what="the EMCY event")
             rig.host.take_offline(rig.host.patch(1), "lost")
-            _wait_for(lambda: any(f.get("state") == "lost" for _, f in events))
-            _wait_for(lambda: any(k.endswith("/stats") for k, _ in events), 3.0)
+            wait_until(lambda: any(f.get("state") == "lost" for _, f in events),
+                       what="the state event")
         finally:
             session.close()
     emcys = [f for k, f in events if k == "canskin/test-host/default/emcy/1"]

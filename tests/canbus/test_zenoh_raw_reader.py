@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import ast
 import json
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +13,7 @@ import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
+from bench.rigs.children import run
 from bench.rigs.zenoh_host import publishing_host
 
 SCRIPT = Path(__file__).resolve().parents[2] / "examples" / "zenoh_raw_reader.py"
@@ -33,18 +32,10 @@ def test_the_independent_reader_imports_nothing_of_canskin() -> None:
 def test_a_reader_from_the_docs_decodes_the_forces_the_api_gives(tmp_path: Path) -> None:
     out = tmp_path / "raw.jsonl"
     with publishing_host((1, 2)) as rig:
-        reader = subprocess.Popen(
-            [sys.executable, str(SCRIPT), rig.endpoint, "canskin/test-host/*/forces/*",
-             str(COUNT), str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-            text=True)
-        try:
-            code = reader.wait(timeout=60)
-        finally:
-            if reader.poll() is None:
-                reader.kill()
-        time.sleep(0.1)
-        api = rig.by_cycle()
-    assert code == 0, reader.stderr.read() if reader.stderr else code
+        reader = run([sys.executable, str(SCRIPT), rig.endpoint,
+                      "canskin/test-host/*/forces/*", str(COUNT), str(out)], timeout=120)
+        api = rig.by_cycle()  # the reader had them: the host's callback ran before
+    assert reader.returncode == 0, reader.stderr
     records = [json.loads(line) for line in out.read_text().splitlines()]
     assert len(records) == COUNT
     for r in records:

@@ -23,15 +23,16 @@ from decoder.tare import nominal_r0, normalise
 from skin.constants import DEFAULT_CONSTANTS
 from skin.reference import read_reference
 
+SAMPLES = 350  # answered SYNCs per recording: the run lasts until the patch answered them
+
 
 @pytest.mark.slow
-def test_a_recorded_patch_calibrated_end_to_end(tmp_path: Path) -> None:
-    pid = os.getpid()
-    record(tmp_path, classic=True, seconds=3.0, group=f"239.75.{pid % 250}.{pid % 7 + 1}",
-           port=32000 + pid % 1000)
+def test_a_recorded_patch_calibrated_end_to_end(tmp_path: Path,
+                                                udp_bus: tuple[str, int]) -> None:
+    record(tmp_path, classic=True, samples=SAMPLES, group=udp_bus[0], port=udp_bus[1])
     for run in (1, 2):  # the simulator was stopped by SIGTERM: its truth is whole
         truth = read_reference(tmp_path / f"truth{run}.csv")
-        assert truth.rows == 9 * len(truth.sync) and len(truth.sync) > 150
+        assert truth.rows == 9 * len(truth.sync) and len(truth.sync) >= SAMPLES
     cwd = os.getcwd()
     try:
         figures = loop(tmp_path, classic=True)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import logging
 import re
 import sys
 import time
@@ -35,6 +36,7 @@ if TYPE_CHECKING:
 from skin.commands.sniff.view import LinePrinter, ViewStats, render, summary_lines
 
 SERVICES = ("nmt", "sync", "emcy", "time", "pdo", "sdo", "heartbeat", "lss", "error", "unknown")
+logger = logging.getLogger(__name__)
 _SWITCH_S = 0.0005  # the longest a busy thread keeps the GIL from the receive thread
 _DRAW_SHARE = 0.2  # the live view draws at most this share of the time
 _TICK_S = 0.05
@@ -127,6 +129,7 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
             notifier = can.Notifier(bus, listeners, timeout=_TICK_S)
             if printer is not None:
                 printer.start()
+            logger.info("capturing %s; Ctrl-C stops", header)  # receiving from here on
             _watch(notifier, recorder, printer, sniffer, shown, stats, view, header, args,
                    started)
     finally:
