@@ -44,6 +44,8 @@ class PatchAudit:
     published: list[tuple[bool, tuple[int, ...]]] = field(default_factory=list)
     """Every force sample in order: complete, and its 27 forces in mN."""
     first_sync: int | None = None  # SYNCs counted from the patch's first answer
+    split: int = 0  # whole answers with a SYNC between their first and last TPDO
+    doubled: int = 0  # SYNC periods holding two whole answers (one of them late)
 
 
 @dataclass
@@ -54,7 +56,7 @@ class Audit:
     def verdict(self) -> dict[str, object]:
         return {"syncs": self.syncs, "patches": {
             str(n): {"answers": len(p.answers), "samples": p.samples, "complete": p.complete,
-                     "mixed": len(p.mixed),
+                     "mixed": len(p.mixed), "split": p.split, "doubled": p.doubled,
                      "syncs_since_first_answer": self.syncs - (p.first_sync or 0)}
             for n, p in self.patches.items()}}
 
@@ -85,6 +87,8 @@ def audit(path: str | Path, patches: list[int]) -> Audit:
         node.tpdo.read(from_od=True)
         force_nodes[n] = node
     pending: dict[int, dict[int, bytes]] = {n: {} for n in patches}
+    split = {n: False for n in patches}  # a SYNC came inside the answer being read
+    whole = {n: 0 for n in patches}  # whole answers since the last SYNC
     force_ids = {cob: (n, k) for n in patches
                  for k, cob in enumerate(predefined_tpdo_cob_ids(n + FORCE_NODE_OFFSET))}
     owner = {cob: (n, k) for n, ids in tpdo.items() for k, cob in enumerate(ids)}
@@ -93,6 +97,10 @@ def audit(path: str | Path, patches: list[int]) -> Audit:
             cob = msg.arbitration_id
             if cob == SYNC:
                 result.syncs += 1
+                for n in patches:
+                    split[n] = split[n] or place[n] > 0
+                    result.patches[n].doubled += whole[n] > 1
+                    whole[n] = 0
             elif cob in owner:
                 n, k = owner[cob]
                 if cob == order[n][place[n]]:
@@ -101,11 +109,15 @@ def audit(path: str | Path, patches: list[int]) -> Audit:
                     if place[n] == 7:
                         payloads = [p for p in runs[n] if p is not None]
                         result.patches[n].answers.add(_answer_mN(payloads))
+                        result.patches[n].split += split[n]
+                        whole[n] += 1
                         if result.patches[n].first_sync is None:
                             result.patches[n].first_sync = result.syncs - 1
                         place[n] = 0
+                        split[n] = False
                 else:  # a broken answer: start again at its first TPDO
                     place[n] = 1 if cob == order[n][0] else 0
+                    split[n] = False
                     if place[n]:
                         runs[n][k] = bytes(msg.data)
             elif cob in force_ids:

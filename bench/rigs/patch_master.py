@@ -1,6 +1,7 @@
 """A canopen master in its own process: run by test_multiprocess.py, prints JSON results.
 
-Reads 0x1018 and the TPDO mapping over SDO, starts node 1 by NMT, sends ``SYNCS`` SYNCs
+Reads 0x1018 and the TPDO mapping over SDO, starts node 1 by NMT (its heartbeat, set to
+50 ms, says when it is operational), sends ``SYNCS`` SYNCs
 and, for each, decodes the 7 TPDOs through canopen's own PdoMaps.
 """
 
@@ -10,15 +11,23 @@ from __future__ import annotations
 import json
 import sys
 import threading
-import time
 
 import canopen
 from canopen.pdo.base import PdoMap
 
+from bench.rigs.waiting import wait_until
 from canbus.od import load_od
 from canbus.pdo_codec import read_defaults, read_layouts
 
 TPDOS = 7
+
+
+def _heard(node: canopen.RemoteNode) -> str | None:
+    """The state in the node's next heartbeat (None: none came within a second)."""
+    try:
+        return str(node.nmt.wait_for_heartbeat(1.0))
+    except canopen.nmt.NmtError:
+        return None
 
 
 def main(channel: str, port: int, syncs: int) -> None:
@@ -44,8 +53,9 @@ def main(channel: str, port: int, syncs: int) -> None:
 
         for n in range(1, TPDOS + 1):
             node.tpdo[n].add_callback(on_pdo)
+        node.sdo[0x1017].raw = 50  # heartbeats say when the start took effect
         node.nmt.state = "OPERATIONAL"
-        time.sleep(0.1)
+        wait_until(lambda: _heard(node) == "OPERATIONAL", what="node 1 operational")
         per_sync = []
         for _ in range(syncs):
             with arrived:

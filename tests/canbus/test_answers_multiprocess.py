@@ -1,8 +1,9 @@
-"""The deployment's shape on a busy machine: patches (`skin sim run`) and the host
-(`skin run`) in two processes on udp_multicast, python-can's own `can.logger` recording,
-and a fourth process keeping one core busy. Late answers happen here; the recording
-must show no complete force sample that is not the decode of one whole patch answer,
-and one force sample per SYNC. Then `skin replay --fast` plays the recording into a
+"""The deployment's shape, with late answers on purpose: a patch (``bench.rigs.late_patch``,
+which sends every 7th answer in two parts, the second after the next SYNC, and holds every
+11th back until after the next SYNC) and the host (``skin run``) in two processes on
+udp_multicast, python-can's own ``can.logger`` recording. The recording must show those
+late answers, no complete force sample that is not the decode of one whole patch answer,
+and one force sample per SYNC. Then ``skin replay --fast`` plays the recording into a
 listen-only host: nothing is lost, there is one sample per recorded SYNC, and where both
 hosts found a cycle complete they publish the same forces.
 """
@@ -10,10 +11,9 @@ hosts found a cycle complete they publish the same forces.
 from __future__ import annotations
 
 import json
+import os
 import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import can
@@ -21,6 +21,8 @@ import numpy as np
 import pytest
 
 from bench.rigs.answer_audit import audit
+from bench.rigs.children import run, spawn
+from bench.rigs.waiting import wait_until
 from canbus.master.dataplane import ForceFrame
 from canbus.master.forcenode import forces_to_mN
 from canbus.master.host import HostManager
@@ -28,22 +30,11 @@ from canbus.master.hostconfig import load_host_config
 from canbus.tools.recorder import DEFAULT_RCVBUF, enlarge_receive_buffer
 from canbus.tools.replay import Recording
 
-SECONDS = 10
+ANSWERS = 700  # the patch's answers before the host stops: 100 split, 54 held back
 
 
 def _skin(*args: str) -> list[str]:
     return [sys.executable, "-m", "skin.cli", *args]
-
-
-def _stop(proc: subprocess.Popen[str], sig: int = signal.SIGINT) -> str:
-    if proc.poll() is None:
-        proc.send_signal(sig)
-    try:
-        _, err = proc.communicate(timeout=30)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        _, err = proc.communicate()
-    return err
 
 
 @pytest.mark.slow
@@ -53,61 +44,58 @@ def test_late_answers_never_make_a_mixed_sample(udp_channel: str, udp_port: int,
     config = tmp_path / "host.toml"
     config.write_text("[[patches]]\nnode_id = 1\n")
     recording = tmp_path / "run.log"
-    procs: list[subprocess.Popen[str]] = []
-
-    def start(cmd: list[str]) -> subprocess.Popen[str]:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        procs.append(proc)
-        return proc
-
+    logger = spawn([sys.executable, "-m", "can.logger", *bus, "-f", str(recording)],
+                   env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    patch = spawn([sys.executable, "-m", "bench.rigs.late_patch", udp_channel, str(udp_port)])
+    host = None
     try:
-        logger = start([sys.executable, "-m", "can.logger", *bus, "-f", str(recording)])
-        hog = start([sys.executable, "-c", "while True: pass"])
-        patches = start(_skin("sim", "run", "indenter", *bus))
-        time.sleep(2.0)  # the logger and the patches are on the bus
-        host = subprocess.run(_skin("run", str(config), *bus, "--seconds", str(SECONDS),
-                                    "--json", str(tmp_path / "run.json")),
-                              capture_output=True, text=True, timeout=SECONDS + 60)
-        assert host.returncode == 0, host.stderr
-        time.sleep(0.5)  # the last force frames reach the logger
-        _stop(patches)
-        _stop(hog, signal.SIGKILL)
-        _stop(logger)
+        logger.wait_for("Connected to", timeout=60)
+        patch.wait_for("Ctrl-C stops", timeout=60)
+        host = spawn(_skin("run", str(config), *bus, "--json", str(tmp_path / "run.json")))
+        patch.wait_for(f"answers {ANSWERS}", timeout=300)
+        assert host.stop(signal.SIGINT) == 0, host.output()
+        assert patch.stop(signal.SIGINT) == 0, patch.output()
     finally:
-        for proc in procs:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+        logger.stop(signal.SIGINT)  # after the host: it has the last force frames
+        for child in (host, patch):
+            if child is not None and child.running():
+                child.kill()
+    late = patch.wait_for("split ", timeout=5).split()
+    split, held = int(late[1]), int(late[3])
     result = audit(recording, [1])
-    patch = result.patches[1]
+    audited = result.patches[1]
     stats = json.loads((tmp_path / "run.json").read_text())["stats"]
-    assert result.syncs == stats["sync_cycles"] > 0.8 * SECONDS * 100
+    assert result.syncs == stats["sync_cycles"] >= ANSWERS
     # One force sample per SYNC, complete or not (the host's count, and the recording's).
     assert stats["samples"] == stats["sync_cycles"], stats
-    assert patch.samples == result.syncs, (stats, result.verdict())
-    assert patch.complete > 0.5 * result.syncs, result.verdict()
-    assert patch.mixed == [], result.verdict()  # every complete one is one whole answer
+    assert audited.samples == result.syncs, (stats, result.verdict())
+    # the late answers happened, and the host saw them as late
+    assert audited.split >= split - 1 and audited.doubled >= held - 1, result.verdict()
+    assert (split, held) == (ANSWERS // 7, ANSWERS // 11 - ANSWERS // 77)  # by count
+    assert stats["late_frames"] >= split + held, stats
+    assert audited.complete >= 100, result.verdict()  # a check with something to check
+    assert audited.mixed == [], result.verdict()  # every complete one is one whole answer
 
     with can.Bus(interface="udp_multicast", channel=udp_channel, port=udp_port) as bus_:
         enlarge_receive_buffer(bus_, DEFAULT_RCVBUF)
         decoded: list[ForceFrame] = []
         with HostManager(bus_, load_host_config(config), listen_only=True) as listener:
             listener.on_forces(decoded.append)
-            replay = subprocess.run(_skin("replay", str(recording), *bus, "--fast"),
-                                    capture_output=True, text=True, timeout=120)
+            replay = run(_skin("replay", str(recording), *bus, "--fast"), timeout=300)
             assert replay.returncode == 0, replay.stderr
-            time.sleep(1.0)
+            with Recording(recording) as frames:
+                total = sum(1 for _ in frames)
+            wait_until(lambda: (seen := listener.stats())["frames_in"] + seen[
+                "unknown_frames"] >= total, what=f"the listen-only host heard {total} frames")
         seen = listener.stats()
-    with Recording(recording) as frames:
-        total = sum(1 for _ in frames)
     assert seen["frames_in"] + seen["unknown_frames"] == total  # replay --fast lost nothing
     # One sample per recorded SYNC; where both hosts found a cycle complete, the same forces.
     # (Which frames each judges late at a window's end depends on its own receive times.)
     assert [frame.cycle for frame in decoded] == list(range(1, result.syncs + 1))
     same = 0
-    for frame, (complete, forces) in zip(decoded, patch.published, strict=False):
+    for frame, (complete, forces) in zip(decoded, audited.published, strict=False):
         if complete and frame.complete:
             mN, _ = forces_to_mN(frame.force_N, frame.valid)
             assert tuple(np.ravel(mN).tolist()) == forces, frame.cycle
             same += 1
-    assert same > 0.5 * result.syncs
+    assert same >= 100

@@ -12,7 +12,9 @@ import pytest
 from numpy.typing import ArrayLike
 
 from bench.rigs.dataplane import LSB, WINDOW_S, Host, Patch, consume, load, mN, sync_time
+from bench.rigs.waiting import wait_until
 from canbus.codes import code_to_resistance, resistance_to_code
+from canbus.device.nmt_slave import OPERATIONAL, STOPPED
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
@@ -326,7 +328,7 @@ def test_end_to_end_published_before_the_window_closes(request: pytest.FixtureRe
     device, host_net, consumer = _network(channel), _network(channel), _network(channel)
     server = PatchServer(device, ArraySource(resistance, (1, 2)))
     decoder = create_decoder("analytic")
-    window = 2.0  # generous: what is checked is that nothing waits for it to close
+    window = 120.0  # frames are awaited 30 s at most: nothing may wait for it to close
     assert host_net.bus is not None
     plane = DataPlane(host_net.bus, sync_window_s=window)
     got: queue.Queue[tuple[float, ForceFrame]] = queue.Queue()
@@ -353,30 +355,29 @@ def test_end_to_end_published_before_the_window_closes(request: pytest.FixtureRe
         received = threading.Event()
         remote.tpdo[7].add_callback(lambda _: received.set())
         host_net.nmt.send_command(0x01)  # start every patch
-        time.sleep(0.05)
+        wait_until(lambda: all(n.state == OPERATIONAL for n in server.nodes),
+                   what="the patches operational")
 
-        sent_at = time.time()
-        plane.on_sync(1, 0, sent_at)
+        plane.on_sync(1, 0, time.time())
         host_net.sync.transmit()
-        frames = [got.get(timeout=2.0), got.get(timeout=2.0)]
-        assert all(at < sent_at + window for at, _ in frames)  # the cycle is still open
+        frames = [got.get(timeout=30.0), got.get(timeout=30.0)]  # well inside the window
         by_patch = {f.patch: f for _, f in frames}
         assert sorted(by_patch) == [1, 2] and all(f.complete and f.published for _, f in frames)
         for p in (1, 2):
             codes = resistance_to_code(resistance[1, p - 1], LSB)
             expected = decoder.decode(code_to_resistance(codes, LSB)[None]).force_N[0]
             np.testing.assert_allclose(by_patch[p].force_N, expected, rtol=1e-12)
-        assert received.wait(2.0)
+        assert received.wait(30.0)
         sent = [v.raw for n in range(1, 8) for v in remote.tpdo[n]][:27]
         assert sent == mN(by_patch[1].force_N)
         assert remote.tpdo[7]["Valid taxels"].raw == COMPLETE | 0x1FF
 
         remote.nmt.send_command(0x02)  # another master stops force node 65
-        time.sleep(0.05)
+        wait_until(lambda: force_nodes[0].state == STOPPED, what="force node 65 stopped")
         received.clear()
         plane.on_sync(2, 0, time.time())
         host_net.sync.transmit()
-        frames = [got.get(timeout=2.0), got.get(timeout=2.0)]
+        frames = [got.get(timeout=30.0), got.get(timeout=30.0)]
         published = {f.patch: f.published for _, f in frames}
         assert published == {1: False, 2: True}  # 65 is silent, 66 still publishes
         assert not received.wait(0.2)

@@ -14,6 +14,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from bench.rigs.waiting import wait_until
 from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL, STOPPED
 from canbus.master.forcenode import (
     COMPLETE,
@@ -168,8 +169,8 @@ def test_boot_heartbeat_start_and_nmt_stop(bench: Bench) -> None:
     beats = [m for m in bench.collect(0.3) if m.arbitration_id == 0x746]
     assert len(beats) >= 2 and bytes(beats[-1].data) == bytes([OPERATIONAL])
     bench.remote.nmt.send_command(0x02)  # another master stops the node
-    time.sleep(0.05)
-    assert bench.force.state == STOPPED and not bench.force.transmitting
+    wait_until(lambda: bench.force.state == STOPPED, what="the force node stopped")
+    assert not bench.force.transmitting
     beats = [m for m in bench.collect(0.15) if m.arbitration_id == 0x746]
     assert beats and bytes(beats[-1].data) == bytes([STOPPED])
     bench.remote.nmt.send_command(0x81)  # reset node: boot-up, pre-operational

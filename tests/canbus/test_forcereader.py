@@ -5,7 +5,6 @@ from __future__ import annotations
 import configparser
 import functools
 import struct
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -17,6 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.master.forcenode import ForceNode, forces_to_mN
 from canbus.master.patch_setup import tpdo_layouts
@@ -168,11 +168,8 @@ def test_only_the_frames_a_reader_needs_are_copied() -> None:
     assert len(reader._pending) == 1  # its SDO: a master may remap it
 
 
-def _until(condition: Callable[[], bool], timeout: float = 5.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.005)
+def _until(condition: Callable[[], bool], timeout: float = 30.0) -> None:
+    wait_until(condition, what="the reader caught up", timeout=timeout)
 
 
 def test_a_remap_and_the_source_patch_read_by_sdo_are_followed() -> None:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import itertools
 import threading
-import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -27,6 +26,7 @@ import canopen
 import numpy as np
 import pytest
 
+from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
@@ -40,7 +40,7 @@ from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 
 LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
-WAIT_S = 10.0
+WAIT_S = 30.0
 
 
 class CountingBus(can.interfaces.virtual.VirtualBus):
@@ -59,11 +59,7 @@ class CountingBus(can.interfaces.virtual.VirtualBus):
 
 
 def eventually(condition: Callable[[], object], what: str, timeout: float = WAIT_S) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.002)
+    wait_until(condition, what=what, timeout=timeout, interval=0.002)
 
 
 def press(loads: dict[int, tuple[float, float, float]], pillars: int = 3) -> np.ndarray:

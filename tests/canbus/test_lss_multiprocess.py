@@ -11,9 +11,7 @@ import argparse
 import queue
 import signal
 import struct
-import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -24,6 +22,7 @@ import canopen
 import numpy as np
 import pytest
 
+from bench.rigs.children import spawn
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import load_host_config
 from canbus.od import load_od
@@ -39,36 +38,16 @@ START_S = 60.0
 def sim_run(channel: str, port: int, state_dir: Path, *more: str) -> Iterator[list[str]]:
     """``skin sim run idle --patches 8`` in its own process until the block ends (SIGTERM);
     yields its output lines so far, once it said it serves."""
-    cmd = [sys.executable, "-m", "skin.cli", "sim", "run", "idle", "--patches", str(PATCHES),
-           "--serial-base", hex(SERIAL_BASE), "--state-dir", str(state_dir), *more,
-           "-i", "udp_multicast", "-c", channel, "--bus-kwargs", f"port={port}"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    lines: list[str] = []
-    ready = threading.Event()
-
-    def read() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            lines.append(line)
-            if line.startswith("Ctrl-C stops"):
-                ready.set()
-        ready.set()
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
+    proc = spawn([sys.executable, "-m", "skin.cli", "sim", "run", "idle", "--patches",
+                  str(PATCHES), "--serial-base", hex(SERIAL_BASE), "--state-dir",
+                  str(state_dir), *more, "-i", "udp_multicast", "-c", channel, "--bus-kwargs",
+                  f"port={port}"])
     try:
-        started = ready.wait(START_S) and proc.poll() is None
-        assert started, f"skin sim run did not start: {''.join(lines)}"
-        yield lines
+        proc.wait_for("Ctrl-C stops", timeout=START_S)
+        yield proc.stdout().splitlines()
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(30.0)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        reader.join(5.0)
-    assert proc.returncode == 0, proc.stderr.read() if proc.stderr else ""
+        code = proc.stop(signal.SIGTERM)
+    assert code == 0, proc.output()
 
 
 @contextmanager

@@ -1,12 +1,12 @@
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 
 import canopen
 import numpy as np
 
+from bench.rigs.children import run
 from canbus import codes
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import SimulatorSource
@@ -35,15 +35,13 @@ def test_canopen_master_decodes_the_simulator_resistances(udp_channel: str,
     net.connect(interface="udp_multicast", channel=udp_channel, port=udp_port)
     try:
         with PatchServer(net, SimulatorSource(simulator)) as server:
-            run = subprocess.run([sys.executable, "-m", "bench.rigs.patch_master",
-                                  udp_channel, str(udp_port), str(SYNCS)],
-                                 capture_output=True, text=True,
-                                 timeout=30)
+            master = run([sys.executable, "-m", "bench.rigs.patch_master", udp_channel,
+                          str(udp_port), str(SYNCS)], timeout=120)
     finally:
         net.disconnect()
-    assert run.returncode == 0, run.stderr
+    assert master.returncode == 0, master.stderr
     assert server.samples == 1 + SYNCS
-    result = json.loads(run.stdout)
+    result = json.loads(master.stdout)
     assert result["identity"] == [0, 1, 0x00010000, 1]
     assert result["mapping_equals_eds"]
     assert result["values"] == expected.tolist()

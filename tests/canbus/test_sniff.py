@@ -13,9 +13,7 @@ import contextlib
 import json
 import re
 import shutil
-import subprocess
 import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +24,10 @@ import numpy as np
 import pytest
 from rich.console import Console
 
+from bench.rigs import children
+from bench.rigs.waiting import wait_until
 from canbus.busload import classic_frame_bits
+from canbus.device.nmt_slave import OPERATIONAL
 from canbus.device.patch_server import PatchServer
 from canbus.od import load_od
 from canbus.tools.replay import Recording
@@ -35,6 +36,7 @@ from canbus.tools.sniffer import FrameFilter, Sniffer, frame_bits
 from skin.cli import main
 from skin.commands.sniff.view import ViewStats, render
 from skin.constants import DEFAULT_CONSTANTS
+from tests.canbus.virtual_channels import listening, read_out
 
 SYNCS = 6
 CYCLE_S = 0.05
@@ -132,30 +134,29 @@ def _traffic(channel: str, seen: list[can.Message], failures: list[BaseException
     from canbus.device.source import ArraySource
 
     try:
-        deadline = time.monotonic() + 20
-        while not any(t.name.startswith("Notifier for bus") and channel in t.name
-                      for t in threading.enumerate()):
-            if time.monotonic() > deadline:
-                raise TimeoutError("skin sniff did not start")
-            time.sleep(0.01)
+        wait_until(lambda: listening(channel), what="skin sniff listening")
         listen = can.Bus(interface="virtual", channel=channel)
         device, master = _network(channel), _network(channel)
         try:
-            with PatchServer(device, ArraySource(_samples(), (1, 2))):
+            with PatchServer(device, ArraySource(_samples(), (1, 2))) as server:
                 node = master.add_node(canopen.RemoteNode(1, load_od("skin-patch", 1)))
                 node.sdo.RESPONSE_TIMEOUT = 2.0
                 assert node.sdo[0x1018][2].raw == 1
                 node.sdo[0x1017].raw = 100
                 master.nmt.state = "OPERATIONAL"
-                time.sleep(0.05)
+                wait_until(lambda: all(n.state == OPERATIONAL for n in server.nodes),
+                           what="both patches operational")
                 for counter in range(1, SYNCS + 1):
+                    sent = server.frames_sent
                     master.send_message(0x080, bytes([counter]))
-                    time.sleep(0.02)
-                time.sleep(0.2)
+                    wait_until(lambda: server.frames_sent == sent + 14,  # noqa: B023
+                               what=f"the answers to SYNC {counter}")
+                wait_until(lambda: read_out(channel, listen, device.bus, master.bus),
+                           what="skin sniff received every frame")
         finally:
             master.disconnect()
             device.disconnect()
-            while (msg := listen.recv(0.1)) is not None:
+            while (msg := listen.recv(0)) is not None:
                 seen.append(msg)
             listen.shutdown()
     except BaseException as err:
@@ -238,10 +239,9 @@ WIRESHARK_TYPES = {  # our service -> how tshark's CANopen dissector starts its 
 
 def tshark_types(path: Path) -> list[tuple[str, str, str]]:
     """(protocol, node-ID, Info) per frame as Wireshark's tshark decodes a SocketCAN pcap."""
-    run = subprocess.run(
+    run = children.run(
         ["tshark", "-r", str(path), "-d", "can.subdissector,canopen", "-T", "fields",
-         "-e", "_ws.col.Protocol", "-e", "canopen.node_id", "-e", "_ws.col.Info"],
-        capture_output=True, text=True, timeout=60)
+         "-e", "_ws.col.Protocol", "-e", "canopen.node_id", "-e", "_ws.col.Info"], timeout=120)
     assert run.returncode == 0, run.stderr
     return [tuple(line.split("\t")) for line in run.stdout.splitlines()]  # type: ignore[misc]
 
@@ -328,15 +328,19 @@ def test_rotated_capture_names_its_files(tmp_path: Path,
                           is_extended_id=False) for k in range(400)]
 
     def send() -> None:
-        with can.Bus(interface="virtual", channel="rotate") as bus:
-            time.sleep(0.3)  # the sniffer's bus is open by then
-            for msg in frames:
-                bus.send(msg)
+        try:
+            wait_until(lambda: listening("rotate"), what="skin sniff listening")
+            with can.Bus(interface="virtual", channel="rotate") as bus:
+                for msg in frames:
+                    bus.send(msg)
+                wait_until(lambda: read_out("rotate", bus), what="skin sniff read them all")
+        finally:
+            _thread.interrupt_main()  # Ctrl-C: the sniffer ends, keeping what it recorded
 
     sender = threading.Thread(target=send)
     sender.start()
     out = tmp_path / "r.pcap"
-    code = main(["sniff", "-c", "rotate", "--view", "none", "--seconds", "1.0", "--record",
+    code = main(["sniff", "-c", "rotate", "--view", "none", "--seconds", "600", "--record",
                  str(out), "--rotate-size", "4k", "--json", str(tmp_path / "s.json")])
     sender.join()
     assert code == 0

@@ -5,44 +5,30 @@ from __future__ import annotations
 
 import json
 import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
-from typing import IO
 
 import pytest
+
+from bench.rigs.children import Child, spawn
 
 FILES = Path(__file__).parents[1] / "files" / "recordings"
 
 
-def _wait_for(stream: IO[str], text: str, proc: subprocess.Popen[str]) -> None:
-    deadline = time.monotonic() + 30
-    while text not in stream.readline():
-        assert proc.poll() is None and time.monotonic() < deadline, f"no {text!r}"
-
-
-def _stop(proc: subprocess.Popen[str], sig: signal.Signals) -> tuple[str, str]:
-    try:
-        proc.send_signal(sig)
-        return proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+def _stop(proc: Child, sig: signal.Signals) -> tuple[str, str]:
+    proc.stop(sig)
+    return proc.stdout(), proc.stderr()
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
 def test_sim_run(tmp_path: Path, sig: signal.Signals) -> None:
     out = tmp_path / "sim.json"
-    proc = subprocess.Popen([sys.executable, "-m", "skin.cli", "sim", "run", "paper",
-                             "-c", f"stop-{sig.name}", "--json", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert proc.stdout is not None
-    _wait_for(proc.stdout, "Ctrl-C stops", proc)
+    proc = spawn([sys.executable, "-m", "skin.cli", "sim", "run", "paper",
+                  "-c", f"stop-{sig.name}", "--json", str(out)])
+    proc.wait_for("Ctrl-C stops", timeout=60)
     stdout, stderr = _stop(proc, sig)
     assert proc.returncode == 0, stderr
-    assert stdout.startswith("served 0 SYNCs, sent 0 TPDOs in ")
+    assert stdout.split("Ctrl-C stops\n")[1].startswith("served 0 SYNCs, sent 0 TPDOs in ")
     assert f"INFO skin.commands.common.signals: stopping on {sig.name}" in stderr
     record = json.loads(out.read_text())
     assert record["stopped_by"] == sig.name and record["scene"] == "paper"
@@ -50,11 +36,9 @@ def test_sim_run(tmp_path: Path, sig: signal.Signals) -> None:
 
 def test_replay(tmp_path: Path) -> None:
     out = tmp_path / "replay.json"
-    proc = subprocess.Popen([sys.executable, "-m", "skin.cli", "replay",
-                             str(FILES / "good.log"), "--loop", "--json", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert proc.stderr is not None
-    _wait_for(proc.stderr, "pass 1: 8 frames", proc)
+    proc = spawn([sys.executable, "-m", "skin.cli", "replay", str(FILES / "good.log"),
+                  "--loop", "--json", str(out)])
+    proc.wait_for("pass 1: 8 frames", stream="stderr", timeout=60)
     stdout, stderr = _stop(proc, signal.SIGTERM)
     assert proc.returncode == 0, stderr
     record = json.loads(out.read_text())
@@ -71,12 +55,8 @@ def test_run(tmp_path: Path, sig: signal.Signals) -> None:
     config.write_text(f'[bus]\ninterface = "virtual"\nchannel = "stop-run-{sig.name}"\n'
                       "[[patches]]\nnode_id = 1\n")
     out = tmp_path / "run.json"
-    proc = subprocess.Popen([sys.executable, "-m", "skin.cli", "run", str(config),
-                             "--json", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert proc.stdout is not None
-    _wait_for(proc.stdout, "Ctrl-C stops", proc)
-    time.sleep(1.0)  # past the scan: the host runs
+    proc = spawn([sys.executable, "-m", "skin.cli", "run", str(config), "--json", str(out)])
+    proc.wait_for("no patch answered", timeout=60)  # past the scan: the host runs
     stdout, stderr = _stop(proc, sig)
     assert proc.returncode == 0, stderr
     assert f"stopped by {sig.name}" in stdout and "(0 complete, " in stdout  # patch absent
