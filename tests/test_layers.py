@@ -5,11 +5,12 @@ private name of another; benchmarks and rigs live in bench/, tests in tests/."""
 from __future__ import annotations
 
 import ast
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from bench.rigs import children
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("skin", "sim", "decoder", "canbus", "bench")
@@ -122,8 +123,8 @@ def test_import_canbus_adds_only_itself() -> None:
             "before = dict(sys.modules)\nimport canbus\n"
             "print(sorted(set(sys.modules) - set(before)))\n"
             "print(sorted(n for n, m in before.items() if sys.modules.get(n) is not m))\n")
-    run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
-                         text=True, check=True)
+    run = children.run([sys.executable, "-c", code], cwd=ROOT, timeout=120)
+    assert run.returncode == 0, run.stderr
     added, replaced = run.stdout.splitlines()
     assert (added, replaced) == (repr(sorted(own)), "[]")
 

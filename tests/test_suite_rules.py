@@ -152,8 +152,9 @@ def test_ports_and_groups_come_from_the_allocator(path: Path) -> None:
     if _rel(path) == PORT_HOME:
         return
     tree, lines = _parse(path)
-    found = [_where(path, node, lines) for node in ast.walk(tree) if _spells_an_address(node)
-             and not _marked(getattr(node, "value", node), lines, "# no socket:")]
+    found = [_where(path, spot, lines) for node in ast.walk(tree) if _spells_an_address(node)
+             and not _marked(spot := node.value if isinstance(node, ast.keyword) else node,
+                             lines, "# no socket:")]
     assert not found, (
         "take ports and multicast groups from bench.rigs.ports (udp_bus(), tcp_port(); the "
         "udp_bus / udp_channel / udp_port fixtures): unique across parallel runs and outside "

@@ -4,7 +4,6 @@ configuring and running them, and a recorder keeping every frame, on a virtual b
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -12,6 +11,7 @@ import can
 import canopen
 import numpy as np
 
+from bench.rigs.waiting import wait_until
 from canbus.device.patch_server import PatchServer
 from canbus.device.truth import TruthSource, truth_log
 from canbus.master.busconfig import BusConfig
@@ -61,9 +61,8 @@ def record(folder: Path, channel: str, *, mode: str = "xyz", cycles: int = 60, s
             try:
                 assert host.wait_operational(timeout=15.0), host.health()
                 start = host.sync.cycle
-                deadline = time.monotonic() + 30.0
-                while host.sync.cycle < start + cycles and time.monotonic() < deadline:
-                    time.sleep(0.01)
+                wait_until(lambda: host.sync.cycle >= start + cycles,
+                           what=f"{cycles} SYNC cycles", timeout=120.0)
             finally:
                 host.stop()
     finally:

@@ -7,7 +7,6 @@ every frame. The host's force frames are kept, to check what the view reads agai
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +15,7 @@ import can
 import canopen
 import numpy as np
 
+from bench.rigs.waiting import wait_until
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.dataplane import ForceFrame
@@ -32,12 +32,8 @@ class HostRun:
     stats: dict[str, int]
 
 
-def until(condition: Callable[[], bool], what: str, timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.005)
+def until(condition: Callable[[], bool], what: str, timeout: float = 60.0) -> None:
+    wait_until(condition, what=what, timeout=timeout)
 
 
 def record_host_run(path: Path, resistance_ohm: np.ndarray, node_ids: tuple[int, ...], *,

@@ -1,6 +1,5 @@
 from __future__ import annotations
 
-import subprocess
 import sys
 from importlib import resources
 from pathlib import Path
@@ -12,6 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from bench.rigs import children
 from canbus import codes
 from canbus.od import SHIPPED, eds_file, load_od
 from canbus.pdo_codec import PdoCodec, read_defaults, read_layouts
@@ -66,9 +66,9 @@ def test_broken_eds_fail_with_their_message(file: str, message: str) -> None:
 
 def test_eds_check_cli_exit_codes() -> None:
     cmd = [sys.executable, "-m", "skin.cli", "eds", "check"]
-    ok = subprocess.run([*cmd, "skin-patch", "skin-forces"], capture_output=True, text=True)
+    ok = children.run([*cmd, "skin-patch", "skin-forces"], timeout=120)
     assert ok.returncode == 0, ok.stderr
-    bad = subprocess.run([*cmd, str(FILES / "broken-size.eds")], capture_output=True, text=True)
+    bad = children.run([*cmd, str(FILES / "broken-size.eds")], timeout=120)
     assert bad.returncode == 1
     assert bad.stderr.count("\n") == 1 and "maps 8 bits" in bad.stderr
 

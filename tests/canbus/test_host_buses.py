@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from canopen.sdo.exceptions import SdoAbortedError
 
+from bench.rigs.waiting import holds_for
 from canbus.device.patch_server import PatchServer
 from canbus.master.busconfig import BusConfig
 from canbus.master.dataplane import ForceFrame
@@ -204,8 +205,7 @@ def test_external_sync_and_tare_by_sdo(one: Buses) -> None:
     host, frames = _host(one, config)
     with host:
         assert host.wait_operational(timeout=10.0)
-        time.sleep(0.1)
-        assert frames == []  # no SYNC from anyone yet: nothing is published
+        holds_for(lambda: frames == [], 0.1, what="no SYNC from anyone yet: nothing published")
         master.sync.start(0.01)
         try:
             eventually(lambda: sum(f.complete for f in frames) >= 3, "samples on its SYNC")
@@ -214,7 +214,6 @@ def test_external_sync_and_tare_by_sdo(one: Buses) -> None:
                 remote.sdo.download(0x2007, 0, b"\x01")
             assert refused.value.code == 0x0800_0022  # loaded: tare refused
             src.at_rest = True
-            time.sleep(0.05)
             eventually(lambda: frames[-1].force_N[4, 2] < 0.05 and frames[-1].complete,
                        "the press released")
             assert np.abs(frames[-1].force_N).max() > 0.01  # the creep reads as a force
@@ -250,7 +249,12 @@ def test_the_sniffer_and_the_view_read_can_fd_forces(fd_bus: Buses) -> None:
     try:
         with host:
             eventually(lambda: sum(f.complete for f in frames) >= 3, "complete samples")
-            time.sleep(0.1)
+
+            def read() -> bool:
+                reader.process()
+                return reader.samples >= 3
+
+            eventually(read, "the reader's samples")
         reader.process()
     finally:
         notifier.stop(timeout=1.0)

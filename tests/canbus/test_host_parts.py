@@ -211,7 +211,7 @@ def test_a_late_sync_restarts_the_schedule_instead_of_a_burst(
     def on_sync(cycle: int, counter: int, timestamp: float) -> None:
         sent.append(time.monotonic())
         if cycle == 3:
-            time.sleep(0.8 * period)
+            time.sleep(0.8 * period)  # pacing: cycle 3 ends late, on purpose
         if cycle == 6:
             done.release()
 
@@ -223,8 +223,9 @@ def test_a_late_sync_restarts_the_schedule_instead_of_a_burst(
         producer.stop()
     gaps = np.diff(sent[:6])
     assert producer.overruns >= 1
-    assert gaps.min() >= 0.45 * period, gaps  # with a burst, SYNC 4 came 0.2 period after 3
-    assert gaps[2] >= 1.5 * period  # 0.8 period late plus a full period
+    # lower bounds: a wait never ends early, so a busy machine only widens the gaps
+    assert gaps.min() >= 0.45 * period, gaps  # any machine: with a burst, 0.2 period
+    assert gaps[2] >= 1.5 * period  # any machine: 0.8 period late plus a full period
 
 def test_a_follower_opens_a_cycle_for_every_sync_received(
         pair: tuple[can.BusABC, can.BusABC], caplog: pytest.LogCaptureFixture) -> None:

@@ -15,6 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from bench.rigs import children
 from canbus.tools.edscheck import check
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -31,7 +32,7 @@ def _tool(name: str) -> str:
 
 
 def _run(*cmd: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(cmd, capture_output=True, text=True, cwd=cwd, timeout=120)
+    return children.run(cmd, cwd=cwd, timeout=120)
 
 
 @pytest.mark.parametrize(("eds", "node_id"), [("skin-patch.eds", 1), ("skin-patch.eds", 127),

@@ -7,6 +7,7 @@ import struct
 import numpy as np
 import pytest
 
+from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL
 from canbus.device.patch_node import (
@@ -129,7 +130,6 @@ def test_a_mapping_written_while_another_thread_builds_the_codec_is_not_lost(
     """A patch server's sample thread may build a node's codec while a master's SDO write
     changes the mapping on the bus's thread: the write must win, not the stale build."""
     import threading
-    import time
 
     from canbus.device import tpdo as tpdo_module
 
@@ -152,7 +152,8 @@ def test_a_mapping_written_while_another_thread_builds_the_codec_is_not_lost(
     writer = threading.Thread(target=lambda: node.store.set_data(
         0x1806, 1, struct.pack("<I", cob | 0x8000_0000)))  # TPDO 7 invalid, as a master does
     writer.start()
-    time.sleep(0.1)  # the write has landed and waits to invalidate
+    wait_until(lambda: int(node.store.value(0x1806, 1)) == cob | 0x8000_0000,
+               what="the write landed (its invalidation waits for the build)")
     go.set()
     builder.join(5.0)
     writer.join(5.0)

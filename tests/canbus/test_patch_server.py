@@ -15,6 +15,7 @@ import canopen
 import numpy as np
 import pytest
 
+from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.busload import TPDO_BASES
 from canbus.device.nmt_slave import OPERATIONAL
@@ -91,11 +92,9 @@ def _network(**kwargs: object) -> canopen.Network:
     return network
 
 
-def _operational(server: PatchServer, timeout: float = 5.0) -> None:
-    deadline = time.monotonic() + timeout
-    while any(n.nmt.state != OPERATIONAL for n in server.nodes):
-        assert time.monotonic() < deadline, "the patches did not start"
-        time.sleep(0.01)
+def _operational(server: PatchServer, timeout: float = 30.0) -> None:
+    wait_until(lambda: all(n.nmt.state == OPERATIONAL for n in server.nodes),
+               what="the patches started", timeout=timeout)
 
 
 def _answers(frames: list[can.Message]) -> list[tuple[int, list[can.Message]]]:
@@ -222,7 +221,7 @@ def test_patches_on_several_buses_answer_their_own_bus_sync(
             masters[1].seen.wait_for(14)
             masters[0].sync(1)
             masters[0].seen.wait_for(21)
-            time.sleep(0.05)
+            time.sleep(0.05)  # pacing: a span for a second answer, were there one
     finally:
         for master in masters:
             master.close()
@@ -282,7 +281,9 @@ def test_on_udp_multicast_the_server_hears_neither_its_echo_nor_what_it_does_not
             master.bus.send(TxMessage.data_frame(0x1C1, bytes(8)))  # a force PDO, say
             master.sync(1)
             master.seen.wait_for(7)
-            time.sleep(0.2)
+            # the force PDO went before the SYNC: heard, it would be in before the SYNC
+            wait_until(lambda: SYNC in {m.arbitration_id for m in heard.frames},
+                       what="the server's listener had the SYNC")
     finally:
         client.disconnect()
         master.close()

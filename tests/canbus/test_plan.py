@@ -9,13 +9,13 @@ from pathlib import Path
 
 import pytest
 
+from bench.rigs import children
 from canbus import busload
 from canbus.busload import plan
 
 
 def _skin_plan(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "skin.cli", "plan", *args],
-                          capture_output=True, text=True)
+    return children.run([sys.executable, "-m", "skin.cli", "plan", *args], timeout=120)
 
 
 def test_frame_bounds_match_the_hand_calculation() -> None:

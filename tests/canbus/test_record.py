@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import shutil
-import subprocess
 from pathlib import Path
 
 import can
 import pytest
 
+from bench.rigs import children
 from canbus.tools.recorder import (
     CandumpLogWriter,
     Recorder,
@@ -78,8 +78,8 @@ def test_can_utils_log2asc_reads_our_log(tmp_path: Path) -> None:
         recorder.on_message_received(msg)
     recorder.stop()
     out = tmp_path / "rec.asc"
-    run = subprocess.run(["log2asc", "-I", str(tmp_path / "rec.log"), "-O", str(out), "can0"],
-                         capture_output=True, text=True, timeout=30)
+    run = children.run(["log2asc", "-I", str(tmp_path / "rec.log"), "-O", str(out), "can0"],
+                       timeout=60)
     assert run.returncode == 0, run.stderr
     with can.ASCReader(out) as reader:  # log2asc's output read by python-can
         got = list(reader)
@@ -106,12 +106,12 @@ def test_a_log_names_every_frame_with_one_interface_name(tmp_path: Path) -> None
         assert _interfaces(path) == {expected}
     assert frames[1].channel == "skin"  # the listeners' shared message is left as it was
     with pytest.raises(ConfigError, match="not an interface name"):
-        Recorder(tmp_path / "bad.log", channel="239.0.0.1")
+        Recorder(tmp_path / "bad.log", channel="239.0.0.1")  # no socket: a name checked
 
 
 def test_log_channel_name_is_the_bus_channel_when_it_can_name_an_interface() -> None:
     assert log_channel_name("skin0") == "skin0"
-    assert log_channel_name("239.74.163.2") == "can0"  # udp_multicast's group
+    assert log_channel_name("239.74.163.2") == "can0"  # no socket: udp_multicast's group
     assert log_channel_name(None) == "can0"
 
 
@@ -121,12 +121,12 @@ def test_the_readmes_log2asc_line_reads_a_udp_multicast_recording(tmp_path: Path
     sent = _frames()
     for msg in sent:
         msg.channel = None  # as udp_multicast delivers them
-    recorder = Recorder(tmp_path / "run.log", channel=log_channel_name("239.74.163.2"))
+    group = "239.74.163.2"  # no socket: a channel name
+    recorder = Recorder(tmp_path / "run.log", channel=log_channel_name(group))
     for msg in sent:
         recorder.on_message_received(msg)
     recorder.stop()
-    run = subprocess.run(["log2asc", "-I", "run.log", "can0"], cwd=tmp_path,
-                         capture_output=True, text=True, timeout=30)
+    run = children.run(["log2asc", "-I", "run.log", "can0"], cwd=tmp_path, timeout=60)
     assert run.returncode == 0, run.stderr
     assert sum(" Rx " in line or " Tx " in line for line in run.stdout.splitlines()) == len(sent)
 

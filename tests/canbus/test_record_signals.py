@@ -24,25 +24,26 @@ def _python_can(path: Path) -> list[int]:
 def test_sigterm_and_kill_keep_the_recording_like_can_logger(
         udp_channel: str, udp_port: int, tmp_path: Path, suffix: str) -> None:
     result = run(suffix, udp_channel, udp_port, tmp_path, rate=RATE)
-    ours, reference = result.termed, result.logger  # a SIGTERM closes ours complete
+    ours, reference = result.termed, result.logger
 
+    # SIGTERM: every frame received is in the file, in order, nothing lost before it (the
+    # sniffer's own count of what it received is the measure: no clock is involved)
     record = result.termed_json
     assert record["stopped_by"] == "SIGTERM"
     frames = record["recording"]["frames"]  # type: ignore[index]
-    assert frames >= len(ours)
+    assert len(ours) == frames == record["frames"], (len(ours), frames, record["frames"])
     assert f"recorded {frames:,} frames to " in result.termed_stdout
-    assert ours[0] == reference[0] == 0
+    assert ours == list(range(len(ours)))
+    assert len(ours) >= RATE  # it received a second of traffic, at least, before the stop
+    # beside can.logger (which a SIGTERM cuts short), over the span both hold: no fewer
     common = min(ours[-1], reference[-1])
-    assert common >= RATE  # a span worth comparing: can.logger kept at least a second
-    in_ours = sum(k <= common for k in ours)
-    in_theirs = sum(k <= common for k in reference)
-    assert abs(in_ours - in_theirs) <= 0.01 * in_theirs, (in_ours, in_theirs)
-    before_term = result.sent_before[0.5]
-    assert ours[:before_term] == list(range(before_term))  # nothing lost, in order
+    assert sum(k <= common for k in ours) >= sum(k <= common for k in reference)
 
-    cut = result.killed  # read with partial=True: a kill inside a write may cut a frame
-    before_kill = result.sent_before[1.0]  # a kill -9 loses at most the last second
-    assert cut[:before_kill] == list(range(before_kill))
-    assert cut == list(range(len(cut))) and len(cut) <= result.sent
+    # kill -9: a whole prefix of what was sent, read with partial=True (a kill inside a
+    # write may cut a frame). That the prefix ends at most FLUSH_S before the kill is the
+    # recorder's clock's promise: test_record_stream.py checks it on a clock it moves.
+    cut = result.killed
+    assert cut == list(range(len(cut))) and RATE <= len(cut) <= result.sent
     if suffix != ".pcap":  # python-can reads the killed file too (.pcap: ours, strict)
-        assert _python_can(result.killed_path)[:before_kill] == list(range(before_kill))
+        theirs = _python_can(result.killed_path)
+        assert theirs == list(range(len(theirs))) and abs(len(theirs) - len(cut)) <= 1

@@ -11,7 +11,9 @@ from pathlib import Path
 import can
 import pytest
 
-from canbus.tools.recorder import Recorder, rotated_path
+from bench.rigs.waiting import wait_until
+from canbus.tools import recorder as recorder_module
+from canbus.tools.recorder import FLUSH_S, Recorder, rotated_path
 from canbus.tools.replay import Recording
 from skin.errors import RecordingError
 
@@ -42,13 +44,47 @@ def _python_can(path: Path) -> list[int]:
 
 def _snapshot(path: Path, frames: int, into: Path) -> bytes:
     """The file as it is on disk once it holds ``frames`` frames (copied while recording)."""
-    deadline = time.monotonic() + 10
-    while True:
+
+    def copied() -> bool:
         shutil.copyfile(path, into)
-        if len(_read(into)[0]) == frames:  # a strict read: complete at every write
-            return into.read_bytes()
-        assert time.monotonic() < deadline, f"{path} never held {frames} frames"
-        time.sleep(0.02)
+        return len(_read(into)[0]) == frames  # a strict read: complete at every write
+
+    wait_until(copied, what=f"{path} holding {frames} frames")
+    return into.read_bytes()
+
+
+class _Clock:
+    """The recorder's clock, moved by the test (its ``time`` module, as the recorder sees it)."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def monotonic(self) -> float:
+        return self.now
+
+
+@pytest.mark.parametrize("suffix", FORMATS)
+def test_a_frame_is_on_disk_flush_s_after_it_came_and_a_stop_writes_out_the_rest(
+        tmp_path: Path, suffix: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The kill -9 bound (at most FLUSH_S lost) on the recorder's own clock, which the test
+    moves: however the machine runs, a frame received is on disk once FLUSH_S has passed;
+    and a stop writes out what is queued, not yet due (SIGTERM keeps every frame)."""
+    clock = _Clock()
+    monkeypatch.setattr(recorder_module, "time", clock)
+    path = tmp_path / f"run{suffix}"
+    recorder = Recorder(path)
+    try:
+        for msg in _numbered(10):
+            recorder.on_message_received(msg)
+        wait_until(lambda: recorder.written == 10, what="the frames handed to the writer")
+        clock.now += FLUSH_S
+        wait_until(lambda: _read(path)[0] == list(range(10)), timeout=10,
+                   what=f"the frames on disk {FLUSH_S} s after they came")
+        for msg in _numbered(5, start=10):  # not due: the clock stands still
+            recorder.on_message_received(msg)
+    finally:
+        recorder.stop()
+    assert _read(path) == (list(range(15)), None)
 
 
 @pytest.mark.parametrize("suffix", FORMATS)
@@ -159,7 +195,7 @@ def test_rotation_by_time(tmp_path: Path, suffix: str) -> None:
     for batch in range(16):
         for msg in _numbered(10, start=10 * batch):
             recorder.on_message_received(msg)
-        time.sleep(0.05)
+        time.sleep(0.05)  # pacing: 16 batches over at least 0.8 s, rotated every 0.2 s
     recorder.stop()
     assert len(recorder.files) >= 2
     numbers: list[int] = []
@@ -176,7 +212,10 @@ def test_blf_rotates_by_its_compressed_size(tmp_path: Path) -> None:
     for batch in range(8):
         for msg in _numbered(20, start=20 * batch):
             recorder.on_message_received(msg)
-        time.sleep(0.15)  # a checkpoint: a container of the batch, the size on disk
+        # a checkpoint: a container of the batch, the size on disk
+        total = 20 * (batch + 1)
+        wait_until(lambda: sum(len(_read(f)[0]) for f in recorder.files) == total,  # noqa: B023
+                   what=f"batch {batch} on disk")
     recorder.stop()
     assert len(recorder.files) >= 2
     numbers: list[int] = []

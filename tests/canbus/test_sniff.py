@@ -8,7 +8,6 @@ F.pcap --json`` listening; the traffic thread ends the sniffer with a simulated 
 
 from __future__ import annotations
 
-import _thread
 import contextlib
 import json
 import re
@@ -36,7 +35,7 @@ from canbus.tools.sniffer import FrameFilter, Sniffer, frame_bits
 from skin.cli import main
 from skin.commands.sniff.view import ViewStats, render
 from skin.constants import DEFAULT_CONSTANTS
-from tests.canbus.virtual_channels import listening, read_out
+from tests.canbus.virtual_channels import ctrl_c, listening, read_out
 
 SYNCS = 6
 CYCLE_S = 0.05
@@ -162,7 +161,7 @@ def _traffic(channel: str, seen: list[can.Message], failures: list[BaseException
     except BaseException as err:
         failures.append(err)
     finally:
-        _thread.interrupt_main()  # Ctrl-C: the sniffer ends, keeping what it recorded
+        ctrl_c()  # Ctrl-C: the sniffer ends, keeping what it recorded
 
 
 @pytest.fixture(scope="module")
@@ -335,7 +334,7 @@ def test_rotated_capture_names_its_files(tmp_path: Path,
                     bus.send(msg)
                 wait_until(lambda: read_out("rotate", bus), what="skin sniff read them all")
         finally:
-            _thread.interrupt_main()  # Ctrl-C: the sniffer ends, keeping what it recorded
+            ctrl_c()  # Ctrl-C: the sniffer ends, keeping what it recorded
 
     sender = threading.Thread(target=send)
     sender.start()

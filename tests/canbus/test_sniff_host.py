@@ -19,7 +19,6 @@ nodes 65 and 66 publishing), while a listener records the bus to .pcap and .log.
 
 from __future__ import annotations
 
-import _thread
 import json
 import shutil
 import threading
@@ -48,7 +47,7 @@ from decoder.reasons import Reason
 from skin.cli import main
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
-from tests.canbus.virtual_channels import listening, read_out
+from tests.canbus.virtual_channels import ctrl_c, listening, read_out
 
 LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
 CYCLES = 12
@@ -190,7 +189,7 @@ def test_skin_run_listen_only_decodes_what_skin_replay_sends(
             wait_until(lambda: read_out("cli-replay"), what="skin run took every frame")
             wait_until(lambda: shown("patch 2: operational\n"), what="the patches' states")
         finally:
-            _thread.interrupt_main()  # Ctrl-C: skin run stops, with its summary
+            ctrl_c()  # Ctrl-C: skin run stops, with its summary
 
     runner = threading.Thread(target=replay)
     runner.start()

@@ -75,7 +75,7 @@ listen = ["tcp/127.0.0.1:{port}"]
 @pytest.mark.parametrize(("table", "field"), [
     ({"mode": "broker"}, "zenoh.mode"),
     ({"listen": ["tcp:127.0.0.1"]}, "zenoh.listen[0]"),
-    ({"listen": "tcp/1.2.3.4:7447 "}, "zenoh.listen[0]"),
+    ({"listen": "tcp/1.2.3.4:7447 "}, "zenoh.listen[0]"),  # no socket: refused
     ({"connect": [7447]}, "zenoh.connect[0]"),
     ({"scouting": "no"}, "zenoh.scouting"),
     ({"host": "arm/left"}, "zenoh.host"),
@@ -110,13 +110,15 @@ def test_tls_keys_go_in_pairs_and_paths_are_relative_to_the_config(tmp_path: Pat
 def test_defaults_expose_nothing_beyond_the_machine() -> None:
     config = ZenohSettings().zenoh_config()
     assert json.loads(config.get_json("mode")) == "peer"
-    assert json.loads(config.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7447"]
+    assert json.loads(config.get_json("listen/endpoints")) == [
+        "tcp/127.0.0.1:7447"]  # no socket: the default, checked
     assert json.loads(config.get_json("connect/endpoints")) == []
     assert json.loads(config.get_json("scouting/multicast/enabled")) is False
     assert json.loads(config.get_json("adminspace/enabled")) is False
     reader = ZenohSettings().zenoh_config(reader=True)
     assert json.loads(reader.get_json("listen/endpoints")) == []
-    assert json.loads(reader.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7447"]
+    assert json.loads(reader.get_json("connect/endpoints")) == [
+        "tcp/127.0.0.1:7447"]  # no socket: the default, checked
 
 
 def test_skin_run_refuses_a_bad_zenoh_table_in_one_line(tmp_path: Path,
@@ -128,7 +130,7 @@ def test_skin_run_refuses_a_bad_zenoh_table_in_one_line(tmp_path: Path,
     assert main(["run", str(config)]) == 1
     err = capsys.readouterr().err
     assert err == "skin: error: zenoh.listen[0]: 'nowhere' is not an endpoint (PROTOCOL/" \
-                  "ADDRESS, e.g. tcp/127.0.0.1:7447, tls/host:7447)\n"
+                  "ADDRESS, e.g. tcp/127.0.0.1:7447, tls/host:7447)\n"  # no socket: a message
 
 
 def test_skin_view_zenoh_refuses_what_does_not_go_with_it(

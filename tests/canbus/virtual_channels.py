@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import signal
 import threading
+from collections.abc import Callable
 
 import can
 import can.interfaces.virtual
@@ -20,3 +22,42 @@ def read_out(channel: str, *mine: can.BusABC) -> bool:
     queues = can.interfaces.virtual.channels.get(channel, [])
     own = {id(bus.queue) for bus in mine}  # type: ignore[attr-defined]
     return all(q.empty() for q in queues if id(q) not in own)
+
+
+def ctrl_c() -> None:
+    """SIGINT to the main thread, as Ctrl-C: unlike ``_thread.interrupt_main`` it also wakes
+    a wait blocked in the kernel (a command waiting for its end)."""
+    signal.pthread_kill(threading.main_thread().ident or 0, signal.SIGINT)
+
+
+def run_until_done(argv: list[str], traffic: Callable[[], None]) -> int:
+    """``skin ARGV`` in this (the main) thread while ``traffic()`` runs in another; when
+    ``traffic`` returns (or fails: re-raised here) the command gets Ctrl-C, as a user stops
+    it. Its exit status. The command's time limit is then not the test's clock."""
+    from skin.cli import main
+
+    failures: list[BaseException] = []
+    returned = threading.Event()
+
+    def run() -> None:
+        try:
+            traffic()
+        except BaseException as err:
+            failures.append(err)
+        finally:
+            if not returned.is_set():
+                ctrl_c()
+
+    worker = threading.Thread(target=run)
+    worker.start()
+    try:
+        code = main(argv)
+    finally:
+        returned.set()
+        try:
+            worker.join(60.0)
+        except KeyboardInterrupt:  # ours, come as the command returned by itself
+            worker.join(60.0)
+    if failures:
+        raise failures[0]
+    return code
