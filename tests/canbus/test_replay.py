@@ -80,7 +80,7 @@ def test_original_timing_keeps_the_intervals(tmp_path: Path) -> None:
         took = time.monotonic() - started
         stamps = [m.timestamp for m in _drain(rx)]
     assert len(stamps) == 4
-    assert took >= 0.24 - 1e-3  # MessageSync sleeps at least the recorded 3 x 80 ms
+    assert took >= 0.24 - 1e-3  # any machine: MessageSync sleeps at least 3 x 80 ms
     assert stamps[-1] - stamps[0] >= 0.24 - 1e-3
 
 
@@ -145,7 +145,7 @@ def test_fast_replay_paced_to_a_rate(tmp_path: Path, capsys: pytest.CaptureFixtu
                      "--rate", "400", "--json", str(tmp_path / "r.json")])
         took = time.monotonic() - started
         assert code == 0 and len(_drain(rx)) == 80
-    assert took >= 79 / 400 - 0.002  # a slow machine only takes longer
+    assert took >= 79 / 400 - 0.002  # any machine: a slow machine only takes longer
     assert "paced to 400 frames/s" in capsys.readouterr().out
     assert json.loads((tmp_path / "r.json").read_text())["rate_fps"] == 400
     assert main(["replay", str(FILES / "good.log"), "--fast", "--rate", "0"]) == 1

@@ -4,20 +4,19 @@ from __future__ import annotations
 
 import os
 import signal
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from bench.rigs.waiting import holds_for, wait_until
 from skin.cli import main
 from skin.commands.common.signals import Stopped, stop_signals_interrupt, until_stopped
 
 
 def _signal_self(sig: signal.Signals) -> None:
-    os.kill(os.getpid(), sig)
-    time.sleep(1.0)  # the handler runs in the main thread, at the latest when this sleeps
-    raise AssertionError(f"{sig.name} did not interrupt")
+    os.kill(os.getpid(), sig)  # the handler runs in the main thread, while this waits
+    wait_until(lambda: False, what=f"{sig.name} interrupting")
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
@@ -31,11 +30,10 @@ def test_a_stop_signal_interrupts_once_and_the_old_handler_comes_back(
                 _signal_self(sig)
             assert isinstance(info.value, KeyboardInterrupt) and info.value.signal == sig
             os.kill(os.getpid(), sig)  # a second one does not cut the clean stop short
-            time.sleep(0.05)
+            holds_for(lambda: seen == [], 0.05, what="a second signal ignored")
         assert seen == []
         os.kill(os.getpid(), sig)
-        time.sleep(0.05)
-        assert seen == [sig]  # the handler from before is back
+        wait_until(lambda: seen == [sig], what="the handler from before is back")
     finally:
         signal.signal(sig, previous)
 

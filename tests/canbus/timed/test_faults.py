@@ -142,9 +142,9 @@ def test_a_node_alone_in_real_time_waits_without_spinning(open_bus: OpenBus) -> 
 
     alone = open_bus(realtime=True)
     alone.send(frame(0x321))
-    time.sleep(0.05)
+    time.sleep(0.05)  # pacing: the wire's clock (the machine's) passes; retries fall due
     first = alone.wire_stats()
-    time.sleep(0.05)
+    time.sleep(0.05)  # pacing: as above
     second = alone.wire_stats()
     assert alone.state == can.BusState.PASSIVE
     # the retries are counted as time passes, not played one by one by the wire's thread

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -12,6 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bench.rigs.waiting import wait_until
 from canbus.timed import TimedBus
 from canbus.timed.stats import LoadWindow
 from tests.canbus.timed.stamps import check_starts
@@ -183,6 +185,15 @@ def test_filters_apply_to_what_a_bus_returns(open_bus: OpenBus) -> None:
     assert ids(drain(b, 2)) == [0x181, 0x182]
 
 
+def _waits_in_the_wire(thread: threading.Thread) -> bool:
+    frame = sys._current_frames().get(thread.ident or 0)
+    while frame is not None:
+        if frame.f_code.co_name == "_wait" and frame.f_code.co_filename.endswith("wire.py"):
+            return True
+        frame = frame.f_back
+    return False
+
+
 def test_a_reader_blocked_in_recv_is_woken_by_shutdown(open_bus: OpenBus) -> None:
     bus = open_bus(realtime=True)
     result: list[BaseException] = []
@@ -195,7 +206,7 @@ def test_a_reader_blocked_in_recv_is_woken_by_shutdown(open_bus: OpenBus) -> Non
 
     reader = threading.Thread(target=read)
     reader.start()
-    time.sleep(0.05)
+    wait_until(lambda: _waits_in_the_wire(reader), what="the reader blocked in recv")
     bus.shutdown()
     reader.join(2.0)
     assert not reader.is_alive() and result
