@@ -198,9 +198,10 @@ def batch_frames(nodes: Sequence[PatchNode], due: Due, sync_byte: int = 0) -> li
         for node in nodes:
             node.answered = sync_byte
         live = [node for node in nodes if node.nmt.state == OPERATIONAL]
+        plans = [answer_plan(node) for node in live]
         out: list[Frame] = []
-        for node, payloads in zip(live, pack_payloads(live), strict=True):
-            plan = answer_plan(node)
+        for node, plan, payloads in zip(live, plans, pack_payloads(live, plans=plans),
+                                        strict=True):
             chosen = set(due(node, payloads))
             out += [(plan.cob_ids[p], payloads[p]) for p in plan.order if p in chosen]
         return out
@@ -228,12 +229,17 @@ _ROW_BYTES = 65
 
 
 def pack_payloads(nodes: Sequence[PatchNode], codes: NDArray[np.uint16] | None = None,
-                  status: NDArray[np.uint8] | None = None) -> list[list[bytes]]:
+                  status: NDArray[np.uint8] | None = None,
+                  plans: Sequence[AnswerPlan] | None = None) -> list[list[bytes]]:
     """Every valid TPDO payload of each node (in its codec's order), from its codes ``(9, 3)``,
     taxel status and 0x2006: one numpy gather per mapping shape for all nodes mapped alike.
     ``codes`` ``(n, 9, 3)`` and ``status`` ``(n, 9)``: the nodes' own, already stacked.
 
-    The caller holds the nodes' locks (or owns them) so that sample and mapping agree.
+    ``plans``: each node's :func:`answer_plan`, taken by the caller *before* the call, the
+    one the payloads are then sent with. A master's SDO write remaps a PDO on canopen's
+    thread without the device's lock, so the mapping may change at any moment: whoever
+    sends the payloads must send them with the plan they were packed with, never look the
+    plan up again. (The caller holds the nodes' locks so that codes and status agree.)
     """
     n = len(nodes)
     if not n:
@@ -247,7 +253,8 @@ def pack_payloads(nodes: Sequence[PatchNode], codes: NDArray[np.uint16] | None =
     rows[:, 54:63] = status
     rows[:, 63] = np.where(status.any(axis=1), REGISTER_FAULT, 0)  # FaultReporter's 0x1001
     rows[:, 64] = [node.answered for node in nodes]
-    plans = [answer_plan(node) for node in nodes]
+    if plans is None:
+        plans = [answer_plan(node) for node in nodes]
     layout = plans[0].layout
     if all(plan.layout is layout for plan in plans):  # the usual case: one shape
         groups = [list(range(n))]

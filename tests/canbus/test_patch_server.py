@@ -8,7 +8,7 @@ import itertools
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import can
 import canopen
@@ -19,11 +19,11 @@ from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.busload import TPDO_BASES
 from canbus.device.nmt_slave import OPERATIONAL
-from canbus.device.patch_node import ANSWERED, RESISTANCES
+from canbus.device.patch_node import ANSWERED, RESISTANCES, PatchNode
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.framebits import frame_bits
-from canbus.pdo_codec import TPDO_COMM, TPDO_MAP
+from canbus.pdo_codec import TPDO_COMM, TPDO_MAP, PdoCodec
 from canbus.txmessage import TxMessage
 from skin.constants import DEFAULT_CONSTANTS
 
@@ -290,3 +290,75 @@ def test_on_udp_multicast_the_server_hears_neither_its_echo_nor_what_it_does_not
         network.disconnect()
     assert [m.arbitration_id for m in _answers(master.seen.frames)[0][1]] == _answer_ids([1])
     assert sorted({m.arbitration_id for m in heard.frames}) == [0x000, SYNC, 0x601]
+
+
+def _sdo_write(node: PatchNode, index: int, subindex: int, value: int) -> None:
+    """A master's SDO download, as the node's SDO server runs it on canopen's network
+    thread: validators, the store, the write callbacks; the device's lock is not taken."""
+    var = node.store.object_dictionary[index][subindex]
+    node.store.set_data(index, subindex, var.encode_raw(value), check_writable=True)
+
+
+def _pdo_valid(node: PatchNode, pdo: int, valid: bool) -> None:
+    cob = int(node.store.value(0x1800 + pdo - 1, 1)) & 0x7FF
+    _sdo_write(node, 0x1800 + pdo - 1, 1, cob if valid else cob | 0x8000_0000)
+
+
+def _remap_tpdo_1_to_status(node: PatchNode) -> None:
+    _pdo_valid(node, 1, False)
+    _sdo_write(node, 0x1A00, 0, 0)
+    _sdo_write(node, 0x1A00, 1, 0x20040108)  # 0x2004 sub 1: taxel 0's status, 8 bits
+    _sdo_write(node, 0x1A00, 0, 1)
+    _pdo_valid(node, 1, True)
+
+
+@pytest.mark.parametrize(("before", "remap"), [
+    (lambda n: _pdo_valid(n, 7, False), lambda n: _pdo_valid(n, 7, True)),  # 6 -> 7 PDOs
+    (lambda n: None, lambda n: _pdo_valid(n, 7, False)),  # 7 -> 6 PDOs
+    (lambda n: None, _remap_tpdo_1_to_status),  # TPDO 1: 8 bytes -> 1 byte
+], ids=["a-pdo-made-valid", "a-pdo-made-invalid", "a-pdo-remapped"])
+def test_a_remap_by_sdo_while_a_sample_is_packed_keeps_sample_and_mapping_together(
+        request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch,
+        before: Callable[[PatchNode], None], remap: Callable[[PatchNode], None]) -> None:
+    """The SDO write path does not take the device's lock: a remap can land between the
+    packing of a sample's payloads and the reading of the mapping they are sent with. Here
+    it lands there every time (the packing is wrapped to run the remap right after it): the
+    sample keeps the mapping it was packed with, whole and consistent, and the next sample
+    takes the new one. (Before, the sample thread died with an IndexError or sent each
+    payload under another PDO's COB-ID.)"""
+    from canbus.device import patch_server
+
+    network = _network(interface="virtual", channel=f"server-{request.node.callspec.id}")
+    server = PatchServer(network, ArraySource(_samples(4, 1), (1,)))
+    node = server.nodes[0]
+    before(node)
+    packed_with = node.tpdo.codec
+    pack = patch_server.pack_payloads
+    remapped: list[bool] = []
+
+    def pack_then_remap(*args: object, **kwargs: object) -> list[list[bytes]]:
+        payloads = pack(*args, **kwargs)  # type: ignore[arg-type]
+        if not remapped:
+            remapped.append(True)
+            remap(node)  # the master's write lands now
+        return payloads
+
+    monkeypatch.setattr(patch_server, "pack_payloads", pack_then_remap)
+    try:
+        with server:  # start() takes the first sample: the remap lands inside it
+            assert remapped
+            node.nmt.enter(OPERATIONAL)
+            _check_sizes(server.answer(), packed_with)  # that sample, as a SYNC sends it
+            server.on_sync(SYNC, bytearray(), 0.0)  # the next sample: the new mapping
+            assert node.tpdo.codec is not packed_with
+            _check_sizes(server.answer(), node.tpdo.codec)
+    finally:
+        network.disconnect()
+
+
+def _check_sizes(messages: list[can.Message], codec: PdoCodec) -> None:
+    """One message per valid PDO of ``codec``, each as long as its PDO maps."""
+    size = {lay.cob_id: lay.size for lay in codec.layouts}
+    assert sorted(m.arbitration_id for m in messages) == sorted(size)
+    assert all(len(m.data) == size[m.arbitration_id] for m in messages), \
+        [(hex(m.arbitration_id), len(m.data), size[m.arbitration_id]) for m in messages]
