@@ -166,7 +166,12 @@ class Recorder(can.Listener):
 
     def _next_segment(self) -> Segment:
         path = rotated_path(self.path, len(self.files))
-        segment = open_segment(path, self.suffix, self.channel)
+        try:
+            segment = open_segment(path, self.suffix, self.channel)
+        except OSError as err:
+            if err.filename is not None:
+                raise
+            raise OSError(err.errno, err.strerror or str(err), str(path)) from err
         self.files.append(path)
         logger.info("recording to %s", path)
         return segment
