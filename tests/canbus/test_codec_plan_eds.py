@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import functools
 import sys
 from importlib import resources
 from pathlib import Path
@@ -73,7 +74,9 @@ def test_eds_check_cli_exit_codes() -> None:
     assert bad.stderr.count("\n") == 1 and "maps 8 bits" in bad.stderr
 
 
+@functools.cache
 def _codec(name: str) -> PdoCodec:
+    """Built once: the round trips below run it on every Hypothesis example."""
     od = load_od(name, 1)
     return PdoCodec(read_layouts(read_defaults(od), 7), od)
 

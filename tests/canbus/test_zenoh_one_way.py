@@ -34,10 +34,10 @@ class CanSide:
         self.rig = rig
         self.frames: list[can.Message] = []
         self.lock = threading.Lock()
-        self.bus = can.Bus(interface="virtual", channel=rig.channel)
-        self.notifier = can.Notifier(self.bus, [self._on], timeout=0.05)
         self.recording = False
         self.first_cycle = self.last_cycle = 0
+        self.bus = can.Bus(interface="virtual", channel=rig.channel)
+        self.notifier = can.Notifier(self.bus, [self._on], timeout=0.05)
 
     def _on(self, msg: can.Message) -> None:
         if self.recording:
@@ -50,10 +50,13 @@ class CanSide:
 
     def stop(self) -> None:
         self.last_cycle = self.rig.host.sync.cycle - 1  # the last cycle whole on both sides
-        wait_until(self._caught_up, what="the CAN side saw every sample the host published")
-        self.recording = False
-        self.notifier.stop()
-        self.bus.shutdown()
+        try:
+            wait_until(self._caught_up,
+                       what="the CAN side saw every sample the host published")
+        finally:
+            self.recording = False
+            self.notifier.stop()
+            self.bus.shutdown()
 
     def _caught_up(self) -> bool:
         host, frames = self.rig.host, self.rig.by_cycle()

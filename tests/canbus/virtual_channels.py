@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 from collections.abc import Callable
+from typing import TextIO
 
 import can
 import can.interfaces.virtual
+
+from bench.rigs.waiting import wait_until
 
 
 def listening(channel: str) -> bool:
@@ -30,18 +34,36 @@ def ctrl_c() -> None:
     signal.pthread_kill(threading.main_thread().ident or 0, signal.SIGINT)
 
 
-def run_until_done(argv: list[str], traffic: Callable[[], None]) -> int:
+class _Watched:
+    """A text stream that passes everything on and notes when ``text`` went through."""
+
+    def __init__(self, stream: TextIO, text: str, seen: threading.Event) -> None:
+        self.stream, self.text, self.seen = stream, text, seen
+
+    def write(self, data: str) -> int:
+        if self.text in data:
+            self.seen.set()
+        return self.stream.write(data)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.stream, name)
+
+
+def run_until_done(argv: list[str], traffic: Callable[[], None], *,
+                   ready: str = "Ctrl-C stops") -> int:
     """``skin ARGV`` in this (the main) thread while ``traffic()`` runs in another; when
-    ``traffic`` returns (or fails: re-raised here) the command gets Ctrl-C, as a user stops
-    it. Its exit status. The command's time limit is then not the test's clock."""
+    ``traffic`` returns (or fails: re-raised here) and the command has said ``ready`` (on
+    stdout or stderr: from then on a stop ends it normally), it gets Ctrl-C, as a user
+    stops it. Its exit status. The command's time limit is then not the test's clock."""
     from skin.cli import main
 
     failures: list[BaseException] = []
-    returned = threading.Event()
+    returned, said = threading.Event(), threading.Event()
 
     def run() -> None:
         try:
             traffic()
+            wait_until(lambda: said.is_set() or returned.is_set(), what=f"skin said {ready!r}")
         except BaseException as err:
             failures.append(err)
         finally:
@@ -49,10 +71,13 @@ def run_until_done(argv: list[str], traffic: Callable[[], None]) -> int:
                 ctrl_c()
 
     worker = threading.Thread(target=run)
+    out, err = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _Watched(out, ready, said), _Watched(err, ready, said)  # type: ignore[assignment]
     worker.start()
     try:
         code = main(argv)
     finally:
+        sys.stdout, sys.stderr = out, err
         returned.set()
         try:
             worker.join(60.0)
