@@ -10,6 +10,8 @@ import json
 from collections.abc import Callable
 from typing import Any
 
+from skin.commands import argtypes
+
 SCENES = ("paper", "paper-noisy")
 """The paper's protocol as published (noise-free), and the noise study (read noise, ADC)."""
 TABLE1_SCENES = ("paper", "paper-noisy", "indenter")
@@ -39,8 +41,10 @@ def add_subparser(subparsers: Any) -> None:
                         help="where lm-mlp's and hybrid's goal MSE 1e-4 is measured: on the "
                              "forces in newtons (default; MATLAB's default performance "
                              "function) or on the mapminmax-scaled outputs")
-    parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
-    parser.add_argument("--plot", metavar="FILE.png", help="draw speed against error")
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write the figures as JSON")
+    parser.add_argument("--plot", type=argtypes.output_file, metavar="FILE.png",
+                        help="draw speed against error")
     from skin.commands.bench_server import add_arguments
 
     add_arguments(parser)
