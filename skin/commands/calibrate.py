@@ -228,6 +228,7 @@ def _fmt(value: float | None, digits: int = 3) -> str:
 def _check(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from decoder.calibration import check_calibration_meta
     from decoder.metrics import evaluate
     from decoder.modelfile import read_model
     from decoder.protocol import BaseDecoder
@@ -240,10 +241,7 @@ def _check(args: argparse.Namespace) -> int:
 
     if not (math.isfinite(args.tolerance) and args.tolerance >= 1):
         raise ConfigError("--tolerance", f"must be >= 1, got {args.tolerance}")
-    own = read_model(args.check).meta.get("calibration")
-    if not isinstance(own, dict) or "heldout_floored_pct" not in own:
-        raise ConfigError("--check", f"{args.check} has no calibration report (it was not "
-                          "written by skin calibrate)")
+    own = check_calibration_meta(read_model(args.check).meta.get("calibration"), args.check)
     model = load_decoder(args.check)
     ds = read_dataset(args.dataset)
     node, k = _patch(args, ds.meta, ds.resistance_ohm.shape[1], own.get("node_id"))

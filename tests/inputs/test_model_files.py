@@ -107,3 +107,23 @@ def test_the_field_is_named(tmp_path: Path, models: dict[str, bytes], change: An
     result = run("eval", path, tmp_path / "absent.npz")
     refused(result)
     assert f"{path}: {field}" in result.lines[0]
+
+
+@pytest.mark.parametrize(("change", "field"), [
+    ({"heldout_floored_pct": "x"}, "meta.calibration.heldout_floored_pct"),
+    ({"heldout_floored_pct": float("nan")}, "meta.calibration.heldout_floored_pct"),
+    ({"mode": 3}, "meta.calibration.mode"),
+    ({"node_id": True}, "meta.calibration.node_id"),
+    ({"tare": 5}, "meta.calibration.tare"),
+    ({"tare": {"rest_ohm": np.zeros((9, 3))}}, "meta.calibration.tare.rest_ohm"),
+    ({"tare": {"rest_N": -1}}, "meta.calibration.tare.rest_N"),
+])
+def test_a_calibration_report_is_checked_field_by_field(change: dict[str, Any],
+                                                        field: str) -> None:
+    from decoder.calibration import check_calibration_meta
+
+    report = {"heldout_floored_pct": 1.0, "mode": "xyz", "node_id": 1, "flagged_pct": 0.0,
+              "tare": {"rest_ohm": None, "rest_N": 0.01}}
+    assert check_calibration_meta(dict(report), "m.msgpack")
+    with pytest.raises(ModelFileError, match=rf"^m\.msgpack: {field}: "):
+        check_calibration_meta({**report, **change}, "m.msgpack")
