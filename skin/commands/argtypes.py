@@ -131,7 +131,7 @@ can_filter.__name__ = "filter"
 
 seconds = number("seconds", above=0.0, high=YEAR_S, unit="s")
 """A duration (``--seconds``, time-outs): more than 0, at most a year."""
-rate_hz = number("rate", above=0.0, high=1e6, unit="Hz")
+rate_hz = number("rate", low=1e-3, high=1e6, unit="Hz")
 seed = count("seed", 0, MAX_SEED)
 bitrate = count("bitrate", 1_000, 20_000_000, "bit/s")
 node_id = count("node-ID", 1, 127)
