@@ -16,6 +16,7 @@ override the one bus of a config; a config with several buses takes none.
 
 from __future__ import annotations
 
+import ipaddress
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -139,11 +140,22 @@ def check_bus(bus: BusConfig, where: str) -> None:
     if bus.interface is not None and bus.interface not in can.VALID_INTERFACES:
         raise ConfigError(f"{where}.interface", f"unknown python-can interface "
                           f"{bus.interface!r}; known: {', '.join(sorted(can.VALID_INTERFACES))}")
+    if bus.interface == "udp_multicast" and bus.channel is not None and \
+            not _multicast(bus.channel):
+        raise ConfigError(f"{where}.channel", f"{bus.channel!r} is not a multicast group "
+                          "address (udp_multicast: e.g. 239.74.163.2)")
     if bus.data_bitrate is not None and not bus.fd:
         raise ConfigError(f"{where}.data_bitrate", "is the CAN FD data phase: set fd = true")
     if "fd" in bus.options or any(k in bus.options for k in ("bitrate", "data_bitrate")):
         raise ConfigError(f"{where}.options", "bitrate, data_bitrate and fd have keys of "
                           "their own")
+
+
+def _multicast(channel: object) -> bool:
+    try:
+        return ipaddress.ip_address(str(channel)).is_multicast
+    except ValueError:
+        return False
 
 
 def check_buses(buses: tuple[BusConfig, ...]) -> None:
