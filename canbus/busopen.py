@@ -6,7 +6,7 @@ missing driver; and a bus whose constructor failed half-way logs ``... was not p
 shut down`` whenever it is collected, long after the error was reported.
 :func:`open_can_bus` turns any failure into one :class:`~skin.errors.BusError` naming the
 bus and has the half-built bus collected on the spot, so that a caller that holds
-python-can's log records back while it opens the bus (``skin.commands.logs.held_back``)
+python-can's log records back while it opens the bus (``skin.commands.common.logs.held_back``)
 holds that one back too.
 """
 

@@ -27,10 +27,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from decoder.benchmark import decode_speed
 from decoder.metrics import FLOOR_FRACTION, evaluate
 from decoder.protocol import BaseDecoder, Decoder
 from decoder.registry import available_decoders, create_decoder, decoder_class
+from decoder.speed import decode_speed
 from skin.constants import TAXELS_PER_PATCH, SensorConstants
 from skin.errors import ConfigError, DecodeError, ModelFileError
 
@@ -50,7 +50,7 @@ def default_candidates() -> tuple[str, ...]:
     out = ["analytic"]
     for name in available_decoders():
         cls = decoder_class(name)
-        if name != "analytic" and issubclass(cls, BaseDecoder) and cls._state:
+        if name != "analytic" and issubclass(cls, BaseDecoder) and cls.needs_fitting:
             out.append(name)
     return tuple(out)
 

@@ -5,7 +5,7 @@ Each subcommand module has ``add_subparser(subparsers)`` and sets
 heavy packages (sim, decoder, canbus) only inside their ``func``.
 
 Logging (``-v``, ``-q``, ``--log-level``, before or after the subcommand) is configured
-here, once (``skin.commands.logs``). Exit status: 0 when a command did its work or a
+here, once (``skin.commands.common.logs``). Exit status: 0 when a command did its work or a
 long-running one was stopped (Ctrl-C, SIGTERM, SIGHUP: it prints its summary and writes
 its ``--json``); 1 on an error (one line on stderr; ``--debug`` shows the traceback);
 2 on a usage error (argparse); 130 when a stop interrupts a command whose work has an
@@ -21,9 +21,9 @@ from collections.abc import Iterator, Sequence
 from typing import Any
 
 from skin import __version__
-from skin.commands.argtypes import OneLineParser
-from skin.commands.logs import add_logging_arguments, configured_logging
-from skin.commands.signals import stop_signal_name, stop_signals_interrupt
+from skin.commands.common.argtypes import OneLineParser
+from skin.commands.common.logs import add_logging_arguments, configured_logging
+from skin.commands.common.signals import stop_signal_name, stop_signals_interrupt
 from skin.errors import SkinError
 
 SUBCOMMANDS = (

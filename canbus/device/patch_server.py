@@ -51,6 +51,7 @@ from canbus.device.patch_node import (
 from canbus.device.source import ResistanceSource
 from canbus.rxfilter import OwnFrameGate, ReceiveFilter, receive_filter
 from canbus.txmessage import TxMessage
+from canbus.worker import Worker
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 
 logger = logging.getLogger(__name__)
@@ -132,15 +133,13 @@ class PatchServer:
         self._quiet = threading.Condition()
         self._event_rate_hz = event_rate_hz
         self._accept_only_consumed = accept_only_consumed
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._sampler = Worker(self._sample_loop, "patch-samples")
 
     @property
     def frames_sent(self) -> int:
         return sum(bus.frames_sent for bus in self.buses)
 
     def start(self) -> None:
-        self._stop.clear()
         self._tick()  # nodes hold a real sample before anyone can read them
         for bus in self.buses:
             for node in bus.nodes:
@@ -149,15 +148,10 @@ class PatchServer:
             bus.on_sync = self._sync_handler(bus)
             bus.network.subscribe(SYNC_COB_ID, bus.on_sync)
         if self._event_rate_hz > 0:
-            self._thread = threading.Thread(target=self._sample_loop, daemon=True,
-                                            name="patch-samples")
-            self._thread.start()
+            self._sampler.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
+        self._sampler.stop()
         for bus in self.buses:
             if bus.on_sync is not None:
                 bus.network.unsubscribe(SYNC_COB_ID, bus.on_sync)
@@ -210,13 +204,14 @@ class PatchServer:
     def _sample_loop(self) -> None:
         period = 1.0 / self._event_rate_hz
         deadline = time.monotonic()
-        while not self._stop.is_set():
+        stopping = self._sampler.stopping
+        while not stopping.is_set():
             deadline += period
             late = time.monotonic() - deadline
             if late > period:  # a stall (a busy machine): carry on from now, do not catch up
                 deadline += late
-            self._stop.wait(max(0.0, deadline - time.monotonic()))
-            if self._stop.is_set():
+            stopping.wait(max(0.0, deadline - time.monotonic()))
+            if stopping.is_set():
                 break
             self._wait_quiet(deadline, period)
             self._tick()
@@ -301,10 +296,10 @@ class PatchServer:
             self.sync_count += 1
             bus.syncs += 1
             counter = bus.syncs
-            if self._thread is None:  # every SYNC reads the next sample
-                remapped = self._take(self._read())
+            reads = not self._sampler.running  # no sample clock: every SYNC reads a sample
+            remapped = reads and self._take(self._read())
             prepared = self._prepared
-        if self._thread is None and remapped:
+        if remapped:
             self._claim(bus)
         messages: list[can.Message] = []
         for node in bus.nodes:

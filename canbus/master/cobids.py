@@ -10,12 +10,10 @@ is named by its node-ID in the API), COB-IDs only per bus: two buses are two net
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import Protocol
 
 from skin.errors import ConfigError
-
-if TYPE_CHECKING:
-    from canbus.master.hostconfig import HostConfig, PatchConfig
 
 NMT, SYNC, TIME = 0x000, 0x080, 0x100
 _TPDO_BASES = (0x180, 0x280, 0x380, 0x480, 0x200, 0x300, 0x400)
@@ -24,6 +22,37 @@ _RPDO_BASES = (0x200, 0x300, 0x400, 0x500)
 # error control and LSS ranges).
 _RESTRICTED = ((0x000, 0x07F), (0x080, 0x080), (0x100, 0x180), (0x581, 0x5FF), (0x601, 0x67F),
                (0x6E0, 0x6FF), (0x701, 0x77F), (0x780, 0x7FF))
+
+
+class PatchNodes(Protocol):
+    """What the COB-ID rules read of a patch's config (``hostconfig.PatchConfig``)."""
+
+    @property
+    def node_id(self) -> int: ...
+    @property
+    def force_node(self) -> int: ...
+    @property
+    def force_cob_ids(self) -> tuple[int, ...] | None: ...
+    @property
+    def bus(self) -> str: ...
+    @property
+    def force_bus(self) -> str: ...
+
+
+class _Named(Protocol):
+    @property
+    def name(self) -> str: ...
+
+
+class HostNodes(Protocol):
+    """What the COB-ID check reads of a host's config (``hostconfig.HostConfig``)."""
+
+    @property
+    def patches(self) -> Sequence[PatchNodes]: ...
+    @property
+    def other_nodes(self) -> Sequence[int]: ...
+    @property
+    def buses(self) -> Sequence[_Named]: ...
 
 
 def predefined_tpdo_cob_ids(node_id: int) -> tuple[int, ...]:
@@ -42,7 +71,7 @@ def node_cob_ids(node_id: int) -> dict[int, str]:
     return ids
 
 
-def force_cob_ids(patch: PatchConfig) -> frozenset[int]:
+def force_cob_ids(patch: PatchNodes) -> frozenset[int]:
     """Every COB-ID the force node of ``patch`` transmits on: its TPDOs as configured,
     EMCY, SDO responses and heartbeat."""
     node = patch.force_node
@@ -55,7 +84,7 @@ def restricted(cob_id: int) -> bool:
     return any(lo <= cob_id <= hi for lo, hi in _RESTRICTED)
 
 
-def check_cob_ids(config: HostConfig) -> None:
+def check_cob_ids(config: HostNodes) -> None:
     """Refuse a config in which two nodes share a node-ID, or two transmitters on one bus
     could share a COB-ID."""
     nodes: dict[int, str] = {}
@@ -74,7 +103,7 @@ def _claim_node(nodes: dict[int, str], node_id: int, where: str) -> None:
     nodes[node_id] = where
 
 
-def _check_bus(config: HostConfig, bus: str) -> None:
+def _check_bus(config: HostNodes, bus: str) -> None:
     owner: dict[int, str] = {NMT: "NMT", SYNC: "SYNC", TIME: "TIME"}
     on = f" on bus {bus!r}" if len(config.buses) > 1 else ""
 

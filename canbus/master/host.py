@@ -56,8 +56,6 @@ from canbus.master.follower import ListenOnly
 from canbus.master.forcenode import ForceNode
 from canbus.master.hostconfig import HostConfig, load_host_config
 from canbus.master.patch_setup import PatchSetup
-from canbus.master.patch_setup import configured_info as configured_info  # re-exported
-from canbus.master.patch_setup import warn_if_unlike_config as _warn_if_unlike_config  # noqa: F401
 from canbus.master.records import STATES, PatchHealth, PatchRecord
 from canbus.master.sync_producer import SyncFollower, SyncProducer
 from canbus.master.taxel_log import TaxelLog

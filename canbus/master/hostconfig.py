@@ -19,17 +19,12 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from canbus.master.busconfig import BusConfig, buses_from_dict
 from canbus.master.cobids import check_cob_ids, restricted
-from canbus.master.cobids import force_cob_ids as force_cob_ids  # re-exported
-from canbus.master.cobids import node_cob_ids as node_cob_ids  # re-exported
-from canbus.master.cobids import predefined_tpdo_cob_ids as predefined_tpdo_cob_ids
 from decoder.protocol import Decoder
-from decoder.registry import decoder_class, load_decoder
-from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
-from skin.errors import ConfigError, ModelFileError, NotFittedError
+from decoder.registry import decoder_class, load_decoder, needs_fitting
+from skin.constants import TAXELS_PER_PATCH, SensorConstants
+from skin.errors import ConfigError, ModelFileError
 from skin.inputs import fields
 from skin.inputs.tomlfile import read_toml
 
@@ -304,7 +299,9 @@ def _check_decoder(patch: PatchConfig, where: str) -> PatchConfig:
             cls = decoder_class(name)
         except ConfigError as err:
             raise ConfigError(f"{where}.decoder", err.problem) from err
-        _check_unfitted(cls, patch.pillars, where)
+        if needs_fitting(cls):
+            raise ConfigError(f"{where}.model", f"decoder {cls.name!r} must be fitted: give the "
+                              "model file it was trained into")
         return replace(patch, decoder=name)
     if patch.prototype is not None:
         model = patch.prototype
@@ -323,16 +320,6 @@ def _check_decoder(patch: PatchConfig, where: str) -> PatchConfig:
         raise ConfigError(f"{where}.mode", f"{patch.mode!r} reads {patch.pillars} pillar(s) "
                           f"but the model was fitted on {pillars}")
     return replace(patch, decoder=model.name, prototype=model)
-
-
-def _check_unfitted(cls: type[Decoder], pillars: int, where: str) -> None:
-    """A decoder used without a model file must decode as built (e.g. ``analytic``)."""
-    rest = np.broadcast_to(DEFAULT_CONSTANTS.nominal_resistance_ohm[:pillars], (1, 9, pillars))
-    try:
-        cls().decode(rest)
-    except NotFittedError as err:
-        raise ConfigError(f"{where}.model", f"decoder {cls.name!r} must be fitted: give the "
-                          "model file it was trained into") from err
 
 
 def _check_host(config: HostConfig) -> None:

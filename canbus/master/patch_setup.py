@@ -25,7 +25,8 @@ from canopen.sdo.client import SdoClient
 from numpy.typing import ArrayLike, NDArray
 
 from canbus.mappings import patch_fd_entries
-from canbus.master.hostconfig import TPDO_COUNT, PatchConfig, predefined_tpdo_cob_ids
+from canbus.master.cobids import predefined_tpdo_cob_ids
+from canbus.master.hostconfig import TPDO_COUNT, PatchConfig
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM, TPDO_MAP, MappedEntry, PdoCodec, TpdoLayout
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
 

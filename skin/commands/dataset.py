@@ -16,7 +16,7 @@ import logging
 from collections.abc import Iterator
 from typing import Any
 
-from skin.commands import argtypes
+from skin.commands.common import argtypes
 
 _SOURCES = {"sdo": "the SDO writes", "eds": "the EDS default", "option": "--mapping"}
 
@@ -35,9 +35,9 @@ def _quiet_host() -> Iterator[None]:
 
 
 def _from_recording(args: argparse.Namespace) -> int:
-    from canbus.master.recorded_dataset import JoinChoice, dataset_from_recording
+    from canbus.offline.dataset import JoinChoice, dataset_from_recording
     from canbus.tools.replay import recording_reader
-    from skin.commands.calibrate_out import write_json
+    from skin.commands.calibrate.output import write_json
     from skin.dataset import write_dataset
     from skin.errors import ConfigError
 

@@ -1,7 +1,7 @@
 """``skin decode REC --config host.toml -o forces.csv|.npz``: a recording's forces, offline.
 
 The recording (.log, .asc, .blf, .pcap, .pcapng) goes through the listen-only host on its
-own clock (:mod:`canbus.master.offline`): the forces are what a listen-only host publishes
+own clock (:mod:`canbus.offline.decode`): the forces are what a listen-only host publishes
 for it, the same every time, with no bus. Output, written atomically:
 
 - ``.csv``: one row per taxel of every sample: ``cycle, sync_counter, time_s, patch,
@@ -18,7 +18,7 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from skin.commands import argtypes
+from skin.commands.common import argtypes
 
 if TYPE_CHECKING:
     from canbus.master.dataplane import ForceFrame
@@ -28,7 +28,7 @@ FORMATS = (".csv", ".npz")
 
 def _decode(args: argparse.Namespace) -> int:
     from canbus.master.hostconfig import load_host_config
-    from canbus.master.offline import decode_recording
+    from canbus.offline.decode import decode_recording
     from canbus.tools.replay import recording_reader
     from skin.atomic import atomic_write
     from skin.errors import ConfigError

@@ -10,7 +10,7 @@ from typing import Any
 def _check(args: argparse.Namespace) -> int:
     from canbus.od import eds_file
     from canbus.tools.edscheck import check
-    from skin.commands.logs import held_back
+    from skin.commands.common.logs import held_back
 
     failed = 0
     for name in args.files:

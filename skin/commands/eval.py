@@ -17,7 +17,7 @@ import math
 import os
 from typing import TYPE_CHECKING, Any
 
-from skin.commands import argtypes
+from skin.commands.common import argtypes
 
 if TYPE_CHECKING:
     from decoder.protocol import Decoded, Decoder

@@ -7,7 +7,7 @@ import json
 from typing import Any
 
 from skin.atomic import atomic_write
-from skin.commands import argtypes
+from skin.commands.common import argtypes
 
 
 def add_subparser(subparsers: Any) -> None:

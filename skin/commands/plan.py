@@ -8,7 +8,7 @@ import sys
 from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
 
-from skin.commands import argtypes
+from skin.commands.common import argtypes
 
 if TYPE_CHECKING:
     from canbus.busload import BusPlan, Plan

@@ -16,15 +16,15 @@ import json
 import sys
 from typing import Any
 
-from skin.commands import argtypes
+from skin.commands.common import argtypes
 
 
 def _replay(args: argparse.Namespace) -> int:
     from canbus.tools.replay import Recording, RecordingError, Replayer
     from skin.atomic import atomic_write
-    from skin.commands.busargs import default_channel
-    from skin.commands.busopen import open_bus
-    from skin.commands.signals import until_stopped
+    from skin.commands.common.busargs import default_channel
+    from skin.commands.common.busopen import open_bus
+    from skin.commands.common.signals import until_stopped
     from skin.errors import ConfigError
 
     if args.loop is not None and args.loop < 0:

@@ -3,14 +3,14 @@
 The config is read and checked before a bus is opened, so a bad config fails at once
 with one line naming the field. The buses are the config's (``[bus]``, or several
 ``[[buses]]``); python-can's bus flags (``-i``, ``-c``, ``-b``, ``--fd`` ...) go over the
-one bus of a config (:mod:`skin.commands.hostbus`); with no bus anywhere, one line says so.
+one bus of a config (:mod:`skin.commands.common.hostbus`); with no bus anywhere, one line says so.
 While running, every change of a patch's state and every unknown node is printed on a
 line, and ``--status-every S`` prints a health line every S seconds; Ctrl-C, SIGTERM or
 SIGHUP (or ``--seconds``) stops the host and prints a summary.
 
 ``--listen-only`` (or ``host.listen_only = true``): decode what another master runs, or a
 recording ``skin replay`` sends, and transmit nothing. ``--cpu 3`` runs every thread of
-the host on CPU 3 (see ``skin.commands.cpu``).
+the host on CPU 3 (see ``skin.commands.common.cpu``).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import time
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
-from skin.commands import argtypes
+from skin.commands.common import argtypes
 
 if TYPE_CHECKING:
     import can
@@ -103,9 +103,9 @@ def _wire(bus: can.BusABC) -> Any:
 
 def _run(args: argparse.Namespace) -> int:
     from canbus.master.hostconfig import load_host_config
-    from skin.commands.configpath import find_config
-    from skin.commands.cpu import pinned
-    from skin.commands.hostbus import resolve
+    from skin.commands.common.configpath import find_config
+    from skin.commands.common.cpu import pinned
+    from skin.commands.common.hostbus import resolve
     from skin.errors import ConfigError
 
     if args.status_every is not None and not args.status_every > 0:
@@ -121,8 +121,8 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     from canbus.master.host import HostManager
     from canbus.tools.recorder import enlarge_receive_buffer
     from skin.atomic import atomic_write
-    from skin.commands.hostbus import describe, open_all
-    from skin.commands.signals import until_stopped
+    from skin.commands.common.hostbus import describe, open_all
+    from skin.commands.common.signals import until_stopped
 
     started = time.monotonic()
     with ExitStack() as stack:
@@ -200,7 +200,7 @@ def _hint_if_nobody_answered(host: HostManager, config: HostConfig) -> None:
     if host.listen_only or not config.scan:
         return
     if all(h.state == "absent" for h in host.health().values()):
-        from skin.commands.hostbus import describe
+        from skin.commands.common.hostbus import describe
 
         print(f"no patch answered on {describe(config)} within {config.scan_ms} ms: check "
               "that the patches are powered and on this bus (interface, channel, bit rate); "
@@ -208,8 +208,8 @@ def _hint_if_nobody_answered(host: HostManager, config: HostConfig) -> None:
 
 
 def add_subparser(subparsers: Any) -> None:
-    from skin.commands.busargs import add_rcvbuf_argument
-    from skin.commands.cpu import add_cpu_argument
+    from skin.commands.common.busargs import add_rcvbuf_argument
+    from skin.commands.common.cpu import add_cpu_argument
 
     parser = subparsers.add_parser("run", help="the host manager on a bus (CONFIG.toml)")
     parser.add_argument("config", metavar="CONFIG", nargs="?", default=None,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from skin.commands import argtypes
+from skin.commands.common import argtypes
 
 ABORTS = {0x0800_0022: "the patch is loaded, or not operational: unload it and try again",
           0x0609_0030: "the value is not a tare command",
@@ -24,8 +24,8 @@ def _tare(args: argparse.Namespace) -> int:
 
     from canbus.master.forcenode import TARE, TARE_COMMAND
     from canbus.od import load_od
-    from skin.commands.busargs import default_channel
-    from skin.commands.busopen import open_bus
+    from skin.commands.common.busargs import default_channel
+    from skin.commands.common.busopen import open_bus
     from skin.errors import BusError
 
     default_channel(args)

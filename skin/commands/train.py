@@ -6,7 +6,7 @@ import argparse
 import time
 from typing import Any
 
-from skin.commands import argtypes
+from skin.commands.common import argtypes
 from skin.errors import ConfigError
 
 
@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from decoder.registry import create_decoder
-    from skin.commands.bench import limit_blas_threads
+    from skin.commands.common.blas import limit_blas_threads
     from skin.dataset import read_training_set
 
     limit_blas_threads()

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from canbus.device.server_bench import check_answers
+from bench.server import check_answers
 from skin.cli import main
 
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from numpy.typing import ArrayLike
 
+from bench.rigs.dataplane import LSB, WINDOW_S, Host, Patch, consume, load, mN, sync_time
 from canbus.codes import code_to_resistance, resistance_to_code
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
@@ -24,7 +25,6 @@ from decoder.registry import create_decoder
 from skin.constants import DEFAULT_CONSTANTS
 from skin.errors import ConfigError
 from skin.tripod import resistance_from_force
-from tests.canbus.dataplane_rig import LSB, WINDOW_S, Host, Patch, consume, load, mN, sync_time
 
 
 def test_complete_samples_decode_exactly_and_go_out_as_force_tpdos(host: Host) -> None:

@@ -4,14 +4,9 @@ from pathlib import Path
 
 import pytest
 
+from canbus.master.cobids import node_cob_ids, predefined_tpdo_cob_ids
 from canbus.master.forcenode import force_node_cob_ids
-from canbus.master.hostconfig import (
-    HostConfig,
-    PatchConfig,
-    load_host_config,
-    node_cob_ids,
-    predefined_tpdo_cob_ids,
-)
+from canbus.master.hostconfig import HostConfig, PatchConfig, load_host_config
 from canbus.od import load_od
 from canbus.pdo_codec import read_defaults, read_layouts
 from decoder.registry import create_decoder
@@ -202,3 +197,18 @@ def test_a_model_file_names_its_decoder_and_must_fit_the_mode(tmp_path: Path,
     broken = Path(__file__).resolve().parents[1] / "files" / "model_truncated.msgpack"
     assert _error(tmp_path, f"[[patches]]\nnode_id = 1\nmodel = '{broken}'\n").startswith(
         "patches[0].model: ")
+
+
+def test_the_check_knows_a_decoder_needs_fitting_without_decoding(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from decoder.analytic import AnalyticDecoder
+    from decoder.deconv import DeconvDecoder
+
+    def decode(self: object, resistance_ohm: object) -> None:
+        raise AssertionError("the config check decoded")
+
+    for cls in (AnalyticDecoder, DeconvDecoder):
+        monkeypatch.setattr(cls, "decode", decode)
+    assert HostConfig(patches=(PatchConfig(1, decoder="analytic"),)).check().checked
+    with pytest.raises(ConfigError, match=r"patches\[0\]\.model: decoder 'deconv' must be fitted"):
+        HostConfig(patches=(PatchConfig(1, decoder="deconv"),)).check()

@@ -15,7 +15,7 @@ import pytest
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from skin.cli import main
-from skin.commands.demo import _scene
+from skin.commands.demo import demo_scene
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 
@@ -209,12 +209,12 @@ def test_skin_demo_defaults_end_by_themselves(capsys: pytest.CaptureFixture[str]
 
 
 def test_demo_scenes_put_every_load_on_every_patch() -> None:
-    hard = _scene("hard", 3)
+    hard = demo_scene("hard", 3)
     assert hard.node_ids == (1, 2, 3)
     assert all(load.patches == (1, 2, 3) for load in hard.loads)
     faults = hard.effects["faults"].pillars
     assert {f.node_id for f in faults} == {1, 2}  # faults of patches that still exist
-    assert _scene("indenter", None) is not None and _scene("indenter", 1).node_ids == (1,)
+    assert demo_scene("indenter", None) is not None and demo_scene("indenter", 1).node_ids == (1,)
 
 
 def test_skin_demo_on_a_terminal_shows_the_skin_live(capsys: pytest.CaptureFixture[str],

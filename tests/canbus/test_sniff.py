@@ -33,8 +33,8 @@ from canbus.tools.replay import Recording
 from canbus.tools.services import Service, ServiceDecoder, route
 from canbus.tools.sniffer import FrameFilter, Sniffer, frame_bits
 from skin.cli import main
-from skin.commands import busopen
-from skin.commands.sniff_view import ViewStats, render
+from skin.commands.common import busopen
+from skin.commands.sniff.view import ViewStats, render
 from skin.constants import DEFAULT_CONSTANTS
 
 SYNCS = 6
@@ -357,7 +357,7 @@ def test_rotated_capture_names_its_files(tmp_path: Path,
 def test_line_printer_filters_batches_and_counts_drops(monkeypatch: pytest.MonkeyPatch) -> None:
     import io
 
-    from skin.commands import sniff_view
+    from skin.commands.sniff import view as sniff_view
 
     decoder = ServiceDecoder()
     out = io.StringIO()

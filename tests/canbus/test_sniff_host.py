@@ -260,7 +260,7 @@ def test_skin_decode_gives_what_a_listen_only_host_publishes_for_a_replay(
         host_run: HostRun, tmp_path: Path) -> None:
     """Offline, on the recording's clock: the same samples, value for value, as a listen-only
     host fed the replay, and the same every time (pcap and log alike)."""
-    from canbus.master.offline import decode_recording
+    from canbus.offline.decode import decode_recording
 
     replayed: list[ForceFrame] = []
     with can.Bus(interface="virtual", channel="decode-replay") as bus, \

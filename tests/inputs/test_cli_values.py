@@ -14,7 +14,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from skin.cli import _commands, build_parser
-from skin.commands import argtypes
+from skin.commands.common import argtypes
 from tests.inputs.conftest import examples
 from tests.inputs.hostile import HOSTILE_NUMBERS, Result, refused
 
@@ -30,7 +30,7 @@ def _numeric_actions() -> Iterator[tuple[list[str], argparse.Action]]:
         path = command.prog.split()[1:]
         for action in command._actions:
             if action.type is not None and action.type is not argtypes.output_file and \
-                    getattr(action.type, "__module__", "") in ("skin.commands.argtypes",
+                    getattr(action.type, "__module__", "") in ("skin.commands.common.argtypes",
                                                                  "skin.commands.train"):
                 yield path, action
 

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from skin.atomic import atomic_write
 from skin.cli import _commands, build_parser
-from skin.commands import argtypes
+from skin.commands.common import argtypes
 from skin.errors import OutputError
 from tests.inputs.conftest import examples
 from tests.inputs.hostile import fingerprint, refused, run

@@ -13,6 +13,7 @@ import canopen
 import numpy as np
 import pytest
 
+from bench.rigs.recording import scene
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.host import HostManager
@@ -24,7 +25,6 @@ from sim import generate_dataset, load_scene
 from skin.cli import main
 from skin.constants import DEFAULT_CONSTANTS
 from skin.dataset import Dataset, read_dataset, write_dataset
-from tests.canbus.recording_rig import scene
 
 FAST = ["--decoders", "analytic", "deconv"]
 

@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 
 from skin.cli import main
-from skin.commands.view_layout import Layout, layout_from_positions, parse_layout
-from skin.commands.view_term import INFERNO, arrow, colour, reason_code
+from skin.commands.view.layout import Layout, layout_from_positions, parse_layout
+from skin.commands.view.term import INFERNO, arrow, colour, reason_code
 
 FILES = Path(__file__).resolve().parents[1] / "files"
 

@@ -19,8 +19,8 @@ from canbus.master.forcenode import ForceNode
 from canbus.tools.recorder import CandumpLogWriter
 from decoder.reasons import Reason
 from skin.cli import main
-from skin.commands.view_layout import Layout
-from skin.commands.view_term import SkinView
+from skin.commands.view.layout import Layout
+from skin.commands.view.term import SkinView
 
 GOLDEN = Path(__file__).resolve().parents[1] / "files" / "view"
 T0 = 1000.0

@@ -19,23 +19,23 @@ import pytest
 from matplotlib import colormaps
 from PIL import Image
 
+from bench.rigs.view import HostRun, record_host_run, until
 from canbus.master.forcenode import forces_to_mN
 from canbus.tools.replay import Recording
 from sim import Simulator
 from skin.cli import main
-from skin.commands.demo import _scene
+from skin.commands.demo import demo_scene
 from skin.commands.view import moment_view, title
-from skin.commands.view_layout import Layout
-from skin.commands.view_plot import moment_picture
-from skin.commands.view_sources import recorded_resistances, recorded_samples, recording_times
-from tests.skin.view_rig import HostRun, record_host_run, until
+from skin.commands.view.layout import Layout
+from skin.commands.view.plot import moment_picture
+from skin.commands.view.sources import recorded_resistances, recorded_samples, recording_times
 
 CYCLES = 80
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> HostRun:
-    scene = _scene("indenter", 2)
+    scene = demo_scene("indenter", 2)
     simulated = Simulator(scene).run(CYCLES + 40)
     path = tmp_path_factory.mktemp("view") / "indenter.log"
     return record_host_run(path, simulated.resistance_ohm, scene.node_ids, cycles=CYCLES,
