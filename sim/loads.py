@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,6 +29,9 @@ class UniformRandomParams:
     fz_min_N: float = 0.0
     shear_max_N: float = 0.0
 
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "fz_max_N": (0.0, 1e3), "fz_min_N": (0.0, 1e3), "shear_max_N": (0.0, 1e3)}
+
     def check(self, where: str) -> None:
         non_negative(self.fz_min_N, f"{where}.fz_min_N")
         positive(self.fz_max_N - self.fz_min_N, f"{where}.fz_max_N - fz_min_N")
@@ -42,6 +45,9 @@ class IndenterParams:
     fz_max_N: float = 4.0
     radius_m: float = 0.04
     depth_max_m: float = 0.003
+
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "fz_max_N": (0.0, 1e3), "radius_m": (1e-6, 1.0), "depth_max_m": (1e-9, 0.1)}
 
     def check(self, where: str) -> None:
         for name in ("fz_max_N", "radius_m", "depth_max_m"):
@@ -60,6 +66,11 @@ class SlideParams:
     offset_m: float = 0.0
     friction: float = 0.3
 
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "fz_max_N": (0.0, 1e3), "radius_m": (1e-6, 1.0), "depth_max_m": (1e-9, 0.1),
+        "speed_m_per_s": (0.0, 100.0), "angle_deg": (-360.0, 360.0), "offset_m": (-1.0, 1.0),
+        "friction": (0.0, 10.0)}
+
     def check(self, where: str) -> None:
         for name in ("fz_max_N", "radius_m", "depth_max_m", "speed_m_per_s"):
             positive(getattr(self, name), f"{where}.{name}")
@@ -74,6 +85,10 @@ class GraspParams:
     shear_max_N: float = 0.5
     period_s: float = 2.0
     width_m: float = 0.02
+
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "fz_max_N": (0.0, 1e3), "shear_max_N": (0.0, 1e3), "period_s": (1e-3, 1e6),
+        "width_m": (1e-6, 1.0)}
 
     def check(self, where: str) -> None:
         for name in ("fz_max_N", "period_s", "width_m"):

@@ -70,17 +70,25 @@ class Simulator:
         )
 
     def _check_strain(self, i: int, load: Load) -> None:
-        """Fail before running if a load's largest force (after crosstalk) over-strains a pillar."""
+        """Fail before running if a load's largest force (after crosstalk) over-strains a
+        pillar: naming the load's field, or the crosstalk's coupling when the force alone
+        is fine and only the coupling's gain takes it past the limit."""
         gain = float(self.scene.crosstalk_matrix().sum(axis=1).max())
         for name, value, force in load.peak_forces():
             try:
                 displacement_from_force(force * gain, self.constants)
             except StrainLimitError as err:
+                field, shown = f"loads[{i}].{name}", f"{value:g}"
+                if gain > 1.0 and _strains(force, self.constants) is None:
+                    crosstalk = self.scene.effects["elastic_crosstalk"]
+                    field = "effects.elastic_crosstalk.coupling"
+                    shown = (f"{crosstalk.coupling:g} (with diagonal_coupling "
+                             f"{crosstalk.diagonal_coupling:g}: x{gain:.3g} on loads[{i}])")
                 raise ConfigError(
-                    f"loads[{i}].{name}",
-                    f"{value:g} strains a pillar past {100 * self.constants.max_strain:.0f} % "
+                    field,
+                    f"{shown} strains a pillar past {100 * self.constants.max_strain:.0f} % "
                     f"(force ({', '.join(f'{f:.3g}' for f in force * gain)}) N on a taxel "
-                    f"after crosstalk): {err}",
+                    f"after crosstalk): {err}", source=self.scene.source or None,
                 ) from err
 
     def run(self, n: int) -> Frame:
@@ -101,7 +109,7 @@ class Simulator:
                 r = self._pipeline.resistance(active, time_s)
             except StrainLimitError as err:
                 problem = f"the combined loads over-strain a pillar: {err}"
-                raise ConfigError("loads", problem) from err
+                raise ConfigError("loads", problem, source=self.scene.source or None) from err
             if self._idle.size == 0:
                 out[...] = r[..., : self.pillars]
             else:
@@ -116,3 +124,12 @@ class Simulator:
     def step(self) -> Frame:
         """One time step; the same as run(1)."""
         return self.run(1)
+
+
+def _strains(force: F64, constants: SensorConstants) -> StrainLimitError | None:
+    """The strain error ``force`` alone gives, or None."""
+    try:
+        displacement_from_force(force, constants)
+    except StrainLimitError as err:
+        return err
+    return None

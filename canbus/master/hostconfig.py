@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -26,11 +25,15 @@ from decoder.protocol import Decoder
 from decoder.registry import decoder_class, load_decoder, needs_fitting
 from skin.constants import TAXELS_PER_PATCH, SensorConstants
 from skin.errors import ConfigError, ModelFileError
+from skin.inputs import fields
+from skin.inputs.tomlfile import read_toml
 
 if TYPE_CHECKING:
     from canbus.zenoh.config import ZenohSettings
 
 MODES = ("z", "xyz")
+POSITION_LIMIT_M = 1000.0
+R0_LIMIT_OHM = 1e9
 ANSWER_ORDERS = ("cob-id", "tpdo")
 TPDO_COUNT = 7
 FORCE_NODE_OFFSET = 64
@@ -132,24 +135,21 @@ class HostConfig:
 
 
 def load_host_config(path: str | os.PathLike[str]) -> HostConfig:
-    """Read and check a host config file; model paths are relative to the file's folder."""
+    """Read and check a host config file; model paths are relative to the file's folder.
+    Every error names the file and the dotted field."""
     where = os.fspath(path)
+    data = read_toml(path, "config")
     try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError as err:
-        raise ConfigError("config", f"no such file {where!r}") from err
-    except OSError as err:
-        raise ConfigError("config", f"cannot read {where!r}: {err.strerror}") from err
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError("config", f"{where}: not valid TOML: {err}") from err
-    return host_config_from_dict(data, base=Path(path).parent, source=where)
+        return host_config_from_dict(data, base=Path(path).parent, source=where)
+    except ConfigError as err:
+        raise err.in_file(where) from err
 
 
 def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
                           source: str = "<config>") -> HostConfig:
     """Validate a parsed TOML document into a :class:`HostConfig`."""
+    if not isinstance(data, Mapping):
+        raise ConfigError("config", f"must be a table, got {fields.shown(data)}")
     _known(data, ("host", "drift", "patches", "bus", "buses", "zenoh"), "config")
     host = data.get("host", {})
     if not isinstance(host, dict):
@@ -159,7 +159,12 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
     for key, value in host.items():
         kind = _HOST_FIELDS[key]
         if key == "other_nodes":
+            fields.array(value, "host.other_nodes", 127)
             kwargs[key] = tuple(_int_list(value, "host.other_nodes"))
+        elif key in HOST_RANGES:
+            low, high = HOST_RANGES[key]
+            kwargs[key] = fields.integer(value, f"host.{key}", int(low), int(high)) \
+                if kind is int else fields.number(value, f"host.{key}", high=high, above=low)
         else:
             kwargs[key] = _typed(value, kind, f"host.{key}")
     if kwargs.get("state_dir"):  # relative to the config file, as model paths are
@@ -169,11 +174,14 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
         if not isinstance(drift, dict):
             raise ConfigError("drift", "must be a table ([drift])")
         _known(drift, ("time_constant_s", "contact_N"), "drift")
-        kwargs["drift"] = DriftConfig(**{k: _typed(v, float, f"drift.{k}")
+        kwargs["drift"] = DriftConfig(**{k: fields.number(v, f"drift.{k}", high=DRIFT_RANGES[k],
+                                                          above=0.0)
                                          for k, v in drift.items()})
     tables = data.get("patches")
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
         raise ConfigError("patches", "missing: list the patches as [[patches]] tables")
+    if len(tables) > 127:
+        raise ConfigError("patches", f"{len(tables)} patches; a bus has node-IDs 1..127")
     buses = buses_from_dict(data)
     patches = tuple(_patch(t, f"patches[{i}]", base, buses) for i, t in enumerate(tables))
     if "zenoh" in data:
@@ -197,6 +205,14 @@ _HOST_FIELDS: dict[str, type] = {
     "listen_only": bool, "sync": str, "lss": str, "lss_store": bool, "state_dir": str,
 }
 LSS_MODES = ("", "auto")
+HOST_RANGES: dict[str, tuple[float, float]] = {
+    "sync_period_ms": (0.0, 60_000.0), "sync_window_ms": (0.0, 60_000.0),
+    "heartbeat_ms": (1, 0xFFFF), "force_heartbeat_ms": (0, 0xFFFF),
+    "sdo_timeout_ms": (1, 600_000), "scan_ms": (0, 600_000), "tare_threshold_N": (0.0, 1e4),
+    "queue_size": (1, 1_000_000),
+}
+"""The number fields of [host]: integers in low..high, floats above low and up to high."""
+DRIFT_RANGES = {"time_constant_s": 1e6, "contact_N": 1e4}
 SYNC_MODES = ("produce", "external")
 _PATCH_FIELDS = ("node_id", "decoder", "model", "mode", "force_node", "force_cob_ids",
                  "constants", "r0_ohm", "answer_order", "position_m", "bus", "force_bus",
@@ -220,25 +236,26 @@ def _patch(table: dict[str, Any], where: str, base: Path,
     if "serial" in table:
         kwargs["serial"] = _typed(table["serial"], int, f"{where}.serial")
     if "force_cob_ids" in table:
+        fields.array(table["force_cob_ids"], f"{where}.force_cob_ids", TPDO_COUNT)
         kwargs["force_cob_ids"] = tuple(_int_list(table["force_cob_ids"],
                                                   f"{where}.force_cob_ids"))
     if "model" in table:
-        model = Path(_typed(table["model"], str, f"{where}.model"))
+        model = Path(fields.path(table["model"], f"{where}.model"))
         kwargs["model"] = model if model.is_absolute() else base / model
     if "constants" in table:
         kwargs["constants"] = _constants(table["constants"], f"{where}.constants")
     if "position_m" in table:
         values = table["position_m"]
         if not isinstance(values, list) or len(values) != 2:
-            raise ConfigError(f"{where}.position_m", f"must be [x, y] in metres, got {values!r}")
-        kwargs["position_m"] = tuple(_typed(v, float, f"{where}.position_m[{k}]")
+            raise ConfigError(f"{where}.position_m", f"must be [x, y] in metres, got "
+                              f"{fields.shown(values)}")
+        kwargs["position_m"] = tuple(fields.number(v, f"{where}.position_m[{k}]",
+                                                   -POSITION_LIMIT_M, POSITION_LIMIT_M)
                                      for k, v in enumerate(values))
     if "r0_ohm" in table:
-        values = table["r0_ohm"]
-        if not isinstance(values, list):
-            raise ConfigError(f"{where}.r0_ohm", f"must be a list of numbers, got "
-                              f"{type(values).__name__}")
-        kwargs["r0_ohm"] = tuple(_typed(v, float, f"{where}.r0_ohm[{k}]")
+        values = fields.array(table["r0_ohm"], f"{where}.r0_ohm", 3 * TAXELS_PER_PATCH)
+        kwargs["r0_ohm"] = tuple(fields.number(v, f"{where}.r0_ohm[{k}]", high=R0_LIMIT_OHM,
+                                               above=0.0)
                                  for k, v in enumerate(values))
     patch = PatchConfig(**kwargs)
     return _check_patch(patch, where, buses)
@@ -249,10 +266,7 @@ def _constants(table: Any, where: str) -> SensorConstants:
         raise ConfigError(where, "must be a table of sensor constants")
     _known(table, CONSTANT_KEYS, where)
     values = {key: _typed(value, float, f"{where}.{key}") for key, value in table.items()}
-    try:
-        return SensorConstants(**values)
-    except ConfigError as err:
-        raise ConfigError(f"{where}.{err.field}", err.problem) from err
+    return SensorConstants.from_dict(values, where)
 
 
 def _check_patch(patch: PatchConfig, where: str, buses: tuple[BusConfig, ...]) -> PatchConfig:
@@ -378,15 +392,13 @@ def _known(table: Mapping[str, Any], known: Mapping[str, Any] | tuple[str, ...],
 
 
 def _typed(value: Any, kind: type, where: str) -> Any:
-    if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
-        if not math.isfinite(value):
-            raise ConfigError(where, f"must be a finite number, got {value!r}")
-        return float(value)
-    if kind is bool and isinstance(value, bool):
-        return value
-    if kind in (int, str) and isinstance(value, kind) and not isinstance(value, bool):
-        return value
-    raise ConfigError(where, f"must be {kind.__name__}, got {type(value).__name__} {value!r}")
+    if kind is float:
+        return fields.number(value, where)
+    if kind is bool:
+        return fields.boolean(value, where)
+    if kind is int:
+        return fields.integer(value, where)
+    return fields.text(value, where)
 
 
 def _int_list(value: Any, where: str) -> list[int]:

@@ -18,6 +18,8 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from skin.commands.common import argtypes
+
 if TYPE_CHECKING:
     from canbus.master.dataplane import ForceFrame
 
@@ -99,6 +101,8 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("recording", metavar="REC", help="the recording")
     parser.add_argument("--config", required=True, metavar="CONFIG",
                         help="the host config (patches, modes, decoders, SYNC window)")
-    parser.add_argument("-o", "--output", required=True, metavar="F.csv|F.npz")
-    parser.add_argument("--json", metavar="FILE", help="write a summary as JSON")
+    parser.add_argument("-o", "--output", type=argtypes.output_file, required=True,
+                        metavar="F.csv|F.npz")
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write a summary as JSON")
     parser.set_defaults(func=_decode)

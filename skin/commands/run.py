@@ -26,6 +26,8 @@ import time
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
+from skin.commands.common import argtypes
+
 if TYPE_CHECKING:
     import can
 
@@ -242,8 +244,6 @@ def _hint_if_nobody_answered(host: HostManager, config: HostConfig) -> None:
 
 
 def add_subparser(subparsers: Any) -> None:
-    import can.cli
-
     from skin.commands.common.busargs import add_rcvbuf_argument
     from skin.commands.common.cpu import add_cpu_argument
 
@@ -252,14 +252,15 @@ def add_subparser(subparsers: Any) -> None:
                         help="host config (see examples/host.toml); default: the first of "
                              "$SKIN_HOST_CONFIG, ./host.toml, ~/.config/canskin/host.toml, "
                              "/etc/canskin/host.toml")
-    parser.add_argument("--seconds", type=float, default=None, metavar="S",
+    parser.add_argument("--seconds", type=argtypes.seconds, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C)")
     parser.add_argument("--listen-only", action="store_true",
                         help="decode what another master runs (or `skin replay` sends) and "
                              "transmit nothing: no scan, SDO, NMT, SYNC or force node "
                              "(default: host.listen_only of the config)")
-    parser.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
-    parser.add_argument("--status-every", type=float, default=None, metavar="S",
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write the run's figures as JSON")
+    parser.add_argument("--status-every", type=argtypes.seconds, default=None, metavar="S",
                         help="print a health line every S seconds")
     parser.add_argument("--zenoh", action="store_true",
                         help="publish every force sample, state change, EMCY and the "
@@ -267,5 +268,5 @@ def add_subparser(subparsers: Any) -> None:
                              "defaults: listen on tcp/127.0.0.1:7447; docs/zenoh.md)")
     add_cpu_argument(parser, default="all")
     add_rcvbuf_argument(parser)
-    can.cli.add_bus_arguments(parser)
+    argtypes.add_bus_arguments(parser)
     parser.set_defaults(func=_run)

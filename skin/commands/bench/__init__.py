@@ -9,6 +9,8 @@ import argparse
 import json
 from typing import Any
 
+from skin.commands.common import argtypes
+
 
 def add_subparser(subparsers: Any) -> None:
     parser = subparsers.add_parser(
@@ -35,8 +37,10 @@ def add_subparser(subparsers: Any) -> None:
                         help="where lm-mlp's and hybrid's goal MSE 1e-4 is measured: on the "
                              "forces in newtons (default; MATLAB's default performance "
                              "function) or on the mapminmax-scaled outputs")
-    parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
-    parser.add_argument("--plot", metavar="FILE.png", help="draw speed against error")
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write the figures as JSON")
+    parser.add_argument("--plot", type=argtypes.output_file, metavar="FILE.png",
+                        help="draw speed against error")
     from skin.commands.bench.server import add_arguments
 
     add_arguments(parser)

@@ -31,8 +31,7 @@ def resolve(config: HostConfig, args: argparse.Namespace) -> HostConfig:
     """``config`` with the command line's bus flags over its one bus and the commands'
     default channel; ConfigError for flags given to a config with several buses, BusError
     when no interface is named anywhere."""
-    import can
-
+    from canbus.busopen import configured_interface
     from canbus.master.busconfig import with_flags
     from skin.errors import BusError, ConfigError
 
@@ -44,7 +43,7 @@ def resolve(config: HostConfig, args: argparse.Namespace) -> HostConfig:
                               "line")
         return config
     bus = with_flags(config.buses[0], flags)
-    if bus.interface is None and not can.util.load_config().get("interface"):
+    if bus.interface is None and not configured_interface():
         raise BusError(f"no bus: {config.source} has no [bus] table and no -i IFACE was "
                        "given (nor python-can's configuration); say which bus, e.g. "
                        "-i socketcan -c can0")
@@ -63,10 +62,12 @@ def resolve(config: HostConfig, args: argparse.Namespace) -> HostConfig:
 def open_all(config: HostConfig, stack: ExitStack) -> dict[str, can.BusABC]:
     """Open every bus of ``config``; each is shut down when ``stack`` closes."""
     from canbus.master.busconfig import open_bus
+    from skin.commands.common.logs import held_back
 
     opened: dict[str, can.BusABC] = {}
     for bus in config.buses:
-        handle = open_bus(bus)
+        with held_back("can"):
+            handle = open_bus(bus)
         stack.callback(handle.shutdown)
         opened[bus.name] = handle
     return opened

@@ -31,6 +31,8 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any
 
+from skin.commands.common import argtypes
+
 if TYPE_CHECKING:
     import can
 
@@ -318,9 +320,10 @@ def add_subparser(subparsers: Any) -> None:
 
     parser = subparsers.add_parser(
         "demo", help="simulated patches + the host on a timed bus: live forces, a summary")
-    parser.add_argument("--patches", type=int, default=DEFAULT_PATCHES, metavar="N",
+    parser.add_argument("--patches", type=argtypes.count("patches", 1, 63),
+                        default=DEFAULT_PATCHES, metavar="N",
                         help=f"patches, node-IDs 1..N (default {DEFAULT_PATCHES})")
-    parser.add_argument("--seconds", type=float, default=DEFAULT_SECONDS, metavar="S",
+    parser.add_argument("--seconds", type=argtypes.seconds, default=DEFAULT_SECONDS, metavar="S",
                         help=f"how long to run (default {DEFAULT_SECONDS:g})")
     parser.add_argument("--scene", default="indenter", metavar="NAME",
                         help="a shipped scene or a .toml path; its loads press every patch "
@@ -328,17 +331,18 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--bus", choices=BUS_KINDS, default="timed",
                         help="timed: a simulated wire that keeps time (default); virtual: "
                              "python-can's zero-time bus")
-    parser.add_argument("--bitrate", type=int, default=1_000_000, metavar="B",
+    parser.add_argument("--bitrate", type=argtypes.bitrate, default=1_000_000, metavar="B",
                         help="nominal bit rate of the timed bus (default 1000000)")
     parser.add_argument("--fd", action="store_true",
                         help="CAN FD: a patch answers SYNC in one frame, its forces go in one")
-    parser.add_argument("--data-bitrate", type=int, default=None, metavar="B",
+    parser.add_argument("--data-bitrate", type=argtypes.bitrate, default=None, metavar="B",
                         help="CAN FD data phase (default 5000000)")
-    parser.add_argument("--buses", type=int, default=1, metavar="N",
+    parser.add_argument("--buses", type=argtypes.buses, default=1, metavar="N",
                         help="spread the patches over N buses, each with its own SYNC")
     parser.add_argument("--overload", action="store_true",
                         help="run even when the plan says the bus cannot carry the traffic")
-    parser.add_argument("--json", metavar="FILE", help="write the summary figures as JSON")
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write the summary figures as JSON")
     add_cpu_argument(parser, default="last with --bus virtual, else all")
     # On the zero-time bus one CPU for every thread keeps a cycle's hand-offs in one cache;
     # the timed bus adds a wire thread per bus, and the run needs both CPUs of a small host.

@@ -33,6 +33,8 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any
 
+from skin.commands.common import argtypes
+
 if TYPE_CHECKING:
     import canopen
 
@@ -141,10 +143,10 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_pinned(args: argparse.Namespace) -> int:
-    import can.cli
     import canopen
 
     from skin.commands.common.busargs import default_channel
+    from skin.commands.common.busopen import open_bus
     from skin.errors import ConfigError
 
     scene = scene_on_patches(args.scene, args.patches)
@@ -160,7 +162,7 @@ def _run_pinned(args: argparse.Namespace) -> int:
     networks: list[canopen.Network] = []
     try:
         for each in flags:
-            network = canopen.Network(can.cli.create_bus_from_namespace(each))
+            network = canopen.Network(open_bus(each))
             # canopen's notifier blocks in recv() for up to NOTIFIER_CYCLE (1 s by default)
             # and disconnect() joins it: a short cycle makes --seconds S end after ~S.
             network.NOTIFIER_CYCLE = _NOTIFIER_CYCLE_S
@@ -265,8 +267,6 @@ def _ids(ids: list[int]) -> str:
 
 
 def add_subparser(group_subparsers: Any) -> None:
-    import can.cli
-
     from skin.commands.common.cpu import add_cpu_argument
     from skin.commands.sim.identity import add_identity_arguments
 
@@ -278,19 +278,21 @@ def add_subparser(group_subparsers: Any) -> None:
                     "43113), virtual and timed channels CHANNEL0..CHANNEL<N-1>, any "
                     "interface -c CH0,CH1,...")
     parser.add_argument("scene", metavar="SCENE", help="a shipped scene name or a .toml path")
-    parser.add_argument("--patches", type=int, default=None, metavar="N",
+    parser.add_argument("--patches", type=argtypes.patches, default=None, metavar="N",
                         help="the scene's loads and effects on N patches, node-IDs 1..N")
-    parser.add_argument("--buses", type=int, default=1, metavar="N",
+    parser.add_argument("--buses", type=argtypes.buses, default=1, metavar="N",
                         help="spread the patches over N buses in node order (default 1)")
-    parser.add_argument("--seconds", type=float, default=None, metavar="S",
+    parser.add_argument("--seconds", type=argtypes.seconds, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C)")
-    parser.add_argument("--seed", type=int, default=None, help="random seed (default: the scene's)")
-    parser.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
-    parser.add_argument("--truth", metavar="F.csv",
+    parser.add_argument("--seed", type=argtypes.seed, default=None,
+                        help="random seed (default: the scene's)")
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write the run's figures as JSON")
+    parser.add_argument("--truth", type=argtypes.output_file, metavar="F.csv",
                         help="also write the true forces of every answer as reference forces "
                              "(docs/calibrate.md); each SYNC then steps the simulator once "
                              "(one bus only)")
     add_identity_arguments(parser)
     add_cpu_argument(parser, default="all")
-    can.cli.add_bus_arguments(parser)
+    argtypes.add_bus_arguments(parser)
     parser.set_defaults(func=_run, interface="virtual")

@@ -14,18 +14,17 @@ raw resistances. Every file is written to a temporary name and renamed into plac
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import shutil
-import tempfile
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from skin.atomic import atomic_path
 from skin.commands.view.term import SHEAR_MIN_N, reason_code
 from skin.errors import ConfigError
 
@@ -50,26 +49,6 @@ def pyplot(flag: str) -> Any:
     import matplotlib.pyplot as plt
 
     return plt
-
-
-@contextlib.contextmanager
-def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
-    """A temporary path beside ``target`` with its suffix (writers that pick the format by
-    suffix need it), renamed onto ``target`` only if the block succeeds."""
-    target = Path(target)
-    fd, name = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=target.suffix,
-                                dir=target.parent if str(target.parent) else ".")
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    try:
-        os.chmod(name, 0o666 & ~umask)  # mkstemp's file is owner-only; give open()'s mode
-        yield Path(name)
-        os.replace(name, target)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(name)
-        raise
 
 
 @dataclass
