@@ -36,7 +36,7 @@ def test_dataset_from_path_with_seed(tmp_path: Path) -> None:
         (["paper", "-n", "-5"], "skin: error: n: must be a positive number of samples, got -5\n"),
         ([str(FILES / "sim_unknown_load.toml"), "-n", "5"],
          "skin: error: loads[0].kind: unknown load 'foo'; known: "
-         "uniform_random, indenter, slide, grasp, idle\n"),
+         "uniform_random, indenter, slide, grasp, idle, stick_slip\n"),
         ([str(FILES / "sim_unknown_effect.toml"), "-n", "5"],
          "skin: error: effects.wobble: unknown effect 'wobble'; known: elastic_crosstalk, "
          "hysteresis, drift, readout, noise, faults\n"),

@@ -112,7 +112,7 @@ def test_bad_field_is_named(path: tuple[Any, ...], value: Any, field: str) -> No
 
 def test_unknown_load_lists_known() -> None:
     with pytest.raises(ConfigError, match=r"^loads\[0\]\.kind: unknown load 'foo'; known: "
-                       r"uniform_random, indenter, slide, grasp, idle$"):
+                       r"uniform_random, indenter, slide, grasp, idle, stick_slip$"):
         load_scene(FILES / "sim_unknown_load.toml")
 
 
