@@ -63,6 +63,8 @@ def _linear_map() -> F64:
 
 
 _LINEAR = _linear_map()
+SMALLEST_N = 5e-324
+"""The smallest positive float64: a normal force at or above it is a normal force."""
 
 
 def taxel_xy(pitch_m: float) -> F64:
@@ -138,36 +140,53 @@ class ContactInstant:
     """What ``n`` samples say on their own (no history): see the module docstring.
 
     The figures a force node's default contact PDO carries are computed at once; the rest
-    (torque, placed frame, per-taxel slip) when first read.
+    (torque, placed frame, slip tests) when first read.
     """
 
-    def __init__(self, on: F64, contact: Bools, linear: F64, count: NDArray[np.int64],
-                 valid_taxels: NDArray[np.int64], pitch: F64, friction: F64,
-                 near_slip_ratio: F64, position: F64, rotation: F64) -> None:
+    def __init__(self, on: F64, contact: Bools, linear: F64, valid_taxels: NDArray[np.int64],
+                 pitch: F64, friction: F64, near_slip_ratio: F64, position: F64,
+                 rotation: F64) -> None:
         self._on = on  # (n, 9, 3) the forces of the taxels in contact, 0 elsewhere
         self._linear = linear  # (n, 6) sums: Fx, Fy, Fz, ux·Fz, uy·Fz, ux·Fy - uy·Fx
         self._pitch = pitch
-        self._friction = friction
-        self._near = near_slip_ratio
+        self.friction: F64 = friction  # (n,) μ of each row
+        self.near_slip_ratio: F64 = near_slip_ratio  # (n,) (1 - margin)·μ of each row
         self._position = position  # (2,) or (n, 2)
         self._rotation = rotation  # (2, 2) or (n, 2, 2)
         self.contact_taxels: Bools = contact  # (n, 9)
-        self.taxels_in_contact: NDArray[np.int64] = count  # (n,)
         self.valid_taxels: NDArray[np.int64] = valid_taxels  # (n,) taxels it rests on
-        self.cop_defined: Bools = count > 0  # (n,) a taxel is in contact
+        # a taxel in contact has Fz > taxel_contact_N >= 0, so their sum is > 0 exactly then
+        self.cop_defined: Bools = linear[:, 2] > 0  # (n,) a taxel is in contact
         self.force_N: F64 = linear[:, :3]  # (n, 3) net force over the taxels in contact
-        denominator = np.where(self.cop_defined, linear[:, 2], 1.0)[:, None]
-        # divided first: a vanishing normal force gives a bounded CoP, never 0·inf
-        self.cop_m: F64 = linear[:, 3:5] / denominator * pitch[:, None]  # (n, 2); 0 if none
-        self.tangential_ratio: F64 = np.hypot(linear[:, 0], linear[:, 1]) / denominator[:, 0]
+        # 0 where no taxel is in contact: 0 / the smallest subnormal is 0; divided first, so
+        # a vanishing normal force gives a bounded CoP, never 0·inf
+        denominator = np.maximum(linear[:, 2], SMALLEST_N)
+        self.cop_m: F64 = linear[:, 3:5] / denominator[:, None] * pitch[:, None]  # 0 if none
+        self.tangential_ratio: F64 = np.hypot(linear[:, 0], linear[:, 1]) / denominator
         """(n,) |(Fx, Fy)| / Fz of the net force; 0 where the CoP is not defined (+inf for
         shear over a vanishing normal force, possible only with ``taxel_contact_N`` = 0)."""
-        defined = self.cop_defined
-        self.near_slip: Bools = defined & (self.tangential_ratio >= near_slip_ratio)  # (n,)
-        self.slip: Bools = defined & (self.tangential_ratio >= friction)  # the cone alone
+
+    @functools.cached_property
+    def taxels_in_contact(self) -> NDArray[np.int64]:
+        """(n,)"""
+        out: NDArray[np.int64] = self.contact_taxels.sum(axis=1)
+        return out
 
     def __len__(self) -> int:
         return int(self._linear.shape[0])
+
+    @functools.cached_property
+    def near_slip(self) -> Bools:
+        """(n,) the net force within the margin of the friction cone, or beyond it."""
+        out: Bools = self.cop_defined & (self.tangential_ratio >= self.near_slip_ratio)
+        return out
+
+    @functools.cached_property
+    def slip(self) -> Bools:
+        """(n,) the net force on or beyond the friction cone (the cone alone: the host's
+        slip state adds hysteresis, :mod:`skin.contact_state`)."""
+        out: Bools = self.cop_defined & (self.tangential_ratio >= self.friction)
+        return out
 
     @functools.cached_property
     def torque_Nm(self) -> F64:
@@ -203,7 +222,7 @@ class ContactInstant:
         """(n, 9) taxels in contact within the margin of their own friction cone."""
         with np.errstate(over="ignore"):
             out: Bools = self.contact_taxels & (
-                self.taxel_shear_N >= self._near[:, None] * self._on[:, :, 2])
+                self.taxel_shear_N >= self.near_slip_ratio[:, None] * self._on[:, :, 2])
         return out
 
     @functools.cached_property
@@ -211,7 +230,7 @@ class ContactInstant:
         """(n, 9) taxels in contact at or beyond their own friction cone."""
         with np.errstate(over="ignore"):
             out: Bools = self.contact_taxels & (
-                self.taxel_shear_N >= self._friction[:, None] * self._on[:, :, 2])
+                self.taxel_shear_N >= self.friction[:, None] * self._on[:, :, 2])
         return out
 
 
@@ -235,13 +254,15 @@ def summarize(force_N: ArrayLike, valid: ArrayLike, *,
               pitch_m: ArrayLike | None = None, position_m: ArrayLike | None = None,
               rotation: ArrayLike | None = None, taxel_contact_N: ArrayLike | None = None,
               friction: ArrayLike | None = None, near_slip_ratio: ArrayLike | None = None,
-              ) -> ContactInstant:
+              bounded: bool = False) -> ContactInstant:
     """The contact of ``n`` samples: ``force_N`` ``(n, 9, 3)`` N, ``valid`` ``(n, 9)``.
 
     One patch: ``geometry`` and ``params``. Many patches at once (the host's batches):
     per row ``pitch_m`` ``(n,)``, ``position_m`` ``(n, 2)``, ``rotation`` ``(n, 2, 2)``,
     ``taxel_contact_N``, ``friction``, ``near_slip_ratio`` ``(n,)``, any of which
-    overrides ``geometry`` or ``params``.
+    overrides ``geometry`` or ``params``. ``bounded``: the caller vouches that the forces
+    are finite and far inside float64's range (a decoder's, 0 where invalid) and that every
+    ``taxel_contact_N`` is positive, so nothing can overflow: the checks are skipped.
     """
     force = np.asarray(force_N, dtype=np.float64)
     if force.ndim != 3 or force.shape[1:] != (TAXELS_PER_PATCH, 3):
@@ -252,24 +273,38 @@ def summarize(force_N: ArrayLike, valid: ArrayLike, *,
         raise ValueError(f"valid must be ({n}, 9), got {ok.shape}")
     g = geometry or PatchGeometry()
     p = params or ContactParams()
-    threshold = _per_row(p.taxel_contact_N if taxel_contact_N is None else taxel_contact_N, n)
-    with np.errstate(all="ignore"):  # what overflows is found and said below, never warned
-        if not np.isfinite(force).all():
-            finite = np.asarray(np.isfinite(force).all(axis=2), dtype=bool)
-            ok = ok & finite
-            force = np.where(finite[..., None], force, 0.0)
-        contact = (force[:, :, 2] > threshold[:, None]) & ok
-        on = force * contact[:, :, None]
-        linear = on.reshape(n, 3 * TAXELS_PER_PATCH) @ _LINEAR
-        if not np.isfinite(linear).all():  # sums beyond float64: such a row says nothing
-            beyond = ~np.isfinite(linear).all(axis=1)
-            ok, contact = ok & ~beyond[:, None], contact & ~beyond[:, None]
-            on = np.where(beyond[:, None, None], 0.0, on)
-            linear = np.where(beyond[:, None], 0.0, linear)
-        return ContactInstant(
-            on, contact, linear, np.count_nonzero(contact, axis=1),
-            np.count_nonzero(ok, axis=1), _per_row(g.pitch_m if pitch_m is None else pitch_m, n),
+    rows = (_per_row(p.taxel_contact_N if taxel_contact_N is None else taxel_contact_N, n),
+            _per_row(g.pitch_m if pitch_m is None else pitch_m, n),
             _per_row(p.friction if friction is None else friction, n),
             _per_row(p.near_slip_ratio if near_slip_ratio is None else near_slip_ratio, n),
             np.asarray(g.position_m if position_m is None else position_m, dtype=np.float64),
             g.rotation if rotation is None else np.asarray(rotation, dtype=np.float64))
+    if bounded:
+        return summarize_rows(force, ok, *rows)
+    with np.errstate(all="ignore"):  # what overflows is found and said, never warned
+        if not np.isfinite(force).all():
+            finite = np.asarray(np.isfinite(force).all(axis=2), dtype=bool)
+            ok = ok & finite
+            force = np.where(finite[..., None], force, 0.0)
+        instant = summarize_rows(force, ok, *rows)
+        linear = instant._linear
+        if np.isfinite(linear).all():
+            return instant
+        # sums beyond float64: such a row says nothing
+        beyond = np.asarray(~np.isfinite(linear).all(axis=1), dtype=bool)
+        return summarize_rows(np.where(beyond[:, None, None], 0.0, force), ok & ~beyond[:, None],
+                        *rows)
+
+
+def summarize_rows(force: F64, ok: Bools, threshold: F64, pitch: F64, friction: F64,
+                   near: F64, position: F64, rotation: F64) -> ContactInstant:
+    """:func:`summarize` without a check: ``(n, 9, 3)`` forces that are finite and far inside
+    float64's range, ``(n, 9)`` valid, and per row (``(n,)``) the threshold (> 0), pitch,
+    friction and near-slip ratio; the position ``(2,)`` or ``(n, 2)``, the rotation
+    ``(2, 2)`` or ``(n, 2, 2)``. The host's batches come this way."""
+    contact = force[:, :, 2] > threshold[:, None]
+    contact &= ok
+    on = force * contact[:, :, None]
+    linear = on.reshape(-1, 3 * TAXELS_PER_PATCH) @ _LINEAR
+    return ContactInstant(on, contact, linear, ok.sum(axis=1), pitch, friction, near,
+                          position, rotation)

@@ -2,7 +2,9 @@
 
 :func:`step` advances the state of ``n`` patches by one sample each (the host's batches);
 :func:`track` runs one patch through a sequence of samples (the simulator's truth, the
-benchmark). The state of a patch is one small integer (bit 0 in contact, bit 1 slipping):
+benchmark). Both look the next state and the sample's state byte up in one table, built
+from the rules below by :func:`_tables`, indexed by the state and what the sample says.
+The state of a patch is one small integer (bit 0 in contact, bit 1 slipping):
 
 - in contact from the sample whose net normal force (over the taxels in contact) reaches
   ``onset_N`` until the one where it falls below ``release_N``; ``onset`` and ``release``
@@ -19,33 +21,118 @@ row of a :class:`ContactBatch`, built without copying.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from skin.constants import TAXELS_PER_PATCH
-from skin.contact import F64, Bools, ContactInstant, ContactParams
+from skin.contact import F64, SMALLEST_N, Bools, ContactInstant, ContactParams
 
 IN_CONTACT, SLIPPING = 1, 2
+"""The state's bits."""
+CONTACT_BIT, ONSET, RELEASE, NEAR_SLIP, SLIP_BIT, SLIP_ONSET, PARTIAL, UNKNOWN = (
+    1 << k for k in range(8))
+"""The bits of a sample's state byte (:attr:`ContactBatch.state_byte`): in contact, contact
+onset, release, near slip, slipping, slip onset, partial (some taxel invalid), unknown (no
+valid taxel). It is the byte a force node publishes (0x2008 sub-index 11)."""
 State = NDArray[np.uint8]
 
 
-@dataclass(frozen=True)
-class ContactBatch:
-    """``n`` samples' contact: what each says (``instant``) and the state it leaves."""
+def _tables() -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+    """The next state and the state byte for every (state, conditions) index: bits 0-1 the
+    state, then what the sample says (:func:`conditions`): 2 net Fz >= onset, 3 net Fz >=
+    release, 4 ratio >= μ, 5 ratio >= (1 - margin)·μ, 6 a valid taxel, 7 a taxel in contact,
+    8 every taxel valid."""
+    nxt = np.zeros(512, dtype=np.uint8)
+    byte = np.zeros(512, dtype=np.uint8)
+    for index in range(512):
+        was, was_slipping = bool(index & 1), bool(index & 2)
+        enter, stay, cone, near, known, defined, whole = (
+            bool(index >> b & 1) for b in range(2, 9))
+        now = (stay if was else enter) if known else was
+        judged = known and defined
+        slipping = now and ((near if was_slipping else cone) if judged else was_slipping)
+        nxt[index] = now * IN_CONTACT + slipping * SLIPPING
+        flags = (now, now and not was, was and not now, now and judged and near, slipping,
+                 slipping and not was_slipping, not whole, not known)
+        byte[index] = sum(1 << k for k, on in enumerate(flags) if on)
+    return nxt, byte
 
-    instant: ContactInstant
-    in_contact: Bools  # (n,)
-    onset: Bools  # (n,) contact began at this sample
-    release: Bools  # (n,) contact ended at this sample
-    slipping: Bools  # (n,)
-    slip_onset: Bools  # (n,) slipping began at this sample
-    near_slip: Bools  # (n,) in contact and the ratio within the margin of μ (or beyond)
+
+NEXT_STATE, STATE_BYTE = _tables()
+_WEIGHTS = 1 << np.arange(2, 9)
+_SOURCES = np.array([0, 0, 1, 1, 2, 0, 2])  # net Fz, ratio, valid taxels -> the 7 tests
+
+
+def thresholds(onset_N: ArrayLike, release_N: ArrayLike, friction: ArrayLike,
+               near_slip_ratio: ArrayLike, n: int) -> F64:
+    """``(n, 7)``: what :func:`conditions` compares each sample with."""
+    columns = (onset_N, release_N, friction, near_slip_ratio, 1.0, SMALLEST_N,
+               float(TAXELS_PER_PATCH))
+    return np.column_stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (n,))
+                            for c in columns])
+
+
+def conditions(instant: ContactInstant, limits: F64) -> NDArray[np.intp]:
+    """(n,) what each sample says, as bits 2-8 of an index into the tables (the state goes
+    in bits 0-1): its net Fz, tangential ratio and valid taxels against ``limits``
+    (:func:`thresholds`)."""
+    values = np.empty((len(instant), 3))
+    values[:, 0] = instant.force_N[:, 2]
+    values[:, 1] = instant.tangential_ratio
+    values[:, 2] = instant.valid_taxels
+    out: NDArray[np.intp] = (values[:, _SOURCES] >= limits) @ _WEIGHTS
+    return out
+
+
+class ContactBatch:
+    """``n`` samples' contact: what each says (``instant``) and its state byte (the bits
+    above), from which the state's fields are read."""
+
+    __slots__ = ("_flags", "instant", "state_byte")
+
+    def __init__(self, instant: ContactInstant, state_byte: NDArray[np.uint8]) -> None:
+        self.instant = instant
+        self.state_byte = state_byte  # (n,)
+        self._flags: dict[int, Bools] = {}
 
     def __len__(self) -> int:
         return len(self.instant)
+
+    def _flag(self, bit: int) -> Bools:
+        flag = self._flags.get(bit)
+        if flag is None:
+            flag = self._flags[bit] = (self.state_byte & bit) != 0
+        return flag
+
+    @property
+    def in_contact(self) -> Bools:
+        return self._flag(CONTACT_BIT)
+
+    @property
+    def onset(self) -> Bools:
+        """(n,) contact began at this sample."""
+        return self._flag(ONSET)
+
+    @property
+    def release(self) -> Bools:
+        """(n,) contact ended at this sample."""
+        return self._flag(RELEASE)
+
+    @property
+    def near_slip(self) -> Bools:
+        """(n,) in contact and the ratio within the margin of μ, or beyond."""
+        return self._flag(NEAR_SLIP)
+
+    @property
+    def slipping(self) -> Bools:
+        return self._flag(SLIP_BIT)
+
+    @property
+    def slip_onset(self) -> Bools:
+        """(n,) slipping began at this sample."""
+        return self._flag(SLIP_ONSET)
 
     def row(self, i: int) -> ContactSummary:
         return ContactSummary(self, i)
@@ -61,48 +148,28 @@ def step(state: ArrayLike, instant: ContactInstant, *, onset_N: F64 | float,
 
     ``state`` ``(n,)`` (0 for a patch never seen); the thresholds scalars or ``(n,)``.
     """
-    prev = np.asarray(state, dtype=np.uint8)
-    was = (prev & IN_CONTACT).astype(bool)
-    was_slipping = (prev & SLIPPING).astype(bool)
-    known = instant.valid_taxels > 0
-    fz = instant.force_N[:, 2]
-    now = np.where(known, np.where(was, fz >= release_N, fz >= onset_N), was)
-    ratio = instant.tangential_ratio
-    cone = np.where(was_slipping, ratio >= near_slip_ratio, ratio >= friction)
-    judged = known & instant.cop_defined
-    slipping = now & np.where(judged, cone, was_slipping)
-    new = (now * IN_CONTACT + slipping * SLIPPING).astype(np.uint8)
-    return new, ContactBatch(instant, now, now & ~was, was & ~now, slipping,
-                             slipping & ~was_slipping, now & judged & instant.near_slip)
+    limits = thresholds(onset_N, release_N, friction, near_slip_ratio, len(instant))
+    index = conditions(instant, limits) + np.asarray(state, dtype=np.intp)
+    return NEXT_STATE[index], ContactBatch(instant, STATE_BYTE[index])
 
 
 def track(instant: ContactInstant, params: ContactParams, state: int = 0
           ) -> tuple[int, ContactBatch]:
     """One patch's ``n`` consecutive samples, in order, from ``state``: the state after
     the last one and every sample's :class:`ContactBatch` row."""
-    n = len(instant)
-    fz = instant.force_N[:, 2].tolist()
-    ratio = instant.tangential_ratio.tolist()
-    known = (instant.valid_taxels > 0).tolist()
-    defined = instant.cop_defined.tolist()
-    out = np.zeros((n, 2), dtype=bool)
-    onset, release, mu, near = params.onset_N, params.release_N, params.friction, \
-        params.near_slip_ratio
-    contact, slipping = bool(state & IN_CONTACT), bool(state & SLIPPING)
-    for i in range(n):
-        if known[i]:
-            contact = fz[i] >= release if contact else fz[i] >= onset
-            if defined[i]:
-                slipping = ratio[i] >= near if slipping else ratio[i] >= mu
-        slipping = slipping and contact
-        out[i] = contact, slipping
-    now, slip = out[:, 0], out[:, 1]
-    was = np.concatenate([[bool(state & IN_CONTACT)], now[:-1]])
-    was_slipping = np.concatenate([[bool(state & SLIPPING)], slip[:-1]])
-    judged = (instant.valid_taxels > 0) & instant.cop_defined
-    batch = ContactBatch(instant, now, now & ~was, was & ~now, slip, slip & ~was_slipping,
-                         now & judged & instant.near_slip)
-    return int(now[-1]) * IN_CONTACT + int(slip[-1]) * SLIPPING if n else state, batch
+    limits = thresholds(params.onset_N, params.release_N, params.friction,
+                        params.near_slip_ratio, len(instant))
+    return sequence(conditions(instant, limits).tolist(), state, instant)
+
+
+def sequence(index: list[int], state: int, instant: ContactInstant) -> tuple[int, ContactBatch]:
+    """The samples of one patch one after the other (each one's state is the last's)."""
+    nxt, table = NEXT_STATE.tolist(), STATE_BYTE.tolist()
+    out = []
+    for i in index:
+        out.append(table[i + state])
+        state = nxt[i + state]
+    return state, ContactBatch(instant, np.array(out, dtype=np.uint8))
 
 
 class ContactSummary:

@@ -29,10 +29,10 @@ TPDO_COUNT = 7
 class LocalDevice:
     """A CANopen device on a :class:`canopen.Network`, described by a shipped EDS."""
 
-    def __init__(self, node_id: int, eds: str) -> None:
+    def __init__(self, node_id: int, eds: str, tpdo_count: int = TPDO_COUNT) -> None:
         self.node_id = node_id
         self.store = ObjectStore(node_id, load_od(eds, node_id))
-        self.tpdo = TpdoTable(self.store, TPDO_COUNT)
+        self.tpdo = TpdoTable(self.store, tpdo_count)
         self.heartbeat = HeartbeatProducer(node_id)
         self.nmt = NmtSlave(node_id, on_reset=self._reset, on_state=self._on_state)
         self.network: canopen.Network | None = None

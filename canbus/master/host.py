@@ -48,6 +48,7 @@ from numpy.typing import NDArray
 from canbus.master.active import ActiveMaster
 from canbus.master.baseline import Baseline, PatchLoadedError
 from canbus.master.buslink import BusLink
+from canbus.master.contactconfig import patch_contact, take_pitch
 from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
 from canbus.master.decoders import DecoderCache
 from canbus.master.discovery import UnknownNode
@@ -125,7 +126,8 @@ class HostManager:
             node = canopen.RemoteNode(patch.node_id, load_od("skin-patch", patch.node_id))
             node.sdo.RESPONSE_TIMEOUT = config.sdo_timeout_ms / 1000.0
             force = ForceNode(patch.force_node, patch.node_id,
-                              heartbeat_ms=config.force_heartbeat_ms)
+                              heartbeat_ms=config.force_heartbeat_ms,
+                              contact=patch_contact(patch, config))
             record = PatchRecord(patch, self.links[patch.bus], self.links[patch.force_bus],
                                  node, force)
             self.patches[patch.node_id] = record
@@ -401,6 +403,7 @@ class HostManager:
             decoder=decoder, force_node=patch.force_node, masked=patch.masked,
             baseline=baseline, answer_order=patch.config.answer_order)
         patch.setup, patch.channel = setup, channel
+        take_pitch(patch.force_node.contact, setup.info.constants)
         dataplane = patch.link.dataplane
         assert dataplane is not None, "the patch's bus is listening"
         dataplane.add_channel(channel)

@@ -27,14 +27,17 @@ from canbus.master.cobids import check_cob_ids, restricted
 from canbus.master.cobids import force_cob_ids as force_cob_ids  # re-exported
 from canbus.master.cobids import node_cob_ids as node_cob_ids  # re-exported
 from canbus.master.cobids import predefined_tpdo_cob_ids as predefined_tpdo_cob_ids
+from canbus.master.contactconfig import check_orientation, contact_from_table
 from decoder.protocol import Decoder
 from decoder.registry import decoder_class, load_decoder
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
+from skin.contact import ContactParams
 from skin.errors import ConfigError, ModelFileError, NotFittedError
 
 MODES = ("z", "xyz")
 ANSWER_ORDERS = ("cob-id", "tpdo")
 TPDO_COUNT = 7
+FORCE_TPDO_COUNT = 8  # the force node's: TPDO 8 is the contact
 FORCE_NODE_OFFSET = 64
 
 
@@ -47,11 +50,13 @@ class PatchConfig:
     model: Path | None = None  # a model file (msgpack) of that decoder
     mode: str = "xyz"  # the TPDO mapping the host writes: "z" (9 values) or "xyz" (27)
     force_node: int = 0  # 0 in the constructor means node_id + 64
-    force_cob_ids: tuple[int, ...] | None = None  # the force node's 7 TPDO COB-IDs
+    force_cob_ids: tuple[int, ...] | None = None  # the force node's TPDO 1..7 (or 1..8) COB-IDs
     constants: SensorConstants | None = None  # what the patch reports (0x2001, 0x2003)
     r0_ohm: tuple[float, ...] | None = None  # its R0 (0x2002): 27 values, or 3 (z, x, y)
     answer_order: str = "cob-id"  # how the patch orders the TPDOs of one answer ("tpdo")
     position_m: tuple[float, float] | None = None  # where the patch sits on the skin (views)
+    orientation_deg: float = 0.0  # its frame turned about the skin's normal (contact.md)
+    contact: ContactParams | None = None  # its own contact thresholds (None: the host's)
     bus: str = ""  # the bus the patch is on ("": the host's first bus)
     force_bus: str = ""  # the bus its force node publishes on ("": the patch's)
     prototype: Decoder | None = field(default=None, compare=False, repr=False)
@@ -91,6 +96,7 @@ class HostConfig:
     listen_only: bool = False  # follow another master's patches; transmit nothing
     sync: str = "produce"  # "external": follow the SYNC another master produces
     drift: DriftConfig | None = None
+    contact: ContactParams | None = field(default_factory=ContactParams)  # None: no summary
     buses: tuple[BusConfig, ...] = (BusConfig(),)
     source: str = field(default="<config>", compare=False)
     checked: bool = field(default=False, compare=False, repr=False)
@@ -147,7 +153,7 @@ def load_host_config(path: str | os.PathLike[str]) -> HostConfig:
 def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
                           source: str = "<config>") -> HostConfig:
     """Validate a parsed TOML document into a :class:`HostConfig`."""
-    _known(data, ("host", "drift", "patches", "bus", "buses"), "config")
+    _known(data, ("host", "drift", "contact", "patches", "bus", "buses"), "config")
     host = data.get("host", {})
     if not isinstance(host, dict):
         raise ConfigError("host", "must be a table ([host])")
@@ -166,11 +172,14 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
         _known(drift, ("time_constant_s", "contact_N"), "drift")
         kwargs["drift"] = DriftConfig(**{k: _typed(v, float, f"drift.{k}")
                                          for k, v in drift.items()})
+    contact = contact_from_table(data.get("contact", {}), "contact", ContactParams())
+    kwargs["contact"] = contact
     tables = data.get("patches")
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
         raise ConfigError("patches", "missing: list the patches as [[patches]] tables")
     buses = buses_from_dict(data)
-    patches = tuple(_patch(t, f"patches[{i}]", base, buses) for i, t in enumerate(tables))
+    patches = tuple(_patch(t, f"patches[{i}]", base, buses, contact)
+                    for i, t in enumerate(tables))
     return _checked(HostConfig(patches=patches, source=source, buses=buses, **kwargs))
 
 
@@ -188,14 +197,15 @@ _HOST_FIELDS: dict[str, type] = {
 }
 SYNC_MODES = ("produce", "external")
 _PATCH_FIELDS = ("node_id", "decoder", "model", "mode", "force_node", "force_cob_ids",
-                 "constants", "r0_ohm", "answer_order", "position_m", "bus", "force_bus")
+                 "constants", "r0_ohm", "answer_order", "position_m", "bus", "force_bus",
+                 "orientation_deg", "contact")
 # What a patch reports about itself: 0x2001 (LSB) and 0x2003 (adc_bits is not reported).
 CONSTANT_KEYS = ("resistance_lsb_ohm", "youngs_modulus_pa", "resistivity_ohm_m", "length_m",
                  "area_m2", "max_strain", "full_scale_force_N", "taxel_pitch_m")
 
 
 def _patch(table: dict[str, Any], where: str, base: Path,
-           buses: tuple[BusConfig, ...]) -> PatchConfig:
+           buses: tuple[BusConfig, ...], contact: ContactParams | None) -> PatchConfig:
     _known(table, _PATCH_FIELDS, where)
     if "node_id" not in table:
         raise ConfigError(f"{where}.node_id", "missing")
@@ -219,6 +229,12 @@ def _patch(table: dict[str, Any], where: str, base: Path,
             raise ConfigError(f"{where}.position_m", f"must be [x, y] in metres, got {values!r}")
         kwargs["position_m"] = tuple(_typed(v, float, f"{where}.position_m[{k}]")
                                      for k, v in enumerate(values))
+    if "orientation_deg" in table:
+        kwargs["orientation_deg"] = check_orientation(
+            _typed(table["orientation_deg"], float, f"{where}.orientation_deg"),
+            f"{where}.orientation_deg")
+    if "contact" in table:
+        kwargs["contact"] = contact_from_table(table["contact"], f"{where}.contact", contact)
     if "r0_ohm" in table:
         values = table["r0_ohm"]
         if not isinstance(values, list):
@@ -250,9 +266,10 @@ def _check_patch(patch: PatchConfig, where: str, buses: tuple[BusConfig, ...]) -
         raise ConfigError(f"{where}.answer_order", f"must be one of {', '.join(ANSWER_ORDERS)}, "
                           f"got {patch.answer_order!r}")
     if patch.force_cob_ids is not None:
-        if len(patch.force_cob_ids) != TPDO_COUNT:
+        if len(patch.force_cob_ids) not in (TPDO_COUNT, FORCE_TPDO_COUNT):
             raise ConfigError(f"{where}.force_cob_ids", f"must list {TPDO_COUNT} COB-IDs "
-                              f"(TPDO 1..{TPDO_COUNT}), got {len(patch.force_cob_ids)}")
+                              f"(TPDO 1..{TPDO_COUNT}; TPDO 8, the contact, then keeps its "
+                              f"own) or {FORCE_TPDO_COUNT}, got {len(patch.force_cob_ids)}")
         for k, cob_id in enumerate(patch.force_cob_ids):
             if not 0 < cob_id <= 0x7FF or restricted(cob_id):
                 raise ConfigError(f"{where}.force_cob_ids[{k}]",

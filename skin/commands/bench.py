@@ -29,9 +29,11 @@ def add_subparser(subparsers: Any) -> None:
                     "canopen's PdoMap callbacks. server: N simulated patches served on "
                     "udp_multicast to a master in another process, the server's CPU per "
                     "frame against python-can's own send of the same frames in the same run, "
-                    "SYNC to the last TPDO, patches per core.")
+                    "SYNC to the last TPDO, patches per core. contact: each patch's contact "
+                    "summary (CoP, net force, slip onset) against the simulator's truth on "
+                    "indenter, slide, grasp and stick-slip, and its cost in the data plane.")
     parser.add_argument("target", nargs="?",
-                        choices=("decoders", "cross", "sim", "dataplane", "server"),
+                        choices=("decoders", "cross", "sim", "dataplane", "server", "contact"),
                         default="decoders")
     parser.add_argument("--quick", action="store_true",
                         help="one seed, smaller batches and sets (about a minute or less)")
@@ -40,6 +42,11 @@ def add_subparser(subparsers: Any) -> None:
                              "forces in newtons (default; MATLAB's default performance "
                              "function) or on the mapminmax-scaled outputs")
     parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
+    parser.add_argument("--no-contact", action="store_true",
+                        help="dataplane: the force nodes publish no contact summary")
+    parser.add_argument("--decoder", metavar="NAME",
+                        help="contact: the decoder whose forces are summarised (default "
+                             "deconv, trained on another run of each scene)")
     parser.add_argument("--plot", metavar="FILE.png", help="draw speed against error")
     from skin.commands.bench_server import add_arguments
 
@@ -148,8 +155,10 @@ def print_dataplane(result: dict[str, Any]) -> None:
         rows.append([label, f"{result[f'{key}_frames_in_per_s']:,.0f}",
                      f"{result[f'{key}_frames_out_per_s']:,.0f}",
                      f"{100 * result[f'{key}_cpu_share']:.0f} %", f"{ratio:.2f}x"])
+    contact = "with" if result.get("contact", True) else "without"
     show(f"data plane: {result['patches']} patches ({result['mode']}), "
-         f"{result['frames_in']:,} PDOs in, {result['frames_out']:,} out",
+         f"{result['frames_in']:,} PDOs in, {result['frames_out']:,} out "
+         f"({contact} the contact summary)",
          ["path", "frames in/s", "frames out/s", "CPU", "vs canopen"], rows,
          caption=f"{result['cycles']} SYNC cycles; best of {result['repeats']}; one thread; "
                  "python-can delivery excluded")
@@ -186,7 +195,8 @@ def run(args: argparse.Namespace) -> int:
         from canbus.master.dataplane_bench import run_dataplane_benchmark
 
         cycles, repeats = (100, 2) if args.quick else (300, 5)
-        figures = run_dataplane_benchmark(cycles=cycles, repeats=repeats)
+        figures = run_dataplane_benchmark(cycles=cycles, repeats=repeats,
+                                          contact=not args.no_contact)
         print_dataplane(figures)
         if args.json:
             _write_json(args.json, figures)
@@ -196,6 +206,14 @@ def run(args: argparse.Namespace) -> int:
 
         result = run_server(args)
         print_server(result)
+        if args.json:
+            _write_json(args.json, result)
+        return 0
+    if args.target == "contact":
+        from skin.commands.bench_contact import print_contact, run_contact
+
+        result = run_contact(args)
+        print_contact(result)
         if args.json:
             _write_json(args.json, result)
         return 0

@@ -131,8 +131,9 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     from canbus.busload import spread
     from canbus.device.patch_server import PatchServer
     from canbus.master.busconfig import BusConfig
+    from canbus.master.cobids import force_tpdo_cob_ids
     from canbus.master.host import HostManager
-    from canbus.master.hostconfig import HostConfig, PatchConfig, predefined_tpdo_cob_ids
+    from canbus.master.hostconfig import HostConfig, PatchConfig
     from sim import Simulator
     from skin.commands import demo_summary
     from skin.commands.demo_rig import BusClock, Record, Replay
@@ -168,11 +169,11 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
             patch_net = canopen.Network(_open(args.bus, channel, args))
             patch_net.NOTIFIER_CYCLE = 0.05
             patch_net.connect()
-            last = {(predefined_tpdo_cob_ids(n + 64)[0 if args.fd else -1]): n for n in group}
+            last = {(force_tpdo_cob_ids(n + 64)[0 if args.fd else -1]): n for n in group}
             clock = BusClock(last, args.bitrate if timed else None,
                              args.data_bitrate if timed and args.fd else None)
             clock.force_cobs = {c for n in group for c in
-                                predefined_tpdo_cob_ids(n + 64)[:1 if args.fd else 7]}
+                                force_tpdo_cob_ids(n + 64)[:1 if args.fd else 8]}
             assert patch_net.notifier is not None
             patch_net.notifier.add_listener(clock)
             columns = [live.column[n] for n in group]
