@@ -102,8 +102,11 @@ def columns(batch: ContactBatch, subs: Sequence[int]) -> NDArray[np.int64]:
         has = np.empty((n, len(scaled)), dtype=bool)
         for j, sub in enumerate(scaled):
             values[:, j], has[:, j] = _source(batch, sub)
-        with np.errstate(over="ignore", invalid="ignore"):  # such values have no value
+        if instant.bounded:
             counts = np.rint(values / scales)
+        else:
+            with np.errstate(over="ignore", invalid="ignore"):  # such values have no value
+                counts = np.rint(values / scales)
         has &= np.abs(counts) <= 0x7FFF  # False for NaN and inf too: never clipped
         out[:, places] = np.where(has, counts, NO_VALUE)
     for sub in subs:
@@ -131,9 +134,9 @@ def _source(batch: ContactBatch, sub: int) -> tuple[NDArray[np.float64], NDArray
     """A scaled sub-index's SI values and where it has a value."""
     instant = batch.instant
     if sub in FORCE_SUBS:
-        return instant.force_N[:, sub - 1], instant.valid_taxels > 0
+        return instant.force_N[:, sub - 1], instant.known
     if sub in TORQUE_SUBS:
-        return instant.torque_Nm[:, sub - 4], instant.valid_taxels > 0
+        return instant.torque_Nm[:, sub - 4], instant.known
     if sub in COP_SUBS:
         return instant.cop_m[:, sub - 7], instant.cop_defined
     if sub in PLACED_SUBS:

@@ -145,7 +145,9 @@ class ContactInstant:
 
     def __init__(self, on: F64, contact: Bools, linear: F64, valid_taxels: NDArray[np.int64],
                  pitch: F64, friction: F64, near_slip_ratio: F64, position: F64,
-                 rotation: F64) -> None:
+                 rotation: F64, bounded: bool = False) -> None:
+        self.bounded = bounded
+        """Every figure is far inside float64's range (a decoder's forces)."""
         self._on = on  # (n, 9, 3) the forces of the taxels in contact, 0 elsewhere
         self._linear = linear  # (n, 6) sums: Fx, Fy, Fz, ux·Fz, uy·Fz, ux·Fy - uy·Fx
         self._pitch = pitch
@@ -165,6 +167,12 @@ class ContactInstant:
         self.tangential_ratio: F64 = np.hypot(linear[:, 0], linear[:, 1]) / denominator
         """(n,) |(Fx, Fy)| / Fz of the net force; 0 where the CoP is not defined (+inf for
         shear over a vanishing normal force, possible only with ``taxel_contact_N`` = 0)."""
+
+    @functools.cached_property
+    def known(self) -> Bools:
+        """(n,) a valid taxel: the sample says something."""
+        out: Bools = self.valid_taxels > 0
+        return out
 
     @functools.cached_property
     def taxels_in_contact(self) -> NDArray[np.int64]:
@@ -286,25 +294,27 @@ def summarize(force_N: ArrayLike, valid: ArrayLike, *,
             finite = np.asarray(np.isfinite(force).all(axis=2), dtype=bool)
             ok = ok & finite
             force = np.where(finite[..., None], force, 0.0)
-        instant = summarize_rows(force, ok, *rows)
+        instant = summarize_rows(force, ok, *rows, bounded=False)
         linear = instant._linear
         if np.isfinite(linear).all():
             return instant
         # sums beyond float64: such a row says nothing
         beyond = np.asarray(~np.isfinite(linear).all(axis=1), dtype=bool)
-        return summarize_rows(np.where(beyond[:, None, None], 0.0, force), ok & ~beyond[:, None],
-                        *rows)
+        return summarize_rows(np.where(beyond[:, None, None], 0.0, force),
+                              ok & ~beyond[:, None], *rows, bounded=False)
 
 
 def summarize_rows(force: F64, ok: Bools, threshold: F64, pitch: F64, friction: F64,
-                   near: F64, position: F64, rotation: F64) -> ContactInstant:
+                   near: F64, position: F64, rotation: F64, bounded: bool = True
+                   ) -> ContactInstant:
     """:func:`summarize` without a check: ``(n, 9, 3)`` forces that are finite and far inside
     float64's range, ``(n, 9)`` valid, and per row (``(n,)``) the threshold (> 0), pitch,
     friction and near-slip ratio; the position ``(2,)`` or ``(n, 2)``, the rotation
-    ``(2, 2)`` or ``(n, 2, 2)``. The host's batches come this way."""
+    ``(2, 2)`` or ``(n, 2, 2)``. The host's batches come this way. ``bounded`` False: the
+    caller checks for what overflowed."""
     contact = force[:, :, 2] > threshold[:, None]
     contact &= ok
     on = force * contact[:, :, None]
     linear = on.reshape(-1, 3 * TAXELS_PER_PATCH) @ _LINEAR
     return ContactInstant(on, contact, linear, ok.sum(axis=1), pitch, friction, near,
-                          position, rotation)
+                          position, rotation, bounded)

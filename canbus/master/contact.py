@@ -70,6 +70,7 @@ class PatchContact:
         theta = math.radians(g.orientation_deg)
         self.row = (g.pitch_m, p.taxel_contact_N, p.onset_N, p.release_N, p.friction,
                     p.near_slip_ratio, *g.position_m, math.cos(theta), math.sin(theta))
+        _GENERATION[0] += 1  # every cached batch composition is read anew
 
     def reset(self) -> None:
         """Forget the history: not in contact, not slipping (a patch that booted again)."""
@@ -90,19 +91,21 @@ class _Rows:
         self.limits = thresholds(self.onset, self.release, self.friction, self.near, len(rows))
 
 
-_rows_cache: dict[tuple[int, ...], tuple[tuple[tuple[float, ...], ...], _Rows]] = {}
+_GENERATION = [0]
+_rows_cache: dict[tuple[int, ...], tuple[int, _Rows]] = {}
 
 
 def _rows(contacts: Sequence[PatchContact]) -> _Rows:
-    rows = tuple(c.row for c in contacts)
-    key = tuple(map(id, rows))
+    """The per-row parameters of this batch composition (cached until a judge changes)."""
+    key = tuple(map(id, contacts))
     hit = _rows_cache.get(key)
-    if hit is not None and hit[0] == rows:
+    generation = _GENERATION[0]
+    if hit is not None and hit[0] == generation:
         return hit[1]
     if len(_rows_cache) >= _CACHED_LAYOUTS:
         _rows_cache.clear()
-    made = _Rows(rows)
-    _rows_cache[key] = (rows, made)  # the rows are kept: their ids stay theirs
+    made = _Rows([c.row for c in contacts])
+    _rows_cache[key] = (generation, made)
     return made
 
 

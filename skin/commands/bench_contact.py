@@ -1,0 +1,55 @@
+"""``skin bench contact``: the contact summary against the simulator's truth on ``indenter``,
+``slide``, ``grasp`` and ``stick-slip``, and its cost in the data plane (``bench.contact``)."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+
+def run_contact(args: argparse.Namespace) -> dict[str, Any]:
+    from bench.contact import run_contact_benchmark
+    from skin.commands.bench_view import Stages
+
+    stages = Stages(5)
+    try:
+        return run_contact_benchmark(quick=args.quick, decoder=args.decoder or "deconv",
+                                     stage=stages)
+    finally:
+        stages.close()
+
+
+def _number(value: float | None, fmt: str) -> str:
+    return "-" if value is None else format(value, fmt)
+
+
+def print_contact(result: dict[str, Any]) -> None:
+    from skin.commands.tables import show
+
+    rows = []
+    for name, s in result["scenes"].items():
+        delay = s["slip_delay_cycles"]
+        oracle = s["oracle"]
+        rows.append([
+            name, f"{s['cop_samples']:,}", _number(s["cop_err_mm"]["p50"], ".3f"),
+            _number(s["cop_err_mm"]["p95"], ".3f"),
+            _number(oracle["cop_err_mm"]["p95"], ".3f"),
+            _number(s["net_fz_err_pct_fs"], ".2f"),
+            _number(s["net_fz_err_pct_fs_stats"]["p95"], ".2f"),
+            _number(oracle["net_fz_err_pct_fs"], ".2f"),
+            f"{s['slip_onsets']}", _number(delay["p50"], "g"),
+            f"{_number(delay['min'], 'd')}..{_number(delay['max'], 'd')}",
+            f"{s['slip_missed']}", f"{s['slip_false_alarms']}",
+            f"{100 * s['contact_agreement']:.1f} %"])
+    show(f"contact summary against the truth ({result['decoder']} decoder; oracle: knows the "
+         "true crosstalk)",
+         ["scene", "CoP samples", "CoP p50 mm", "CoP p95 mm", "oracle p95", "Fz rms % FS",
+          "Fz p95 % FS", "oracle rms", "slip onsets", "delay p50", "delay range", "missed",
+          "false alarms", "contact agrees"], rows,
+         caption=f"full scale {result['full_scale_N']:g} N; delays in SYNC cycles, "
+                 f"±{result['tolerance_cycles']} tolerated")
+    c = result["cost"]
+    print(f"cost: {c['with_us_per_sample']:.2f} µs per patch-sample with the summary, "
+          f"{c['without_us_per_sample']:.2f} without (data plane, {c['patches']} patches, "
+          f"best of {c['repeats']}): cost_ratio {result['cost_ratio']:.3f}; force frames out "
+          f"{c['frames_out_with']:,} against {c['frames_out_without']:,}")
