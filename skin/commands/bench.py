@@ -1,7 +1,7 @@
-"""``skin bench [decoders|cross|sim|dataplane|server]``: decoders' speed against error and the
-paper's Table 1, decoders trained on one scene and tested on others, the simulator's speed, the
-CAN data plane against canopen's PdoMap callbacks, or the patch server against python-can's own
-send."""
+"""``skin bench [decoders|cross|sim|dataplane|server|contact]``: decoders' speed against error
+and the paper's Table 1, decoders trained on one scene and tested on others, the simulator's
+speed, the CAN data plane against canopen's PdoMap callbacks, the patch server against
+python-can's own send, or the contact summary against the simulator's truth."""
 
 from __future__ import annotations
 
@@ -44,13 +44,12 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     parser.add_argument("--no-contact", action="store_true",
                         help="dataplane: the force nodes publish no contact summary")
-    parser.add_argument("--decoder", metavar="NAME",
-                        help="contact: the decoder whose forces are summarised (default "
-                             "deconv, trained on another run of each scene)")
     parser.add_argument("--plot", metavar="FILE.png", help="draw speed against error")
+    from skin.commands.bench_contact import add_arguments as add_contact_arguments
     from skin.commands.bench_server import add_arguments
 
     add_arguments(parser)
+    add_contact_arguments(parser)
     parser.set_defaults(func=run)
 
 

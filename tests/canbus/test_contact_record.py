@@ -114,3 +114,43 @@ def test_a_node_without_a_judge_answers_no_summary_and_packs_it_when_mapped() ->
     frames = batch_frames([judged, plain], force, valid, np.ones(2, bool), contact=batch)
     assert [c for c, _ in frames[0]][-1] == 0x541 and 0x542 not in [c for c, _ in frames[1]]
     assert judged.store.value(0x2008, 3) == 100 and judged.store.value(0x2008, 12) == 1
+
+
+def test_the_sniffer_names_the_contact_pdo_and_its_values() -> None:
+    import can
+
+    from canbus.tools.services import ServiceDecoder
+
+    node = ForceNode(65, 1)
+    force = np.zeros((9, 3))
+    force[5] = (0.2, 0.1, 2.0)
+    force[4] = (0.0, 0.0, 1.0)
+    frames = dict(node.frames(force, np.ones(9, bool), True))
+    decoded = ServiceDecoder().decode(can.Message(arbitration_id=0x541, data=frames[0x541],
+                                                  is_extended_id=False))
+    assert decoded.label == "TPDO8 contact"
+    assert decoded.text == ("Fz=+3.00 N CoPx=+10.00 mm CoPy=+0.00 mm state=contact,onset "
+                            "taxels=2")
+
+
+def test_a_can_fd_sample_carries_the_contact_in_its_64_bytes() -> None:
+    import struct
+
+    from canbus.master.forcenode import map_fd
+
+    node = ForceNode(65, 1, heartbeat_ms=0)
+    node.tpdo.max_bytes = 64  # a CAN FD bus (what attach() sets from the bus)
+    map_fd(node)
+    force = np.zeros((9, 3))
+    force[8] = (0.0, 0.0, 2.5)
+    ((cob, payload),) = node.frames(force, np.ones(9, bool), True, answered=17)
+    assert cob == 0x1C1 and len(payload) == 64
+    fz, x, y, state = struct.unpack_from("<hhhB", payload, 57)
+    assert payload[56] == 17 and fz == 250 and (x, y) == (1500, 1500)
+    assert state == contact_record.IN_CONTACT | contact_record.ONSET
+    plain = ForceNode(66, 2, heartbeat_ms=0, contact=None)
+    plain.tpdo.max_bytes = 64
+    map_fd(plain)
+    ((_, payload),) = plain.frames(force, np.ones(9, bool), True)
+    assert struct.unpack_from("<hhhB", payload, 57) == (NO_VALUE, NO_VALUE, NO_VALUE,
+                                                        contact_record.UNKNOWN)
