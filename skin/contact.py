@@ -169,6 +169,12 @@ class ContactInstant:
         shear over a vanishing normal force, possible only with ``taxel_contact_N`` = 0)."""
 
     @functools.cached_property
+    def contact_area_m2(self) -> F64:
+        """(n,) the taxels in contact times a taxel's share of the patch (pitch²)."""
+        out: F64 = self.taxels_in_contact * self._pitch ** 2
+        return out
+
+    @functools.cached_property
     def known(self) -> Bools:
         """(n,) a valid taxel: the sample says something."""
         out: Bools = self.valid_taxels > 0

@@ -226,6 +226,11 @@ class ContactSummary:
         return int(self._batch.instant.taxels_in_contact[self._i])
 
     @property
+    def contact_area_m2(self) -> float:
+        """The taxels in contact times pitch²: the area the contact covers, to a taxel."""
+        return float(self._batch.instant.contact_area_m2[self._i])
+
+    @property
     def valid_taxels(self) -> int:
         return int(self._batch.instant.valid_taxels[self._i])
 
@@ -282,7 +287,8 @@ class ContactSummary:
             "cop_m": self.cop_m.tolist(), "cop_placed_m": self.cop_placed_m.tolist(),
             "force_placed_N": self.force_placed_N.tolist(), "cop_defined": self.cop_defined,
             "contact_taxels": self.contact_taxels.tolist(),
-            "taxels_in_contact": self.taxels_in_contact, "valid_taxels": self.valid_taxels,
+            "taxels_in_contact": self.taxels_in_contact,
+            "contact_area_m2": self.contact_area_m2, "valid_taxels": self.valid_taxels,
             "partial": self.partial, "unknown": self.unknown,
             "tangential_ratio": self.tangential_ratio, "in_contact": self.in_contact,
             "onset": self.onset, "release": self.release, "near_slip": self.near_slip,

@@ -109,3 +109,36 @@ def test_the_host_puts_each_patch_s_judge_on_its_force_node() -> None:
         off = HostManager(bus, HostConfig(patches=(PatchConfig(1),), contact=None,
                                           listen_only=True, scan=False))
         assert off.patches[1].force_node.contact is None
+
+
+def test_a_batch_places_each_patch_s_cop_by_its_own_placement() -> None:
+    from canbus.master.contact import PatchContact, summarize_batch
+    from skin.contact import PatchGeometry
+
+    judges = [PatchContact(PatchGeometry(0.015, (0.1, 0.0), 90.0)),
+              PatchContact(PatchGeometry(0.02, (0.0, -0.3), -30.0)),
+              PatchContact(PatchGeometry(0.015, (0.1, 0.0), 90.0))]
+    force = np.zeros((3, 9, 3))
+    force[:, 5] = (0.3, 0.0, 2.0)  # taxel 5: one pitch to the right of the centre
+    batch = summarize_batch(judges, force, np.ones((3, 9), dtype=bool))
+    for i, judge in enumerate(judges):
+        row = batch.row(i)
+        assert row.cop_m.tolist() == [judge.geometry.pitch_m, 0.0]
+        np.testing.assert_allclose(row.cop_placed_m, judge.geometry.place(row.cop_m),
+                                   atol=1e-15)
+        np.testing.assert_allclose(row.force_placed_N[:2],
+                                   judge.geometry.rotation @ row.force_N[:2], atol=1e-15)
+    np.testing.assert_allclose(batch.row(0).cop_placed_m, (0.1, 0.015), atol=1e-15)
+    assert batch.row(0).onset and batch.row(2).onset  # two patches' first samples
+
+
+def test_a_patch_queued_twice_in_a_batch_is_judged_in_order() -> None:
+    from canbus.master.contact import PatchContact, summarize_batch
+
+    judge = PatchContact()
+    force = np.zeros((3, 9, 3))
+    force[:2, 4, 2] = 1.0  # pressed, pressed, released: cycles k, k+1, k+2 of one patch
+    batch = summarize_batch([judge] * 3, force, np.ones((3, 9), dtype=bool))
+    assert batch.onset.tolist() == [True, False, False]
+    assert batch.release.tolist() == [False, False, True]
+    assert batch.in_contact.tolist() == [True, True, False] and judge.state == 0

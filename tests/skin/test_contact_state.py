@@ -85,6 +85,7 @@ def test_a_summary_row_gives_plain_values() -> None:
     assert row.force_N.tolist() == [1.5, 0.0, 2.0] and row.cop_defined
     d = row.to_dict()
     assert d["taxels_in_contact"] == 1 and d["tangential_ratio"] == 0.75
+    assert row.contact_area_m2 == d["contact_area_m2"] == 0.015 ** 2
     assert d["contact_taxels"][4] and d["taxel_slip"][4] and not d["partial"]
     assert "slipping" in repr(row) and "cop=(+0.00, +0.00) mm" in repr(row)
     assert "cop=none" in repr(b.row(0))
