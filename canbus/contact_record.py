@@ -51,7 +51,8 @@ CONTACT, CONTACT_PARAMS = 0x2008, 0x2009
 SUBS = 15
 IN_CONTACT, SLIPPING = CONTACT_BIT, SLIP_BIT
 __all__ = ["IN_CONTACT", "NEAR_SLIP", "ONSET", "PARTIAL", "RELEASE", "SLIPPING", "SLIP_ONSET",
-           "UNKNOWN", "BusContact", "columns", "decode", "encode", "no_summary", "param_values",
+           "UNKNOWN", "BusContact", "columns", "decode", "describe", "encode", "no_summary",
+           "param_values",
            "state_text"]
 STATE_NAMES = ("contact", "onset", "release", "near-slip", "slipping", "slip-onset",
                "partial", "unknown")
@@ -212,6 +213,25 @@ def decode(values: dict[int, int]) -> BusContact:
         pair(9, 10), values.get(STATE), values.get(COUNT), values.get(CONTACT_MASK),
         values.get(SLIP_MASK),
         None if ratio is None or ratio == NO_RATIO else ratio * SCALE[RATIO])
+
+
+def describe(sub: int, raw: int) -> tuple[str, float | None, str, str]:
+    """Sub-index ``sub``'s raw value in words: (short name, SI value or None, unit, text),
+    e.g. ``("Fz", 3.0, "N", "Fz=+3.00 N")`` (what the sniffer shows)."""
+    name = NAMES[sub]
+    if sub == STATE:
+        return name, float(raw), "", f"{name}={state_text(raw)}"
+    if sub == COUNT:
+        return name, float(raw), "", f"{name}={raw}"
+    if sub in (CONTACT_MASK, SLIP_MASK):
+        taxels = ",".join(str(k) for k in range(9) if raw >> k & 1) or "none"
+        return name, float(raw), "", f"{name}={taxels}"
+    unit = UNIT[sub]
+    if raw == (NO_RATIO if sub == RATIO else NO_VALUE):
+        return name, None, unit, f"{name}=none"
+    si = raw * SCALE[sub]
+    shown = {"m": f"{1000 * si:+.2f} mm", "N": f"{si:+.2f} N", "N·m": f"{si:+.4f} N·m"}
+    return name, si, unit, f"{name}={shown.get(unit, f'{si:.3f}')}"
 
 
 def state_text(state: int) -> str:

@@ -407,26 +407,7 @@ def _force(name: str, value: float) -> NamedValue:
 
 def _contact(sub: int, value: float) -> NamedValue:
     """A force node's 0x2008 sub-index ``sub`` (:mod:`canbus.contact_record`)."""
-    name, raw = contact_record.NAMES[sub], int(value)
-    if sub == contact_record.STATE:
-        return NamedValue(name, value, "", f"{name}={contact_record.state_text(raw)}")
-    if sub == contact_record.COUNT:
-        return NamedValue(name, value, "", f"{name}={raw}")
-    if sub in (contact_record.CONTACT_MASK, contact_record.SLIP_MASK):
-        taxels = ",".join(str(k) for k in range(9) if raw >> k & 1) or "none"
-        return NamedValue(name, value, "", f"{name}={taxels}")
-    none = contact_record.NO_RATIO if sub == contact_record.RATIO else contact_record.NO_VALUE
-    if raw == none:
-        return NamedValue(name, None, contact_record.UNIT[sub], f"{name}=none")
-    si = raw * contact_record.SCALE[sub]
-    unit = contact_record.UNIT[sub]
-    if unit == "m":
-        return NamedValue(name, si, unit, f"{name}={1000 * si:+.2f} mm")
-    if unit == "N":
-        return NamedValue(name, si, unit, f"{name}={si:+.2f} N")
-    if unit == "N·m":
-        return NamedValue(name, si, unit, f"{name}={si:+.4f} N·m")
-    return NamedValue(name, si, unit, f"{name}={si:.3f}")
+    return NamedValue(*contact_record.describe(sub, int(value)))
 
 
 def _valid_taxels(value: float) -> NamedValue:
