@@ -30,7 +30,8 @@ of the true loads (:mod:`sim.contact_truth`):
 
 ``cost_ratio``: the data plane's time per patch-sample with the summary (and its TPDO)
 over without, on ``skin bench dataplane``'s stream (16 patches, ``indenter``, analytic),
-best of interleaved runs.
+each cycle on both, interleaved (:func:`cost`); ``cost.frame_ratio`` the same for the
+eighth frame alone.
 """
 
 from __future__ import annotations
@@ -46,6 +47,8 @@ from numpy.typing import NDArray
 from canbus.master.contact import PatchContact
 from canbus.master.dataplane import ForceFrame
 from canbus.master.dataplane_bench import DataPlaneRig, build_stream, stream_of
+from canbus.master.forcenode import CONTACT_TPDO, ForceNode
+from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM
 from decoder.oracle import oracle_decode
 from decoder.protocol import Decoder
 from decoder.registry import create_decoder
@@ -230,10 +233,12 @@ def bench_scene(name: str, *, steps: int, train_steps: int, decoder_name: str,
 
 def cost(patches: int = 16, cycles: int = 300, repeats: int = 5) -> dict[str, Any]:
     """The data plane's time per patch-sample with and without the contact summary, on
-    ``skin bench dataplane``'s stream (``patches`` patches, indenter, analytic decoder).
+    ``skin bench dataplane``'s stream (``patches`` patches, indenter, analytic decoder);
+    and with the eighth frame alone (``frame_only``: force nodes without a contact judge
+    whose TPDO 8 a master made valid: it carries "no summary", nothing is computed).
 
-    Each SYNC cycle (every patch's TPDOs in, one publishing batch out) runs on both data
-    planes one after the other, in alternating order, ``repeats`` times over the stream;
+    Each SYNC cycle (every patch's TPDOs in, one publishing batch out) runs on the data
+    planes one after the other, in turning order, ``repeats`` times over the stream;
     a cycle's time is the CPU time of this thread (``time.thread_time``: the time others'
     work takes the core away is not counted), the 20th percentile of its runs (what others
     still add, through the caches, only ever adds), the per-sample time the sum over cycles
@@ -242,7 +247,10 @@ def cost(patches: int = 16, cycles: int = 300, repeats: int = 5) -> dict[str, An
     stream = build_stream(patches, cycles, "xyz")
     decoder = create_decoder("analytic")
     rigs = {"with": DataPlaneRig(stream, decoder, contact=lambda node_id: PatchContact()),
-            "without": DataPlaneRig(stream, decoder, contact=None)}
+            "without": DataPlaneRig(stream, decoder, contact=None),
+            "frame_only": DataPlaneRig(stream, decoder, contact=None)}
+    for node in rigs["frame_only"].force_nodes:
+        _validate_tpdo8(node)
     times = {key: np.zeros((repeats, cycles)) for key in rigs}
     try:
         for rig in rigs.values():  # first runs: layouts, caches, the decoder's first call
@@ -251,7 +259,8 @@ def cost(patches: int = 16, cycles: int = 300, repeats: int = 5) -> dict[str, An
             for rig in rigs.values():
                 rig.sink.sent.clear()
             for k, frames in enumerate(stream.frames):
-                order = list(rigs) if (rep + k) % 2 else list(rigs)[::-1]
+                turn = (rep + k) % len(rigs)
+                order = list(rigs)[turn:] + list(rigs)[:turn]
                 for key in order:
                     times[key][rep, k] = _cycle(rigs[key], k, stream.sync_times[k], frames)
         frames_out = {key: len(rig.sink.sent) for key, rig in rigs.items()}
@@ -263,8 +272,17 @@ def cost(patches: int = 16, cycles: int = 300, repeats: int = 5) -> dict[str, An
     return {"patches": patches, "cycles": cycles, "repeats": repeats,
             "with_us_per_sample": 1e6 * per_sample["with"],
             "without_us_per_sample": 1e6 * per_sample["without"],
+            "frame_only_us_per_sample": 1e6 * per_sample["frame_only"],
             "frames_out_with": frames_out["with"], "frames_out_without": frames_out["without"],
+            "frame_ratio": per_sample["frame_only"] / per_sample["without"],
             "cost_ratio": per_sample["with"] / per_sample["without"]}
+
+
+def _validate_tpdo8(node: ForceNode) -> None:
+    """What a master's SDO write of 0x1807:01 does: the contact TPDO valid again."""
+    index = TPDO_COMM + CONTACT_TPDO - 1
+    cob = int(node.store.value(index, 1)) & ~COB_ID_INVALID
+    node.store.set_data(index, 1, cob.to_bytes(4, "little"))
 
 
 def _cycle(rig: DataPlaneRig, k: int, sync_time: float, frames: Sequence[Any]) -> float:

@@ -76,4 +76,5 @@ def print_contact(result: dict[str, Any]) -> None:
     print(f"cost: {c['with_us_per_sample']:.2f} µs of CPU per patch-sample with the summary, "
           f"{c['without_us_per_sample']:.2f} without (data plane, {c['patches']} patches a "
           f"cycle, {c['repeats']} runs interleaved): cost_ratio {result['cost_ratio']:.3f}; "
-          f"force frames out {c['frames_out_with']:,} against {c['frames_out_without']:,}")
+          f"force frames out {c['frames_out_with']:,} against {c['frames_out_without']:,}; "
+          f"the eighth frame alone {c['frame_ratio']:.3f}")

@@ -43,6 +43,8 @@ def test_skin_bench_contact_writes_every_key(tmp_path: Path, monkeypatch: pytest
     assert result["cost_ratio"] == pytest.approx(
         result["cost"]["with_us_per_sample"] / result["cost"]["without_us_per_sample"])
     assert result["cost"]["frames_out_with"] == result["cost"]["frames_out_without"] * 8 // 7
+    assert result["cost"]["frame_ratio"] == pytest.approx(
+        result["cost"]["frame_only_us_per_sample"] / result["cost"]["without_us_per_sample"])
     text = capsys.readouterr().out
     assert "stick-slip" in text and "cost_ratio" in text
 
