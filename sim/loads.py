@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from sim.contact import sphere_fz, taxel_xy
 from sim.params import non_negative, positive
 from sim.rng import stream
+from sim.stickslip import StickSlip, StickSlipParams
 
 F64 = NDArray[np.float64]
 
@@ -110,11 +111,16 @@ LOAD_PARAMS: dict[str, type] = {
     "slide": SlideParams,
     "grasp": GraspParams,
     "idle": IdleParams,
+    "stick_slip": StickSlipParams,
 }
 
 
 class Load(Protocol):
     def forces(self, k0: int, n: int) -> F64: ...
+
+    def slipping(self, k0: int, n: int) -> NDArray[np.bool_]:
+        """(n, patches): the truth of slip, the load sliding over the patch."""
+        ...
 
     def peak_forces(self) -> list[tuple[str, float, F64]]:
         """(field, its value, the largest force vector it can put on one taxel)."""
@@ -133,6 +139,9 @@ class UniformRandom:
             s = p.shear_max_N
             out[..., :2] = self.rng.uniform(-s, s, size=(n, self.patches, 9, 2))
         return out
+
+    def slipping(self, k0: int, n: int) -> NDArray[np.bool_]:
+        return np.zeros((n, self.patches), dtype=bool)
 
     def peak_forces(self) -> list[tuple[str, float, F64]]:
         p = self.p
@@ -160,6 +169,9 @@ class Indenter:
         )
         return out
 
+    def slipping(self, k0: int, n: int) -> NDArray[np.bool_]:
+        return np.zeros((n, self.patches), dtype=bool)
+
     def peak_forces(self) -> list[tuple[str, float, F64]]:
         return [("fz_max_N", self.p.fz_max_N, np.array([0.0, 0.0, self.p.fz_max_N]))]
 
@@ -183,6 +195,11 @@ class Slide:
         )
         one = np.stack((p.friction * dx * fz, p.friction * dy * fz, fz), axis=-1)
         return np.repeat(one[:, None], self.patches, axis=1)
+
+    def slipping(self, k0: int, n: int) -> NDArray[np.bool_]:
+        """The sphere slides whenever it touches the patch."""
+        touching = self.forces(k0, n)[:, 0, :, 2].sum(axis=1) > 0
+        return np.repeat(touching[:, None], self.patches, axis=1)
 
     def peak_forces(self) -> list[tuple[str, float, F64]]:
         p, (dx, dy) = self.p, self.direction
@@ -223,6 +240,9 @@ class Grasp:
         angle = (2.0 * np.pi * draws[..., 4])[..., None]
         return np.stack((shear * np.cos(angle), shear * np.sin(angle), fz), axis=-1)
 
+    def slipping(self, k0: int, n: int) -> NDArray[np.bool_]:
+        return np.zeros((n, self.patches), dtype=bool)
+
     def peak_forces(self) -> list[tuple[str, float, F64]]:
         p = self.p
         peaks = [("fz_max_N", p.fz_max_N, np.array([0.0, 0.0, p.fz_max_N]))]
@@ -238,6 +258,9 @@ class Idle:
 
     def forces(self, k0: int, n: int) -> F64:
         return np.zeros((n, self.patches, 9, 3))
+
+    def slipping(self, k0: int, n: int) -> NDArray[np.bool_]:
+        return np.zeros((n, self.patches), dtype=bool)
 
     def peak_forces(self) -> list[tuple[str, float, F64]]:
         return []
@@ -258,4 +281,6 @@ def make_load(
         return Grasp(params, patches, rate_hz, pitch_m, seed, name)
     if isinstance(params, IdleParams):
         return Idle(patches)
+    if isinstance(params, StickSlipParams):
+        return StickSlip(params, patches, rate_hz, pitch_m, seed, name)
     raise TypeError(f"no load for {kind!r} parameters {params!r}")

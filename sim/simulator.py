@@ -27,6 +27,7 @@ class Frame:
     time_s: F64  # (n,)
     resistance_ohm: F64  # (n, patches, 9, P); +inf = open circuit, 0 = short
     force_N: F64  # (n, patches, 9, 3) true (Fx, Fy, Fz), before crosstalk
+    slip: NDArray[np.bool_]  # (n, patches) true: a load slides over the patch
 
 
 class Simulator:
@@ -98,8 +99,10 @@ class Simulator:
         time_s = (self._k + np.arange(n)) / self.scene.rate_hz
         patches = len(self.node_ids)
         force = np.zeros((n, patches, 9, 3))
+        slip = np.zeros((n, patches), dtype=bool)
         for idx, load in self._loads:
             force[:, idx] += load.forces(self._k, n)
+            slip[:, idx] |= load.slipping(self._k, n)
         out = np.empty((n, patches, 9, self.pillars))
         if self._idle.size:
             out[:, self._idle] = self._baseline
@@ -119,7 +122,7 @@ class Simulator:
         if self._faults is not None:
             self._faults.apply(out, time_s)
         self._k += n
-        return Frame(time_s=time_s, resistance_ohm=out, force_N=force)
+        return Frame(time_s=time_s, resistance_ohm=out, force_N=force, slip=slip)
 
     def step(self) -> Frame:
         """One time step; the same as run(1)."""

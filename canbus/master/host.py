@@ -48,6 +48,7 @@ from numpy.typing import NDArray
 from canbus.master.active import ActiveMaster
 from canbus.master.baseline import Baseline, PatchLoadedError
 from canbus.master.buslink import BusLink
+from canbus.master.contactconfig import patch_contact, take_pitch
 from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
 from canbus.master.decoders import DecoderCache
 from canbus.master.discovery import UnknownNode
@@ -92,7 +93,7 @@ class HostManager:
     decode what another master runs and send nothing. ``clock`` (default: real time,
     checked by each heartbeat consumer's thread) times the heartbeats and leaves the
     checks to the caller (``link.monitor.check()``): a recording's clock when one is
-    decoded offline (``canbus.master.offline``).
+    decoded offline (``canbus.offline.decode``).
     """
 
     def __init__(self, bus: Buses, config: HostConfig, *,
@@ -127,6 +128,7 @@ class HostManager:
             node.sdo.RESPONSE_TIMEOUT = config.sdo_timeout_ms / 1000.0
             force = ForceNode(patch.force_node, patch.node_id,
                               heartbeat_ms=config.force_heartbeat_ms,
+                              contact=patch_contact(patch, config),
                               nv=force_node_store(config.state_dir, patch.force_node))
             record = PatchRecord(patch, self.links[patch.bus], self.links[patch.force_bus],
                                  node, force)
@@ -420,6 +422,7 @@ class HostManager:
             decoder=decoder, force_node=patch.force_node, masked=patch.masked,
             baseline=baseline, answer_order=patch.config.answer_order)
         patch.setup, patch.channel = setup, channel
+        take_pitch(patch.force_node.contact, setup.info.constants)
         dataplane = patch.link.dataplane
         assert dataplane is not None, "the patch's bus is listening"
         dataplane.add_channel(channel)

@@ -78,11 +78,13 @@ def _plan(args: argparse.Namespace) -> int:
     result = plan(args.patches, args.rate, args.mode, args.bitrate,
                   data_bitrate=data_bitrate, target_pct=args.target, forces=args.forces,
                   buses=args.buses, heartbeat_ms=args.heartbeat_ms,
-                  force_heartbeat_ms=args.force_heartbeat_ms)
+                  force_heartbeat_ms=args.force_heartbeat_ms, contact=not args.no_contact)
     bus = (f"CAN FD {args.bitrate}/{data_bitrate} bit/s" if data_bitrate
            else f"CAN {args.bitrate} bit/s")
     forces = {"same-bus": "forces on each patch's bus", "other-bus": "forces on their own bus",
               "none": "forces not counted"}[args.forces]
+    if args.forces != "none":
+        forces += " without the contact PDO" if args.no_contact else " with the contact PDO"
     buses = f"{args.buses} bus{'es' if args.buses > 1 else ''}" + (
         " and a force bus" if args.forces == "other-bus" else "")
     print(f"{result.patches} patches x {result.rate_hz:g} Hz, mode {result.mode}, {bus}, "
@@ -126,6 +128,9 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--forces", choices=("same-bus", "other-bus", "none"),
                         default="same-bus",
                         help="where the host republishes the forces (default same-bus)")
+    parser.add_argument("--no-contact", action="store_true",
+                        help="the host publishes no contact summary ([contact] enabled = "
+                             "false): 7 force PDOs per sample, not 8 (CAN FD: 57 bytes, not 64)")
     parser.add_argument("--buses", type=argtypes.count("buses", 1, 100_000), default=1, metavar="N",
                         help="spread the patches over N buses, each with its own SYNC")
     parser.add_argument("--heartbeat-ms", type=argtypes.heartbeat_ms, default=100, metavar="MS",

@@ -35,7 +35,7 @@ def test_dataset_from_path_with_seed(tmp_path: Path) -> None:
     [
         ([str(FILES / "sim_unknown_load.toml"), "-n", "5"],
          f"skin: error: {FILES / 'sim_unknown_load.toml'}: loads[0].kind: unknown load 'foo'; "
-         "known: uniform_random, indenter, slide, grasp, idle\n"),
+         "known: uniform_random, indenter, slide, grasp, idle, stick_slip\n"),
         ([str(FILES / "sim_unknown_effect.toml"), "-n", "5"],
          f"skin: error: {FILES / 'sim_unknown_effect.toml'}: effects.wobble: unknown effect "
          "'wobble'; known: elastic_crosstalk, hysteresis, drift, readout, noise, faults\n"),

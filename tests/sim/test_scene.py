@@ -112,7 +112,8 @@ def test_bad_field_is_named(path: tuple[Any, ...], value: Any, field: str) -> No
 
 def test_unknown_load_lists_known() -> None:
     with pytest.raises(ConfigError, match=r"sim_unknown_load\.toml: loads\[0\]\.kind: unknown "
-                       r"load 'foo'; known: uniform_random, indenter, slide, grasp, idle$"):
+                       r"load 'foo'; known: uniform_random, indenter, slide, grasp, idle, "
+                       r"stick_slip$"):
         load_scene(FILES / "sim_unknown_load.toml")
 
 
