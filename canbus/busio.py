@@ -1,0 +1,376 @@
+"""Receiving that does not die: a bus that re-opens itself, and a notifier that survives.
+
+python-can's ``Notifier`` ends its thread on the first exception from ``recv`` or from a
+listener: one datagram that udp_multicast cannot unpack, one error frame it refuses, an
+``ENETDOWN`` when the interface goes down. What reads the bus then goes on running deaf.
+
+- :class:`ResilientBus` wraps the bus an ``opener`` returns. An exception from its
+  ``recv`` is counted, logged (rate-limited) and survived; a bus that keeps failing
+  (:data:`REOPEN_AFTER` failures over :data:`REOPEN_AFTER_S` with nothing received in
+  between) is shut down and opened again, with back-off; one that cannot be had back
+  within ``give_up_s`` is *gone*: :attr:`ResilientBus.gone` is set, ``recv`` raises
+  :class:`BusGoneError` and ``send`` ``can.CanOperationError``, and a command ends with a
+  non-zero status so that its service manager restarts it.
+- :class:`ReceiveLoop` is a ``can.Notifier`` whose thread survives anything ``recv`` or a
+  listener raises (counted, logged rate-limited; a failing listener does not keep the
+  frame from the others). On a plain bus a failing ``recv`` is retried with back-off for
+  as long as it fails; a :class:`BusGoneError` ends it, with :attr:`~can.Notifier.exception`
+  set and ``on_gone`` called.
+- :func:`connect` gives a ``canopen.Network`` a :class:`ReceiveLoop` in place of the
+  ``Notifier`` that ``Network.connect()`` builds, so canopen's side cannot die either.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import can
+import canopen
+
+from canbus.ratelog import RateLimitedLog
+from canbus.rxfilter import refresh as refresh_receive_filter
+
+logger = logging.getLogger(__name__)
+
+REOPEN_AFTER = 3  # consecutive failures ...
+REOPEN_AFTER_S = 0.2  # ... over at least this long, nothing received between: re-open
+GIVE_UP_S = 3.0  # failing this long, re-opens included: the bus is gone
+BACKOFF_MIN_S, BACKOFF_MAX_S = 0.1, 1.0  # between re-open attempts
+PAUSE_AFTER = 8  # a plain bus: consecutive failures before the loop pauses between tries
+PAUSE_MIN_S, PAUSE_MAX_S = 0.001, 0.5
+
+
+class BusGoneError(can.CanOperationError):
+    """The bus failed and could not be opened again: receiving has ended for good."""
+
+
+@dataclass
+class ReceiveStats:
+    """What receiving from one bus has survived."""
+
+    errors: int = 0  # exceptions from recv, survived
+    listener_errors: int = 0  # exceptions from a listener, survived
+    reopens: int = 0  # the bus shut down and opened again
+    failed_opens: int = 0  # attempts to open it again that failed
+    last_error: str | None = None
+    failing_since: float | None = None  # time.time() of the first failure of a spell
+    gone: str | None = None  # why receiving ended for good
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def describe(err: BaseException) -> str:
+    """``Type: message``, with the cause python-can wraps (``could not unpack ...``)."""
+    text = f"{type(err).__name__}: {err}"
+    cause = err.__cause__ or err.__context__
+    if cause is not None and str(cause) and str(cause) not in text:
+        text += f" ({type(cause).__name__}: {cause})"
+    return text
+
+
+class ResilientBus(can.BusABC):
+    """The bus ``opener()`` returns (or ``bus``, opened already), re-opened by ``opener``
+    when it keeps failing; see the module docstring.
+
+    Everything but ``recv``, ``send`` and ``shutdown`` goes to the bus in use
+    (:attr:`wrapped`): ``fileno``, ``state``, a timed bus's ``wire_stats`` ... Filters set
+    on this bus are set again on a re-opened one.
+    """
+
+    def __init__(self, opener: Callable[[], can.BusABC], *, name: str = "bus",
+                 bus: can.BusABC | None = None, give_up_s: float = GIVE_UP_S,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self._ready = False
+        self._opener = opener
+        self._bus: can.BusABC | None = bus if bus is not None else opener()
+        self.name = name
+        self.give_up_s = give_up_s
+        self.clock = clock
+        self.stats = ReceiveStats()
+        self.gone = threading.Event()
+        self.on_reopen: list[Callable[[ResilientBus], None]] = []
+        self.channel_info = self._bus.channel_info
+        self._can_protocol = self._bus.protocol
+        self._spell: float | None = None  # clock() of the first failure since a success
+        self._failures = 0  # in the spell
+        self._reopened = False  # in the spell
+        self._retry_at = 0.0
+        self._backoff = BACKOFF_MIN_S
+        self._closed = threading.Event()
+        self._log = RateLimitedLog(logger)
+        self._own_filters = False  # filters were set on this bus: set them on a new one
+        super().__init__(channel=getattr(self._bus, "channel", None) or name)
+        self._ready = True
+
+    @property
+    def wrapped(self) -> can.BusABC | None:
+        """The bus in use (None while it is being opened again)."""
+        return self._bus
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        bus = self.__dict__.get("_bus")
+        if bus is None:
+            raise AttributeError(name)
+        return getattr(bus, name)
+
+    # -- python-can ------------------------------------------------------------------
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """The next frame, or None (time-out, or a failure survived); raises only
+        :class:`BusGoneError`."""
+        if self.gone.is_set():
+            raise BusGoneError(f"bus {self.name}: {self.stats.gone}")
+        bus = self._bus
+        if bus is None:
+            self._reopen(timeout)
+            return None
+        try:
+            msg = bus.recv(timeout)
+        except Exception as err:  # whatever a driver raises: counted and survived
+            self._failed(err, timeout)
+            return None
+        if self._spell is not None:
+            self._recovered()
+        return msg
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        return self.recv(timeout), True
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        bus = self._bus
+        if bus is None:
+            reason = self.stats.gone or "being opened again"
+            raise can.CanOperationError(f"bus {self.name}: {reason}")
+        bus.send(msg, timeout)
+
+    def set_filters(self, filters: Any = None) -> None:
+        self._filters = filters or None
+        if self._ready:
+            self._own_filters = True
+            if self._bus is not None:
+                self._bus.set_filters(filters)
+
+    def fileno(self) -> int:
+        if self._bus is None:
+            raise NotImplementedError("the bus is being opened again")
+        return self._bus.fileno()
+
+    def flush_tx_buffer(self) -> None:
+        if self._bus is not None:
+            self._bus.flush_tx_buffer()
+
+    @property
+    def state(self) -> can.BusState:
+        return can.BusState.ERROR if self._bus is None else self._bus.state
+
+    @state.setter
+    def state(self, new_state: can.BusState) -> None:
+        if self._bus is not None:
+            self._bus.state = new_state
+
+    def shutdown(self) -> None:
+        self._closed.set()
+        super().shutdown()
+        bus, self._bus = self._bus, None
+        if bus is not None:
+            bus.shutdown()
+
+    # -- failures --------------------------------------------------------------------
+
+    def _failed(self, err: Exception, timeout: float | None) -> None:
+        now = self.clock()
+        stats = self.stats
+        stats.errors += 1
+        stats.last_error = describe(err)
+        if self._spell is None:
+            self._spell, self._failures = now, 0
+            stats.failing_since = time.time()
+        self._failures += 1
+        self._log.log(logging.WARNING, "recv", "bus %s: receiving failed (%s); going on",
+                      self.name, stats.last_error)
+        if self._closed.is_set():
+            return
+        if now - self._spell >= self.give_up_s and self._reopened:
+            self._give_up(f"failing for {now - self._spell:.1f} s after {stats.reopens} "
+                          f"re-open(s): {stats.last_error}")
+        if self._failures >= REOPEN_AFTER and now - self._spell >= REOPEN_AFTER_S:
+            if not self._reopened or now >= self._retry_at:
+                self._close_failing()
+                self._reopen(timeout)
+                return
+            self._closed.wait(_bounded(self._retry_at - now, timeout))
+
+    def _close_failing(self) -> None:
+        bus, self._bus = self._bus, None
+        if bus is not None:
+            with contextlib.suppress(Exception):
+                bus.shutdown()
+        self._reopened = True
+
+    def _reopen(self, timeout: float | None) -> None:
+        now = self.clock()
+        if now < self._retry_at:
+            self._closed.wait(_bounded(self._retry_at - now, timeout))
+            return
+        if self._closed.is_set():
+            return
+        stats = self.stats
+        try:
+            bus = self._opener()
+        except Exception as err:
+            stats.failed_opens += 1
+            stats.last_error = describe(err)
+            self._schedule_retry(now)
+            self._log.log(logging.WARNING, "open", "bus %s: cannot open it again (%s); next "
+                          "try in %.1f s", self.name, stats.last_error, self._retry_at - now)
+            if self._spell is not None and now - self._spell >= self.give_up_s:
+                self._give_up(f"cannot open it again for {now - self._spell:.1f} s: "
+                              f"{stats.last_error}")
+            return
+        if self._own_filters:
+            bus.set_filters(self._filters)
+        self._bus = bus
+        stats.reopens += 1
+        self._schedule_retry(now)
+        logger.warning("bus %s: opened again after %d receive error(s)", self.name,
+                       stats.errors)
+        refresh_receive_filter(self)  # udp_multicast: the kernel filter of own frames
+        for hook in list(self.on_reopen):
+            try:
+                hook(self)
+            except Exception:
+                logger.exception("bus %s: a re-open hook failed", self.name)
+
+    def _schedule_retry(self, now: float) -> None:
+        self._retry_at = now + self._backoff
+        self._backoff = min(2 * self._backoff, BACKOFF_MAX_S)
+
+    def _recovered(self) -> None:
+        assert self._spell is not None
+        logger.info("bus %s: receiving again (%d error(s) over %.2f s)", self.name,
+                    self._failures, self.clock() - self._spell)
+        self._spell, self._failures, self._reopened = None, 0, False
+        self._backoff = BACKOFF_MIN_S
+        self.stats.failing_since = None
+
+    def _give_up(self, reason: str) -> None:
+        self.stats.gone = reason
+        self._close_failing()
+        self.gone.set()
+        logger.error("bus %s: gone (%s)", self.name, reason)
+        raise BusGoneError(f"bus {self.name}: {reason}")
+
+
+def _bounded(wait_s: float, timeout: float | None) -> float:
+    return max(0.0, wait_s if timeout is None else min(wait_s, timeout))
+
+
+class ReceiveLoop(can.Notifier):
+    """A ``can.Notifier`` that survives its bus and its listeners (module docstring).
+
+    ``on_gone(err)`` is called, on the loop's thread, when the bus is gone for good
+    (a :class:`ResilientBus` that could not be opened again); :attr:`exception` is then
+    set, as python-can's sets it when its thread dies.
+    """
+
+    def __init__(self, bus: can.BusABC, listeners: Iterable[Any], timeout: float = 1.0, *,
+                 name: str | None = None,
+                 on_gone: Callable[[BaseException], None] | None = None) -> None:
+        self.name = name or str(getattr(bus, "channel_info", "bus"))
+        self.on_gone = on_gone
+        self.stats = ReceiveStats()
+        self._halt = threading.Event()
+        self._log = RateLimitedLog(logger)
+        super().__init__(bus, listeners, timeout)
+
+    def report(self) -> dict[str, Any]:
+        """The loop's counters, with a :class:`ResilientBus`'s own added in."""
+        out = self.stats.as_dict()
+        for bus in self._bus_list:
+            if isinstance(bus, ResilientBus):
+                mine = bus.stats
+                out.update(errors=out["errors"] + mine.errors, reopens=mine.reopens,
+                           failed_opens=mine.failed_opens,
+                           last_error=mine.last_error or out["last_error"],
+                           failing_since=mine.failing_since or out["failing_since"],
+                           gone=mine.gone or out["gone"])
+        return out
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self._halt.set()
+        super().stop(timeout)
+
+    def _rx_thread(self, bus: can.BusABC) -> None:
+        recv, timeout, lock = bus.recv, self.timeout, self._lock
+        failures = 0
+        while not self._stopped:
+            try:
+                msg = recv(timeout)
+            except BusGoneError as err:
+                self._gone(err)
+                return
+            except Exception as err:  # whatever a driver raises: counted and survived
+                failures += 1
+                self._recv_failed(err, failures)
+                continue
+            if failures:
+                self._log.log(logging.INFO, "back", "bus %s: receiving again after %d "
+                              "error(s)", self.name, failures)
+                failures = 0
+                self.stats.failing_since = None
+            if msg is None:
+                continue
+            with lock:
+                for listener in self.listeners:
+                    try:
+                        listener(msg)
+                    except Exception as err:
+                        self._listener_failed(listener, err)
+
+    def _recv_failed(self, err: Exception, failures: int) -> None:
+        stats = self.stats
+        stats.errors += 1
+        stats.last_error = describe(err)
+        if failures == 1:
+            stats.failing_since = time.time()
+        self._log.log(logging.WARNING, "recv", "bus %s: receiving failed (%s); going on",
+                      self.name, stats.last_error)
+        if failures >= PAUSE_AFTER:  # a bus that fails at once must not spin a core
+            self._halt.wait(min(PAUSE_MIN_S * 2 ** (failures - PAUSE_AFTER), PAUSE_MAX_S))
+
+    def _listener_failed(self, listener: Any, err: Exception) -> None:
+        self.stats.listener_errors += 1
+        self.stats.last_error = describe(err)
+        self._log.log(logging.ERROR, ("listener", id(listener)), "bus %s: listener %r "
+                      "failed on a frame (%s); the others still got it", self.name,
+                      listener, self.stats.last_error)
+
+    def _gone(self, err: BusGoneError) -> None:
+        self.exception = err
+        self.stats.gone = str(err)
+        if self.on_gone is not None:
+            try:
+                self.on_gone(err)
+            except Exception:
+                logger.exception("bus %s: on_gone failed", self.name)
+
+
+def connect(network: canopen.Network, *, name: str | None = None,
+            on_gone: Callable[[BaseException], None] | None = None) -> canopen.Network:
+    """``network.connect()`` on the bus it was built with, but with a :class:`ReceiveLoop`
+    for its notifier (canopen's own dies with its bus)."""
+    if network.bus is None:
+        raise ValueError("the network has no bus: canopen.Network(bus) first")
+    network.notifier = ReceiveLoop(network.bus, network.listeners, network.NOTIFIER_CYCLE,
+                                   name=name, on_gone=on_gone)
+    return network
+
