@@ -77,7 +77,8 @@ def describe(err: BaseException) -> str:
 
 class ResilientBus(can.BusABC):
     """The bus ``opener()`` returns (or ``bus``, opened already), re-opened by ``opener``
-    when it keeps failing; see the module docstring.
+    when it keeps failing; see the module docstring. ``prepare(bus)`` runs on each bus
+    ``opener`` opens (a socket's receive buffer, ...).
 
     Everything but ``recv``, ``send`` and ``shutdown`` goes to the bus in use
     (:attr:`wrapped`): ``fileno``, ``state``, a timed bus's ``wire_stats`` ... Filters set
@@ -86,10 +87,12 @@ class ResilientBus(can.BusABC):
 
     def __init__(self, opener: Callable[[], can.BusABC], *, name: str = "bus",
                  bus: can.BusABC | None = None, give_up_s: float = GIVE_UP_S,
+                 prepare: Callable[[can.BusABC], object] | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self._ready = False
         self._opener = opener
-        self._bus: can.BusABC | None = bus if bus is not None else opener()
+        self._prepare = prepare
+        self._bus: can.BusABC | None = bus if bus is not None else self._open()
         self.name = name
         self.give_up_s = give_up_s
         self.clock = clock
@@ -108,6 +111,12 @@ class ResilientBus(can.BusABC):
         self._own_filters = False  # filters were set on this bus: set them on a new one
         super().__init__(channel=getattr(self._bus, "channel", None) or name)
         self._ready = True
+
+    def _open(self) -> can.BusABC:
+        bus = self._opener()
+        if self._prepare is not None:
+            self._prepare(bus)
+        return bus
 
     @property
     def wrapped(self) -> can.BusABC | None:
@@ -225,7 +234,7 @@ class ResilientBus(can.BusABC):
             return
         stats = self.stats
         try:
-            bus = self._opener()
+            bus = self._open()
         except Exception as err:
             stats.failed_opens += 1
             stats.last_error = describe(err)
@@ -305,6 +314,12 @@ class ReceiveLoop(can.Notifier):
                            gone=mine.gone or out["gone"])
         return out
 
+    def add_bus(self, bus: can.BusABC) -> None:
+        super().add_bus(bus)
+        reader = self._readers[-1]
+        if isinstance(reader, threading.Thread):  # named as python-can names its own
+            reader.name = f'Notifier for bus "{bus.channel_info}"'
+
     def stop(self, timeout: float = 5.0) -> None:
         self._halt.set()
         super().stop(timeout)
@@ -362,6 +377,15 @@ class ReceiveLoop(can.Notifier):
                 self.on_gone(err)
             except Exception:
                 logger.exception("bus %s: on_gone failed", self.name)
+
+
+def gone(buses: Iterable[object]) -> str | None:
+    """Why one of ``buses`` (a :class:`ResilientBus`) is gone for good; None while every
+    one is heard. Others are never gone here (a :class:`ReceiveLoop` says for them)."""
+    for bus in buses:
+        if isinstance(bus, ResilientBus) and bus.gone.is_set():
+            return f"bus {bus.name}: gone ({bus.stats.gone})"
+    return None
 
 
 def connect(network: canopen.Network, *, name: str | None = None,

@@ -156,11 +156,27 @@ def with_flags(bus: BusConfig, flags: Mapping[str, Any]) -> BusConfig:
     return merged
 
 
+BUS_WAYS = ("give one on the command line (-i IFACE -c CHANNEL, e.g. -i socketcan -c can0), "
+            "in the config's [bus] table (interface = ..., channel = ...), or in python-can's "
+            "configuration (~/.canrc, $CAN_INTERFACE)")
+"""The three ways to name a bus, for the one line that says none was given."""
+
+
+def configured_interface() -> str | None:
+    """The interface python-can's own configuration names (a config file, the
+    environment), or None: a missing or broken one is no interface, never a traceback
+    (``can.util.load_config()`` raises when it names none)."""
+    try:
+        interface = can.util.load_config().get("interface")
+    except Exception:  # CanInterfaceNotImplementedError('Unknown interface type "None"'), ...
+        return None
+    return str(interface) if interface else None
+
+
 def open_bus(bus: BusConfig) -> can.BusABC:
     """Open ``bus`` with python-can; a :class:`~skin.errors.BusError` naming it if that fails."""
-    if bus.interface is None and not can.util.load_config().get("interface"):
-        raise BusError(f"bus {bus.name!r}: no interface: give one (-i IFACE, or interface = "
-                       "... in the config's bus table, or python-can's configuration)")
+    if bus.interface is None and configured_interface() is None:
+        raise BusError(f"bus {bus.name!r} has no interface: {BUS_WAYS}")
     what = f"the bus {bus.described}" if bus.name == DEFAULT_BUS else \
         f"bus {bus.name!r} ({bus.described})"
     try:

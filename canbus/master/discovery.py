@@ -12,6 +12,7 @@ nothing here may run on that thread: callbacks only record, a worker identifies.
 
 from __future__ import annotations
 
+import logging
 import queue
 import struct
 import threading
@@ -23,6 +24,8 @@ import canopen
 from canopen.sdo.client import SdoClient
 from canopen.sdo.constants import RESPONSE_ABORTED
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+logger = logging.getLogger(__name__)
 
 PATCH_PRODUCT = 1
 FORCE_PRODUCT = 2
@@ -55,6 +58,12 @@ class UnknownNode:
     node_id: int
     identity: Identity | None  # None: it did not answer SDO
     reason: str
+
+
+def log_unknown(unknown: UnknownNode) -> None:
+    """The one log line of a node the host does not manage."""
+    logger.warning("node %d: %s; left alone", unknown.node_id, unknown.reason,
+                   extra={"unknown_node": unknown})
 
 
 class HaltableSdoClient(SdoClient):

@@ -55,7 +55,7 @@ from canbus.master.baseline import PatchLoadedError
 from canbus.master.buslink import BusLink
 from canbus.master.dataplane import DataPlane, ForceFrame
 from canbus.master.decoders import DecoderCache
-from canbus.master.discovery import UnknownNode, haltable_sdo
+from canbus.master.discovery import UnknownNode, haltable_sdo, log_unknown
 from canbus.master.emcy import BoundedEmcyConsumer
 from canbus.master.fanout import FrameCallback, FrameFanout
 from canbus.master.follower import ListenOnly
@@ -371,7 +371,7 @@ class HostManager:
 
     def report_unknown(self, unknown: UnknownNode) -> None:
         self.unknown_nodes[unknown.node_id] = unknown
-        logger.warning("node %d: %s; left alone", unknown.node_id, unknown.reason)
+        log_unknown(unknown)
         if self.on_unknown is not None:
             try:
                 self.on_unknown(unknown)

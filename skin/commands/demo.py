@@ -125,9 +125,12 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
+    from functools import partial
+
     import canopen
     import numpy as np
 
+    from canbus.busio import ResilientBus, connect
     from canbus.busload import spread
     from canbus.device.patch_server import PatchServer
     from canbus.master.busconfig import BusConfig
@@ -164,10 +167,13 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     try:
         for name, group in zip(names, groups, strict=True):
             channel = f"demo-{os.getpid()}-{name}"
-            host_bus = _open(args.bus, channel, args)  # first: the patches' frames need it
-            patch_net = canopen.Network(_open(args.bus, channel, args))
+            # Each opened again when it keeps failing (canbus.busio); the host's first: the
+            # patches' frames need it.
+            host_bus = ResilientBus(partial(_open, args.bus, channel, args), name=name)
+            patch_net = canopen.Network(ResilientBus(partial(_open, args.bus, channel, args),
+                                                     name=f"{name} (patches)"))
             patch_net.NOTIFIER_CYCLE = 0.05
-            patch_net.connect()
+            connect(patch_net)
             last = {(predefined_tpdo_cob_ids(n + 64)[0 if args.fd else -1]): n for n in group}
             clock = BusClock(last, args.bitrate if timed else None,
                              args.data_bitrate if timed and args.fd else None)
@@ -226,6 +232,9 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
 
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
+    gone = host.bus_gone()
+    if gone is not None:
+        raise BusError(f"{gone}: the host cannot hear its patches")
     return 0
 
 
@@ -278,12 +287,13 @@ def _watch(host: HostManager, live: Record, seconds: float, scene: Scene) -> Non
             return f"{time.monotonic() - started:4.1f} / {seconds:g} s"
 
         with LiveThread(view, refresh_hz=1 / REFRESH_S, label=label):
-            stop.wait(seconds)
+            while time.monotonic() - started < seconds and host.bus_gone() is None:
+                stop.wait(min(REFRESH_S, seconds - (time.monotonic() - started)))
         host.remove_callback(view.update)
         return
     next_line = 1.0
-    while (elapsed := time.monotonic() - started) < seconds:
-        stop.wait(min(next_line, seconds) - elapsed)
+    while (elapsed := time.monotonic() - started) < seconds and host.bus_gone() is None:
+        stop.wait(min(next_line, seconds, elapsed + REFRESH_S) - elapsed)
         elapsed = time.monotonic() - started
         if elapsed >= next_line:
             print(_line(host, live, elapsed), flush=True)

@@ -5,8 +5,14 @@ with one line naming the field. The buses are the config's (``[bus]``, or severa
 ``[[buses]]``); python-can's bus flags (``-i``, ``-c``, ``-b``, ``--fd`` ...) go over the
 one bus of a config (:mod:`skin.commands.hostbus`); with no bus anywhere, one line says so.
 While running, every change of a patch's state and every unknown node is printed on a
-line, and ``--status-every S`` prints a health line every S seconds; Ctrl-C, SIGTERM or
-SIGHUP (or ``--seconds``) stops the host and prints a summary.
+line (the host's own log record of it, printed once, on stdout), and ``--status-every S``
+prints a health line every S seconds; Ctrl-C, SIGTERM or SIGHUP (or ``--seconds``) stops
+the host, whatever it is doing (a scan, a set-up, an SDO transfer), and prints a summary.
+
+Each bus is a ``canbus.busio.ResilientBus``: what its ``recv`` raises is survived, a bus
+that keeps failing is opened again; one that cannot be had back ends the run with exit
+status 1 and one line (the summary and ``--json`` first), so that a service manager
+restarts it.
 
 ``--listen-only`` (or ``host.listen_only = true``): decode what another master runs, or a
 recording ``skin replay`` sends, and transmit nothing. ``--cpu 3`` runs every thread of
@@ -29,32 +35,24 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     import can
 
-    from canbus.master.discovery import UnknownNode
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig
 
 POLL_S = 0.1
+SHOWN_ON_STDOUT = ("canbus.master.patchstate", "canbus.master.discovery")
+"""The host's loggers of patch states and unknown nodes: their lines go to stdout, once."""
 
 
-def _report_unknown(node: UnknownNode) -> None:
-    print(f"node {node.node_id}: {node.reason}; left alone", flush=True)
-
-
-def _follow(host: HostManager, seconds: float | None, status_every: float | None) -> None:
-    """Print each patch's state when it changes, and a status line every ``status_every``
-    seconds, until ``seconds`` or Ctrl-C."""
-    started = time.monotonic()
-    deadline = None if seconds is None else started + seconds
-    shown: dict[int, str] = {}
+def _follow(host: HostManager, deadline: float | None, status_every: float | None) -> None:
+    """Print a status line every ``status_every`` seconds until ``deadline``, Ctrl-C, or a
+    bus that is gone for good."""
     tick = threading.Event()
     status = _Status(host)
+    started = time.monotonic()
     next_status = None if status_every is None else started + status_every
     while deadline is None or time.monotonic() < deadline:
-        for node_id, health in sorted(host.health().items()):
-            if shown.get(node_id) != health.state:
-                shown[node_id] = health.state
-                detail = f" ({health.error})" if health.error else ""
-                print(f"patch {node_id}: {health.state}{detail}", flush=True)
+        if host.bus_gone() is not None:
+            return
         now = time.monotonic()
         if next_status is not None and status_every is not None and now >= next_status:
             print(status.line(), flush=True)
@@ -117,23 +115,19 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     from contextlib import ExitStack
 
     from canbus.master.host import HostManager
-    from canbus.tools.recorder import enlarge_receive_buffer
     from skin.atomic import atomic_write
     from skin.commands.hostbus import describe, open_all
     from skin.commands.signals import until_stopped
 
     started = time.monotonic()
     with ExitStack() as stack:
-        buses = open_all(config, stack)
-        if args.rcvbuf:
-            for bus in buses.values():
-                enlarge_receive_buffer(bus, args.rcvbuf)
-        host = HostManager(buses, config, on_unknown=_report_unknown,
-                           listen_only=True if args.listen_only else None)
+        buses = open_all(config, stack, rcvbuf=args.rcvbuf)
+        host = HostManager(buses, config, listen_only=True if args.listen_only else None)
         gc.collect()  # the object dictionaries are long-lived: keep the collector off them
         gc.freeze()
         stack.callback(gc.unfreeze)
         stack.enter_context(_host_events_shown())
+        stack.enter_context(_lines_on_stdout())
         n = len(config.patches)
         patches = f"{n} patch{'es' if n > 1 else ''} on {describe(config)}"
         # A stop (Ctrl-C, SIGTERM, SIGHUP) from the line that says how to stop on ends the
@@ -146,14 +140,23 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
                 forces = ", ".join(f"{p.node_id}->{p.force_node}" for p in config.patches)
                 print(f"host: {patches}, SYNC {sync_text(config)}, forces published as "
                       f"nodes {forces}; Ctrl-C stops", flush=True)
-            with host:
+            # --seconds S: S seconds once started; a start still going then (a long scan,
+            # set-ups waiting out SDO time-outs) is cut short at S.
+            with _stops_at(args.seconds, host):
+                host.start()
+            try:
                 _hint_if_nobody_answered(host, config)
-                _follow(host, args.seconds, args.status_every)
+                if host.running:
+                    _follow(host, None if args.seconds is None else
+                            time.monotonic() + args.seconds, args.status_every)
+            finally:
+                host.stop()
         if stopped.signal is not None:
             print(f"stopped by {stopped.signal}", flush=True)
         stats = host.stats()
         health = host.health()
         buses_stats = host.bus_stats()
+        gone = host.bus_gone()
     elapsed = time.monotonic() - started
     verb = "decoded" if host.listen_only else "published"
     print(f"{verb} {stats['samples']} samples ({stats['complete_samples']} complete, "
@@ -167,9 +170,14 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
             "buses": buses_stats,
             "patches": {str(n): dataclasses.asdict(h) for n, h in health.items()},
             "unknown_nodes": sorted(host.unknown_nodes),
+            "bus_gone": gone,
         }
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
+    if gone is not None:
+        from skin.errors import BusError
+
+        raise BusError(f"{gone}: the host cannot hear its patches")
     return 0
 
 
@@ -193,9 +201,58 @@ def _host_events_shown() -> Iterator[None]:
         host.setLevel(before)
 
 
+@contextlib.contextmanager
+def _lines_on_stdout() -> Iterator[None]:
+    """The host's lines of patch states and unknown nodes (:data:`SHOWN_ON_STDOUT`) on
+    stdout as ``patch 1: operational``: the log record is the one path, not also a line
+    on stderr."""
+    handler = _StdoutHandler()
+    saved = []
+    for name in SHOWN_ON_STDOUT:
+        logger = logging.getLogger(name)
+        saved.append((logger, logger.level, logger.propagate))
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+        logger.propagate = False
+    try:
+        yield
+    finally:
+        for logger, level, propagate in saved:
+            logger.removeHandler(handler)
+            logger.setLevel(level)
+            logger.propagate = propagate
+
+
+class _StdoutHandler(logging.Handler):
+    """The record's message alone, on whatever ``sys.stdout`` is at the time."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        import sys
+
+        try:
+            print(record.getMessage(), file=sys.stdout, flush=True)
+        except Exception:
+            self.handleError(record)
+
+
+@contextlib.contextmanager
+def _stops_at(seconds: float | None, host: HostManager) -> Iterator[None]:
+    """Stop the host in ``seconds`` if the block (its start) still runs then."""
+    timer = None
+    if seconds is not None:
+        timer = threading.Timer(max(0.0, seconds), host.stop)
+        timer.daemon = True
+        timer.start()
+    try:
+        yield
+    finally:
+        if timer is not None:
+            timer.cancel()
+
+
 def _hint_if_nobody_answered(host: HostManager, config: HostConfig) -> None:
     """One line when no configured patch answered the scan: the bus, and what to check."""
-    if host.listen_only or not config.scan:
+    if host.listen_only or not config.scan or not host.running:
         return
     if all(h.state == "absent" for h in host.health().values()):
         from skin.commands.hostbus import describe
@@ -217,7 +274,9 @@ def add_subparser(subparsers: Any) -> None:
                              "$SKIN_HOST_CONFIG, ./host.toml, ~/.config/canskin/host.toml, "
                              "/etc/canskin/host.toml")
     parser.add_argument("--seconds", type=float, default=None, metavar="S",
-                        help="stop after S seconds (default: run until Ctrl-C)")
+                        help="run S seconds once started; a start still going at S (a "
+                             "long scan, set-ups waiting on SDO) is cut short there "
+                             "(default: run until Ctrl-C)")
     parser.add_argument("--listen-only", action="store_true",
                         help="decode what another master runs (or `skin replay` sends) and "
                              "transmit nothing: no scan, SDO, NMT, SYNC or force node "

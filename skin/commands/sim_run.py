@@ -40,6 +40,7 @@ if TYPE_CHECKING:
     from sim import Scene
 
 _NOTIFIER_CYCLE_S = 0.05
+_POLL_S = 0.1  # how often a run looks at its buses
 SPACING_M = 0.05
 UDP_DEFAULT_PORT = 43113  # python-can's udp_multicast default
 AHEAD_S = 0.1
@@ -141,9 +142,12 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_pinned(args: argparse.Namespace) -> int:
+    from functools import partial
+
     import can.cli
     import canopen
 
+    from canbus.busio import ResilientBus, connect
     from skin.commands.busargs import default_channel
     from skin.errors import ConfigError
 
@@ -159,12 +163,13 @@ def _run_pinned(args: argparse.Namespace) -> int:
     flags = bus_namespaces(args, args.buses)
     networks: list[canopen.Network] = []
     try:
-        for each in flags:
-            network = canopen.Network(can.cli.create_bus_from_namespace(each))
+        for each in flags:  # opened again when they keep failing (canbus.busio)
+            network = canopen.Network(ResilientBus(
+                partial(can.cli.create_bus_from_namespace, each), name=_describe(each)))
             # canopen's notifier blocks in recv() for up to NOTIFIER_CYCLE (1 s by default)
             # and disconnect() joins it: a short cycle makes --seconds S end after ~S.
             network.NOTIFIER_CYCLE = _NOTIFIER_CYCLE_S
-            network.connect()  # starts canopen's notifier on the bus it was given
+            connect(network)  # canopen's listeners on a notifier that survives the bus
             networks.append(network)
         return _serve(args, scene, networks, flags, planned)
     finally:
@@ -174,12 +179,14 @@ def _run_pinned(args: argparse.Namespace) -> int:
 
 def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Network],
            flags: list[argparse.Namespace], planned: Plan) -> int:
+    from canbus.busio import gone
     from canbus.device.patch_server import PatchServer
     from canbus.device.source import SimulatorSource
     from canbus.device.truth import TruthSource, truth_log
     from sim import Simulator
     from skin.atomic import atomic_write
     from skin.commands.signals import until_stopped
+    from skin.errors import BusError
 
     simulator = Simulator(scene, seed=args.seed)
     truth = TruthSource(simulator) if args.truth else None
@@ -199,7 +206,11 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
                       else contextlib.nullcontext()) as log, until_stopped() as stopped:
             started, cpu0 = time.monotonic(), os.times()
             _announce(scene, server, flags)
-            stop.wait(args.seconds)
+            deadline = None if args.seconds is None else started + args.seconds
+            while (deadline is None or time.monotonic() < deadline) and \
+                    gone(n.bus for n in networks) is None:
+                stop.wait(_POLL_S if deadline is None else
+                          max(0.0, min(_POLL_S, deadline - time.monotonic())))
     finally:
         gc.unfreeze()
     elapsed, cpu1 = time.monotonic() - started, os.times()
@@ -227,11 +238,14 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
                             for bus, each in zip(server.buses, flags, strict=True)],
                   "plan": {"fits": planned.fits, "over_target": planned.over_target,
                            "load_pct": [planned.load_best_pct, planned.load_worst_pct]},
-                  "stopped_by": stopped.signal}
+                  "stopped_by": stopped.signal, "bus_gone": gone(n.bus for n in networks)}
         if log is not None:
             record.update(truth_samples=log.writer.samples, truth_late=log.late)
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
+    lost = gone(n.bus for n in networks)
+    if lost is not None:
+        raise BusError(f"{lost}: the patches cannot be heard")
     return 0
 
 

@@ -170,8 +170,12 @@ def moment_view(path: str, t: float, layout: Layout, scale_N: float, *,
 
 
 def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) -> int:
+    from functools import partial
+
     import can.cli
 
+    from canbus.busio import ResilientBus
+    from canbus.tools.recorder import enlarge_receive_buffer
     from skin.commands.busargs import default_channel
     from skin.commands.view_sources import BusDecode, BusForces, force_specs
     from skin.errors import BusError
@@ -180,16 +184,15 @@ def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) ->
     seconds = args.seconds
     if seconds is None and args.snapshot:
         seconds = SNAPSHOT_SECONDS
-    try:
-        bus = can.cli.create_bus_from_namespace(args)
+    try:  # opened again when it keeps failing (canbus.busio)
+        bus = ResilientBus(partial(can.cli.create_bus_from_namespace, args),
+                           name=f"{args.interface}:{args.channel}",
+                           prepare=partial(enlarge_receive_buffer, size=args.rcvbuf)
+                           if args.rcvbuf else None)
     except argparse.ArgumentError as err:  # how python-can reports a bus it cannot open
         cause = err.__cause__ or err
         raise BusError(f"cannot open the bus: {type(cause).__name__}: {cause}") from err
     with bus:
-        if args.rcvbuf:
-            from canbus.tools.recorder import enlarge_receive_buffer
-
-            enlarge_receive_buffer(bus, args.rcvbuf)
         source: BusForces | BusDecode = BusDecode(bus, config) if args.decode and config \
             else BusForces(bus, force_specs(config))
         where = f"{args.interface}:{args.channel}"
