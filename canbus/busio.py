@@ -26,11 +26,12 @@ import contextlib
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import can
+import can.broadcastmanager
 import canopen
 
 from canbus.ratelog import RateLimitedLog
@@ -58,6 +59,7 @@ class ReceiveStats:
     listener_errors: int = 0  # exceptions from a listener, survived
     reopens: int = 0  # the bus shut down and opened again
     failed_opens: int = 0  # attempts to open it again that failed
+    periodic_send_errors: int = 0  # a heartbeat's send failed (the task went on)
     last_error: str | None = None
     failing_since: float | None = None  # time.time() of the first failure of a spell
     gone: str | None = None  # why receiving ended for good
@@ -160,6 +162,19 @@ class ResilientBus(can.BusABC):
             reason = self.stats.gone or "being opened again"
             raise can.CanOperationError(f"bus {self.name}: {reason}")
         bus.send(msg, timeout)
+
+    def _send_periodic_internal(
+            self, msgs: Sequence[can.Message] | can.Message, period: float,
+            duration: float | None = None, autostart: bool = True,
+            modifier_callback: Callable[[can.Message], None] | None = None,
+    ) -> can.broadcastmanager.CyclicSendTaskABC:
+        """python-can's thread-based task, sending through :class:`_PeriodicSender`: a
+        heartbeat producer's thread must not end when one send fails (python-can's ends
+        for good), nor log a traceback each period while the bus is opened again."""
+        lock = self.__dict__.setdefault("_lock_send_periodic", threading.Lock())
+        return can.broadcastmanager.ThreadBasedCyclicSendTask(
+            bus=_PeriodicSender(self), lock=lock, messages=msgs, period=period,  # type: ignore[arg-type]
+            duration=duration, autostart=autostart, modifier_callback=modifier_callback)
 
     def set_filters(self, filters: Any = None) -> None:
         self._filters = filters or None
@@ -279,6 +294,24 @@ class ResilientBus(can.BusABC):
         raise BusGoneError(f"bus {self.name}: {reason}")
 
 
+class _PeriodicSender:
+    """What a periodic task sends through: the bus's ``send``, its failures counted and
+    logged (rate-limited) instead of raised."""
+
+    def __init__(self, bus: ResilientBus) -> None:
+        self.bus = bus
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        bus = self.bus
+        try:
+            bus.send(msg, timeout)
+        except Exception as err:
+            bus.stats.periodic_send_errors += 1
+            bus._log.log(logging.WARNING, ("periodic", msg.arbitration_id),
+                         "bus %s: periodic frame 0x%03X not sent (%s); the next goes on time",
+                         bus.name, msg.arbitration_id, describe(err))
+
+
 def _bounded(wait_s: float, timeout: float | None) -> float:
     return max(0.0, wait_s if timeout is None else min(wait_s, timeout))
 
@@ -306,12 +339,12 @@ class ReceiveLoop(can.Notifier):
         out = self.stats.as_dict()
         for bus in self._bus_list:
             if isinstance(bus, ResilientBus):
-                mine = bus.stats
-                out.update(errors=out["errors"] + mine.errors, reopens=mine.reopens,
-                           failed_opens=mine.failed_opens,
-                           last_error=mine.last_error or out["last_error"],
-                           failing_since=mine.failing_since or out["failing_since"],
-                           gone=mine.gone or out["gone"])
+                mine = bus.stats.as_dict()
+                for key, value in mine.items():
+                    if isinstance(value, int) and isinstance(out.get(key), int):
+                        out[key] += value
+                    elif value is not None:
+                        out[key] = value
         return out
 
     def add_bus(self, bus: can.BusABC) -> None:

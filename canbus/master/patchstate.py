@@ -22,7 +22,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 from canbus.master.patch_setup import PatchSetup
@@ -213,6 +213,12 @@ class PatchStates:
             p = self._patches[node_id]
             return PatchView(p.state, p.reason, p.facts.setup, p.setup_failures, p.changes,
                              tuple(p.history))
+
+    def facts(self, node_id: int) -> Facts:
+        """A copy of the patch's facts as they are now (``lost`` read afresh)."""
+        with self.changed:
+            patch = self._patches[node_id]
+            return replace(patch.facts, lost=patch.monitor.lost(node_id))
 
     def needs_setup(self, node_id: int) -> int | None:
         """The incarnation to configure when the active host should (re)configure the
