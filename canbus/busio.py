@@ -139,7 +139,7 @@ class ResilientBus(can.BusABC):
         """The next frame, or None (time-out, or a failure survived); raises only
         :class:`BusGoneError`."""
         if self.gone.is_set():
-            raise BusGoneError(f"bus {self.name}: {self.stats.gone}")
+            raise BusGoneError(f"bus {self.name}: gone ({self.stats.gone})")
         bus = self._bus
         if bus is None:
             self._reopen(timeout)
@@ -219,8 +219,9 @@ class ResilientBus(can.BusABC):
             self._spell, self._failures = now, 0
             stats.failing_since = time.time()
         self._failures += 1
-        self._log.log(logging.WARNING, "recv", "bus %s: receiving failed (%s); going on",
-                      self.name, stats.last_error)
+        if self._failures == 1:  # once a spell: its end says how many there were
+            self._log.log(logging.WARNING, "recv", "bus %s: receiving failed (%s); going on",
+                          self.name, stats.last_error)
         if self._closed.is_set():
             return
         if now - self._spell >= self.give_up_s and self._reopened:
@@ -291,7 +292,7 @@ class ResilientBus(can.BusABC):
         self._close_failing()
         self.gone.set()
         logger.error("bus %s: gone (%s)", self.name, reason)
-        raise BusGoneError(f"bus {self.name}: {reason}")
+        raise BusGoneError(f"bus {self.name}: gone ({reason})")
 
 
 class _PeriodicSender:
@@ -388,10 +389,10 @@ class ReceiveLoop(can.Notifier):
         stats = self.stats
         stats.errors += 1
         stats.last_error = describe(err)
-        if failures == 1:
+        if failures == 1:  # once a spell: its end says how many there were
             stats.failing_since = time.time()
-        self._log.log(logging.WARNING, "recv", "bus %s: receiving failed (%s); going on",
-                      self.name, stats.last_error)
+            self._log.log(logging.WARNING, "recv", "bus %s: receiving failed (%s); going on",
+                          self.name, stats.last_error)
         if failures >= PAUSE_AFTER:  # a bus that fails at once must not spin a core
             self._halt.wait(min(PAUSE_MIN_S * 2 ** (failures - PAUSE_AFTER), PAUSE_MAX_S))
 
@@ -419,6 +420,13 @@ def gone(buses: Iterable[object]) -> str | None:
         if isinstance(bus, ResilientBus) and bus.gone.is_set():
             return f"bus {bus.name}: gone ({bus.stats.gone})"
     return None
+
+
+def disconnect(network: canopen.Network) -> None:
+    """``network.disconnect()``, which raises what ended its notifier (canopen's
+    ``check()``) after it has stopped everything: a bus gone for good is told elsewhere."""
+    with contextlib.suppress(BusGoneError):
+        network.disconnect()
 
 
 def connect(network: canopen.Network, *, name: str | None = None,

@@ -10,6 +10,7 @@ import can
 import canopen
 
 from canbus.master.buslink import BusLink
+from canbus.master.channel import DataPlaneStats
 from canbus.master.hostconfig import HostConfig
 from canbus.master.records import PatchRecord
 from canbus.master.sync_producer import SyncProducer
@@ -22,7 +23,7 @@ def summed_stats(links: Iterable[BusLink], *, api_dropped: int,
                  callback_errors: int) -> dict[str, int]:
     """Data plane counters summed over the buses, SYNC cycles (the most of any bus),
     overruns, and the API's drops and callback errors."""
-    out: dict[str, int] = {}
+    out = {key: 0 for key in DataPlaneStats().snapshot()}  # a host stopped before its start
     cycles = overruns = 0
     for link in links:
         if link.dataplane is not None:

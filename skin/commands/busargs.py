@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import can
 
 DEFAULT_CHANNELS = {"virtual": "skin", "timed": "skin", "udp_multicast": "239.74.163.2"}
 """The channel every command uses when none is given, so that they meet on the same bus
@@ -14,6 +18,20 @@ def default_channel(args: argparse.Namespace) -> None:
     interfaces keep python-can's own default (its configuration, or the driver's)."""
     if not hasattr(args, "channel") and getattr(args, "interface", None) in DEFAULT_CHANNELS:
         args.channel = DEFAULT_CHANNELS[args.interface]
+
+
+def open_from_namespace(args: argparse.Namespace) -> can.BusABC:
+    """python-can's ``create_bus_from_namespace``, a bus it cannot open being a BusError
+    (one line) rather than the ``argparse.ArgumentError`` it raises."""
+    import can.cli
+
+    from skin.errors import BusError
+
+    try:
+        return can.cli.create_bus_from_namespace(args)
+    except argparse.ArgumentError as err:
+        cause = err.__cause__ or err
+        raise BusError(f"cannot open the bus: {type(cause).__name__}: {cause}") from err
 
 
 def add_rcvbuf_argument(parser: argparse.ArgumentParser) -> None:

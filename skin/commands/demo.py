@@ -130,7 +130,7 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     import canopen
     import numpy as np
 
-    from canbus.busio import ResilientBus, connect
+    from canbus.busio import ResilientBus, connect, disconnect
     from canbus.busload import spread
     from canbus.device.patch_server import PatchServer
     from canbus.master.busconfig import BusConfig
@@ -222,7 +222,7 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     finally:
         gc.unfreeze()
         for bus in opened:
-            bus.network.disconnect()
+            disconnect(bus.network)
             bus.host_bus.shutdown()
     record = demo_summary.summary(args, scene, plan, opened, live, stats, seconds, truth,
                                   known, cpus)

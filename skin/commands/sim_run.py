@@ -144,11 +144,10 @@ def _run(args: argparse.Namespace) -> int:
 def _run_pinned(args: argparse.Namespace) -> int:
     from functools import partial
 
-    import can.cli
     import canopen
 
-    from canbus.busio import ResilientBus, connect
-    from skin.commands.busargs import default_channel
+    from canbus.busio import ResilientBus, connect, disconnect
+    from skin.commands.busargs import default_channel, open_from_namespace
     from skin.errors import ConfigError
 
     scene = scene_on_patches(args.scene, args.patches)
@@ -165,7 +164,7 @@ def _run_pinned(args: argparse.Namespace) -> int:
     try:
         for each in flags:  # opened again when they keep failing (canbus.busio)
             network = canopen.Network(ResilientBus(
-                partial(can.cli.create_bus_from_namespace, each), name=_describe(each)))
+                partial(open_from_namespace, each), name=_describe(each)))
             # canopen's notifier blocks in recv() for up to NOTIFIER_CYCLE (1 s by default)
             # and disconnect() joins it: a short cycle makes --seconds S end after ~S.
             network.NOTIFIER_CYCLE = _NOTIFIER_CYCLE_S
@@ -174,7 +173,7 @@ def _run_pinned(args: argparse.Namespace) -> int:
         return _serve(args, scene, networks, flags, planned)
     finally:
         for network in networks:
-            network.disconnect()
+            disconnect(network)
 
 
 def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Network],

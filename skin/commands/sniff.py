@@ -57,14 +57,12 @@ class Capture:
 def _sniff(args: argparse.Namespace) -> int:
     from functools import partial
 
-    import can.cli
-
     from canbus.busio import ResilientBus
     from canbus.tools.pdo_names import Dictionary, parse_assignment
     from canbus.tools.recorder import check_channel_name, enlarge_receive_buffer, recording_format
     from canbus.tools.services import ServiceDecoder
     from canbus.tools.sniffer import FrameFilter, Sniffer
-    from skin.commands.busargs import default_channel
+    from skin.commands.busargs import default_channel, open_from_namespace
     from skin.errors import BusError, ConfigError
 
     if args.record:
@@ -94,7 +92,7 @@ def _sniff(args: argparse.Namespace) -> int:
     try:
         sys.setswitchinterval(min(switch, _SWITCH_S))
         # What recv raises is survived; a bus that keeps failing is opened again (busio).
-        with ResilientBus(partial(can.cli.create_bus_from_namespace, args),
+        with ResilientBus(partial(open_from_namespace, args),
                           name=f"{args.interface}:{args.channel}",
                           prepare=partial(enlarge_receive_buffer, size=args.rcvbuf)
                           if args.rcvbuf else None) as bus:

@@ -172,26 +172,20 @@ def moment_view(path: str, t: float, layout: Layout, scale_N: float, *,
 def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) -> int:
     from functools import partial
 
-    import can.cli
-
     from canbus.busio import ResilientBus
     from canbus.tools.recorder import enlarge_receive_buffer
-    from skin.commands.busargs import default_channel
+    from skin.commands.busargs import default_channel, open_from_namespace
     from skin.commands.view_sources import BusDecode, BusForces, force_specs
-    from skin.errors import BusError
 
     default_channel(args)
     seconds = args.seconds
     if seconds is None and args.snapshot:
         seconds = SNAPSHOT_SECONDS
-    try:  # opened again when it keeps failing (canbus.busio)
-        bus = ResilientBus(partial(can.cli.create_bus_from_namespace, args),
-                           name=f"{args.interface}:{args.channel}",
-                           prepare=partial(enlarge_receive_buffer, size=args.rcvbuf)
-                           if args.rcvbuf else None)
-    except argparse.ArgumentError as err:  # how python-can reports a bus it cannot open
-        cause = err.__cause__ or err
-        raise BusError(f"cannot open the bus: {type(cause).__name__}: {cause}") from err
+    # opened again when it keeps failing (canbus.busio)
+    bus = ResilientBus(partial(open_from_namespace, args),
+                       name=f"{args.interface}:{args.channel}",
+                       prepare=partial(enlarge_receive_buffer, size=args.rcvbuf)
+                       if args.rcvbuf else None)
     with bus:
         source: BusForces | BusDecode = BusDecode(bus, config) if args.decode and config \
             else BusForces(bus, force_specs(config))

@@ -6,7 +6,7 @@
 - :class:`FaultyBus`: a bus (the timed bus, or python-can's virtual) whose ``recv`` raises
   on command, once or until healed, as a driver does when its interface goes down.
 - :class:`GoneBus`: python-can interface ``gone`` for the command line (registered by
-  :func:`register_gone_bus`): a virtual bus that, once :data:`GONE` is set, raises
+  :func:`gone_bus_registered`): a virtual bus that, once :data:`GONE` is set, raises
   ``ENETDOWN`` from ``recv`` and cannot be opened again.
 - :func:`stall`: SIGSTOP / SIGCONT a process, as a loaded machine or a debugger does.
 """
@@ -49,13 +49,14 @@ class UdpInjector:
         self.sent += 1
 
     def garbage(self, count: int = 1) -> None:
-        """Datagrams python-can cannot unpack: a byte, random bytes, a msgpack int."""
+        """Datagrams python-can cannot unpack: a byte, random bytes after one msgpack never
+        uses, a msgpack integer."""
         for k in range(count):
             if k % 3 == 0:
                 self.send(b"x")
             elif k % 3 == 1:
-                self.send(bytes(self.random.getrandbits(8)
-                                for _ in range(self.random.randint(1, 64))))
+                self.send(b"\xc1" + bytes(self.random.getrandbits(8)
+                                           for _ in range(self.random.randint(0, 63))))
             else:
                 self.send(b"\xcd\x01\x81")  # a msgpack integer: not a frame
 
@@ -71,11 +72,12 @@ class UdpInjector:
         self.send(pack_message(can.Message(arbitration_id=cob_id, data=data,
                                            is_extended_id=False, timestamp=time.time())))
 
-    def at_rate(self, per_s: float, seconds: float, make: Any) -> int:
-        """Call ``make(k)`` ``per_s`` times a second for ``seconds`` (paced in bursts)."""
+    def at_rate(self, per_s: float, count: int, make: Any) -> int:
+        """Call ``make(k)`` for k in 0..count-1, ``per_s`` times a second (paced in
+        bursts); returns ``count``."""
         started, k = time.monotonic(), 0
-        while (now := time.monotonic()) - started < seconds:
-            due = int((now - started) * per_s)
+        while k < count:
+            due = min(count, int((time.monotonic() - started) * per_s) + 1)
             while k < due:
                 make(k)
                 k += 1
@@ -161,12 +163,25 @@ class GoneBus(FaultyBus):
         return self.inner.recv(timeout)
 
 
-def register_gone_bus() -> None:
-    """python-can interface ``gone`` (``-i gone``) in this process."""
+@contextmanager
+def gone_bus_registered() -> Iterator[None]:
+    """python-can interface ``gone`` (``-i gone``) in this process for the block."""
     import can.interfaces
+    import can.util
 
+    modules = (can, can.interfaces, can.util)  # each holds its own VALID_INTERFACES name
+    valid = can.VALID_INTERFACES
     can.interfaces.BACKENDS["gone"] = ("tests.canbus.faults", "GoneBus")
+    for module in modules:
+        module.VALID_INTERFACES = valid | {"gone"}  # type: ignore[attr-defined]
     GONE.clear()
+    try:
+        yield
+    finally:
+        GONE.clear()
+        can.interfaces.BACKENDS.pop("gone", None)
+        for module in modules:
+            module.VALID_INTERFACES = valid  # type: ignore[attr-defined]
 
 
 @contextmanager

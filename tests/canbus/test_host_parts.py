@@ -16,17 +16,17 @@ import pytest
 from canbus.device.nmt_slave import PRE_OPERATIONAL
 from canbus.device.patch_node import PatchNode, z_only_mapping
 from canbus.master.baseline import Baseline, PatchLoadedError
-from canbus.master.patch_setup import configured_info
-from canbus.master.patch_setup import warn_if_unlike_config as _warn_if_unlike_config
 from canbus.master.hostconfig import PatchConfig
 from canbus.master.liveness import HeartbeatMonitor
 from canbus.master.patch_setup import (
     PatchInfo,
+    configured_info,
     patch_info,
     plan_setup,
     read_patch_info,
     setup_patch,
     tpdo_layouts,
+    warn_if_unlike_config,
 )
 from canbus.master.sync_producer import SyncFollower, SyncProducer, sync_counter
 from canbus.od import load_od
@@ -387,9 +387,9 @@ def test_a_listen_only_host_plans_the_setup_the_host_writes_and_reads(
         assert (planned.mode, planned.pillars) == (written.mode, written.pillars)
     # a normal host warns when the patch disagrees with constants given for listen-only
     with caplog.at_level(logging.WARNING, logger="canbus.master.host"):
-        _warn_if_unlike_config(PatchConfig(9, constants=node.constants), read)
+        warn_if_unlike_config(PatchConfig(9, constants=node.constants), read)
         assert not caplog.records
-        _warn_if_unlike_config(PatchConfig(9, constants=DEFAULT_CONSTANTS,
+        warn_if_unlike_config(PatchConfig(9, constants=DEFAULT_CONSTANTS,
                                            r0_ohm=(1001.0, 1415.0, 1414.0)), read)
     messages = [r.getMessage() for r in caplog.records]
     assert len(messages) == 2 and messages[0].startswith("patch 9 reports constants ")
