@@ -43,8 +43,11 @@ REOPEN_AFTER = 3  # consecutive failures ...
 REOPEN_AFTER_S = 0.2  # ... over at least this long, nothing received between: re-open
 GIVE_UP_S = 3.0  # failing this long, re-opens included: the bus is gone
 BACKOFF_MIN_S, BACKOFF_MAX_S = 0.1, 1.0  # between re-open attempts
-PAUSE_AFTER = 8  # a plain bus: consecutive failures before the loop pauses between tries
+PAUSE_AFTER_S = 0.2  # a plain bus failing this long, nothing received: pause between tries
 PAUSE_MIN_S, PAUSE_MAX_S = 0.001, 0.5
+"""A burst of garbage fails one recv per datagram, at once: it drains without a pause (a
+pause per failure would make 100 bad datagrams cost many seconds); a bus that keeps
+failing is tried again after a growing pause, never spinning a core."""
 
 
 class BusGoneError(can.CanOperationError):
@@ -360,7 +363,8 @@ class ReceiveLoop(can.Notifier):
 
     def _rx_thread(self, bus: can.BusABC) -> None:
         recv, timeout, lock = bus.recv, self.timeout, self._lock
-        failures = 0
+        failures, pause = 0, PAUSE_MIN_S
+        spell = 0.0  # time.monotonic() of the spell's first failure
         while not self._stopped:
             try:
                 msg = recv(timeout)
@@ -369,7 +373,12 @@ class ReceiveLoop(can.Notifier):
                 return
             except Exception as err:  # whatever a driver raises: counted and survived
                 failures += 1
+                if failures == 1:
+                    spell, pause = time.monotonic(), PAUSE_MIN_S
                 self._recv_failed(err, failures)
+                if time.monotonic() - spell >= PAUSE_AFTER_S:
+                    self._halt.wait(pause)
+                    pause = min(2 * pause, PAUSE_MAX_S)
                 continue
             if failures:
                 self._log.log(logging.INFO, "back", "bus %s: receiving again after %d "
@@ -393,8 +402,6 @@ class ReceiveLoop(can.Notifier):
             stats.failing_since = time.time()
             self._log.log(logging.WARNING, "recv", "bus %s: receiving failed (%s); going on",
                           self.name, stats.last_error)
-        if failures >= PAUSE_AFTER:  # a bus that fails at once must not spin a core
-            self._halt.wait(min(PAUSE_MIN_S * 2 ** (failures - PAUSE_AFTER), PAUSE_MAX_S))
 
     def _listener_failed(self, listener: Any, err: Exception) -> None:
         self.stats.listener_errors += 1

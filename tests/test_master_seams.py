@@ -38,7 +38,7 @@ def test_the_facade_is_imported_by_nothing_it_builds_on(name: str) -> None:
             assert all(a.name != FACADE for a in node.names), f"{name}.py imports the facade"
 
 
-@pytest.mark.parametrize("name", POLICY_SIDE + ("host",))
+@pytest.mark.parametrize("name", [*POLICY_SIDE, "host"])
 def test_nothing_reads_another_objects_private_state(name: str) -> None:
     """No ``host._lock`` from a policy, no ``dataplane._publisher.subscribers``: each reads
     only its own private attributes (``self._x``)."""
