@@ -25,7 +25,7 @@ import canopen
 from canbus.busio import ReceiveLoop, ResilientBus
 from canbus.master.busconfig import BusConfig
 from canbus.master.dataplane import DataPlane
-from canbus.master.discovery import BootListener
+from canbus.master.discovery import BootListener, bound_lss_answers
 from canbus.master.liveness import HeartbeatMonitor
 from canbus.master.pdo_router import PdoRouter
 from canbus.master.sync_producer import SyncFollower, SyncProducer
@@ -55,6 +55,7 @@ class BusLink:
             self.bus, self.joined = bus, False
             self.network = canopen.Network(bus)
             self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
+            bound_lss_answers(self.network)
         self.monitor = HeartbeatMonitor(self.network, heartbeat_ms, on_boot=on_boot,
                                         on_lost=on_lost, on_return=on_return,
                                         on_change=on_change,

@@ -31,6 +31,7 @@ PATCH_PRODUCT = 1
 FORCE_PRODUCT = 2
 BOOTUP = 0x00
 SDO_FRAME = 8  # bytes of every SDO frame (CiA 301)
+RESPONSES_KEPT = 256  # SDO or LSS answers queued at most (a block transfer has <= 127)
 _HEARTBEAT = 0x700
 
 
@@ -60,6 +61,20 @@ class UnknownNode:
     reason: str
 
 
+def bound_lss_answers(network: canopen.Network) -> None:
+    """canopen's LSS master queues every frame on 0x7E4 for as long as the network runs,
+    whether it asked or not: keep :data:`RESPONSES_KEPT` at most."""
+    lss = network.lss
+
+    def on_answer(can_id: int, data: bytearray, timestamp: float) -> None:
+        if lss.responses.qsize() < RESPONSES_KEPT:
+            lss.responses.put(bytes(data))
+
+    if lss.on_message_received in network.subscribers.get(lss.LSS_RX_COBID, []):
+        network.unsubscribe(lss.LSS_RX_COBID, lss.on_message_received)
+        network.subscribe(lss.LSS_RX_COBID, on_answer)
+
+
 def log_unknown(unknown: UnknownNode) -> None:
     """The one log line of a node the host does not manage."""
     logger.warning("node %d: %s; left alone", unknown.node_id, unknown.reason,
@@ -76,6 +91,15 @@ class HaltableSdoClient(SdoClient):
     def __init__(self, rx_cobid: int, tx_cobid: int, od: canopen.ObjectDictionary) -> None:
         super().__init__(rx_cobid, tx_cobid, od)
         self.halted = threading.Event()
+        self.dropped = 0  # responses nobody was waiting for, beyond what is kept
+
+    def on_response(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """canopen queues every response, asked for or not: a flood of them between
+        transfers would grow without bound. Keep :data:`RESPONSES_KEPT` at most."""
+        if self.responses.qsize() >= RESPONSES_KEPT:
+            self.dropped += 1
+            return
+        self.responses.put(bytes(data))
 
     def halt(self) -> None:
         self.halted.set()

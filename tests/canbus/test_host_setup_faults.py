@@ -214,3 +214,25 @@ def test_an_emcy_flood_never_reset_keeps_memory_flat_and_the_patch_decoded(rig: 
     assert frame.reason[4] == Reason.FAULTY and frame.valid.sum() == 8
     assert host.health()[1].state == "operational" and host.health()[1].emcys >= flood
 
+
+
+def test_answers_nobody_asked_for_are_kept_bounded(rig: Rig) -> None:
+    """canopen queues every SDO answer (0x580 + ID) and every LSS answer (0x7E4) for as
+    long as the network runs: a flood of them between transfers must not grow the host."""
+    rig.serve(1, source(1, press({})))
+    host = rig.start(config(PatchConfig(1)))
+    assert host.wait_operational(timeout=WAIT_S)
+    rig.spy.listeners.clear()
+    flood = 2000
+    with can.Bus(interface="virtual", channel=rig.channel) as flooder:
+        for k in range(flood):
+            flooder.send(can.Message(arbitration_id=0x7E4, data=bytes([0x44, k % 256]),
+                                     is_extended_id=False))
+        for k in range(flood):
+            flooder.send(can.Message(arbitration_id=0x581, data=bytes([0x43, 0, 0x10, 0,
+                                                                         k % 256, 0, 0, 0]),
+                                     is_extended_id=False))
+    sdo = host.patch(1).node.sdo
+    eventually(lambda: sdo.dropped >= flood - 256, "the SDO answers handled", timeout=60.0)
+    assert sdo.responses.qsize() <= 256 and host.network.lss.responses.qsize() <= 256
+    assert host.health()[1].state == "operational"
