@@ -286,7 +286,7 @@ class ActiveMaster:
             self.jobs.submit(functools.partial(self._identify, link), node_id)
 
     def on_patch_boot(self, patch: PatchRecord) -> None:
-        logger.info("patch %d booted", patch.node_id)
+        logger.debug("patch %d booted", patch.node_id)  # its state line follows
         patch.link.monitor.judge(patch.node_id, False)  # a boot resets 0x1017 to its default
         self.parts.states.booted(patch.node_id)
         self._ensure(patch)

@@ -83,7 +83,7 @@ class ListenOnly:
                                               "identified)"))
 
     def on_patch_boot(self, patch: PatchRecord) -> None:
-        logger.info("patch %d booted", patch.node_id)
+        logger.debug("patch %d booted", patch.node_id)  # its state line follows
         self.parts.states.booted(patch.node_id)
 
     def on_return(self, patch: PatchRecord, state: int) -> None:

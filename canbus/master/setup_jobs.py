@@ -184,7 +184,7 @@ class SetupJobs:
         patch.link.monitor.expect(patch.node_id)
         if parts.states.set_up(patch.node_id, incarnation, setup):
             patch.node.nmt.send_command(NMT_START)
-            logger.info("patch %d configured on bus %r (%s%s, %s)", patch.node_id,
+            logger.debug("patch %d configured on bus %r (%s%s, %s)", patch.node_id,
                         patch.link.name, setup.mode, ", CAN FD" if patch.link.fd else "",
                         patch.config.decoder)
 
