@@ -142,11 +142,11 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
                       f"nodes {forces}; Ctrl-C stops", flush=True)
             # --seconds S: S seconds once started; a start still going then (a long scan,
             # set-ups waiting out SDO time-outs) is cut short at S.
-            with _stops_at(args.seconds, host):
+            with _stops_at(args.seconds, host) as cut:
                 host.start()
             try:
-                _hint_if_nobody_answered(host, config)
-                if host.running:
+                if not cut.is_set():
+                    _hint_if_nobody_answered(host, config)
                     _follow(host, None if args.seconds is None else
                             time.monotonic() + args.seconds, args.status_every)
             finally:
@@ -236,23 +236,32 @@ class _StdoutHandler(logging.Handler):
 
 
 @contextlib.contextmanager
-def _stops_at(seconds: float | None, host: HostManager) -> Iterator[None]:
-    """Stop the host in ``seconds`` if the block (its start) still runs then."""
+def _stops_at(seconds: float | None, host: HostManager) -> Iterator[threading.Event]:
+    """Stop the host in ``seconds`` if the block (its start) still runs then; the event
+    yielded is set if it did."""
+    cut = threading.Event()
+
+    def stop() -> None:
+        cut.set()
+        host.stop()
+
     timer = None
     if seconds is not None:
-        timer = threading.Timer(max(0.0, seconds), host.stop)
+        timer = threading.Timer(max(0.0, seconds), stop)
         timer.daemon = True
         timer.start()
     try:
-        yield
+        yield cut
     finally:
         if timer is not None:
             timer.cancel()
+            if cut.is_set():
+                timer.join()  # its stop() has run: the host is stopped
 
 
 def _hint_if_nobody_answered(host: HostManager, config: HostConfig) -> None:
     """One line when no configured patch answered the scan: the bus, and what to check."""
-    if host.listen_only or not config.scan or not host.running:
+    if host.listen_only or not config.scan:
         return
     if all(h.state == "absent" for h in host.health().values()):
         from skin.commands.hostbus import describe

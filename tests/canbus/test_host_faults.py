@@ -76,12 +76,17 @@ class TimedRig:
         self.host.on_forces(on_frame)
         return lambda: set(seen) == set(PATCHES)
 
-    def recovered_within(self, since_cycle: int) -> int:
-        """SYNC cycles from ``since_cycle`` until every patch is operational and decoded."""
+    def recovered_within(self, since_cycle: int, what: str) -> int:
+        """SYNC cycles from ``since_cycle`` until every patch is operational and decoded
+        (printed with ``what``: pytest -s shows the figures)."""
         decoded = self.samples_of_all_after(since_cycle)
+        began = time.monotonic()
         eventually(lambda: self.operational() and decoded(), "every patch back",
                    timeout=WAIT_S)
-        return self.cycles() - since_cycle
+        cycles = self.cycles() - since_cycle
+        print(f"\n{what}: every patch operational and decoded {cycles} SYNCs "
+              f"({time.monotonic() - began:.2f} s) after the fault ended")
+        return cycles
 
 
 @pytest.fixture
@@ -99,7 +104,7 @@ def test_a_recv_that_raises_once_costs_a_count_and_nothing_else(faulty: TimedRig
     bus.fail_once()
     eventually(lambda: bus.raised == 1, "the fault")
     at = faulty.cycles()
-    assert faulty.recovered_within(at) < RECOVERY_CYCLES  # heard again at once
+    assert faulty.recovered_within(at, "timed bus, recv raised once") < RECOVERY_CYCLES
     receive = faulty.host.bus_stats()["default"]["receive"]
     assert receive["errors"] == 1 and "Network is down" in receive["last_error"]
     assert receive["gone"] is None and faulty.host.bus_gone() is None
@@ -116,7 +121,7 @@ def test_a_recv_that_keeps_raising_is_survived_and_every_patch_comes_back(
                "every patch lost while the host hears nothing", timeout=WAIT_S)
     bus.heal()
     at = faulty.cycles()
-    assert faulty.recovered_within(at) <= RECOVERY_CYCLES
+    assert faulty.recovered_within(at, "timed bus, recv kept raising") <= RECOVERY_CYCLES
     receive = faulty.host.bus_stats()["default"]["receive"]
     assert receive["errors"] == bus.raised > 1 and receive["failing_since"] is None
     for health in faulty.host.health().values():
@@ -152,7 +157,7 @@ def test_a_bus_that_keeps_failing_is_opened_again() -> None:
         opened[0].fail_always()  # for good: only a new bus hears again
         eventually(lambda: len(opened) >= 2, "the bus opened again", timeout=WAIT_S)
         at, reopened = rig.cycles(), time.monotonic()
-        assert rig.recovered_within(at) <= RECOVERY_CYCLES
+        assert rig.recovered_within(at, "timed bus opened again") <= RECOVERY_CYCLES
         # The force nodes' heartbeats (python-can periodic tasks) outlived the re-open.
         eventually(lambda: {0x741, 0x742, 0x743} <= {c for t, c in list(heard)
                                                      if t > reopened}, "force heartbeats",
@@ -206,7 +211,7 @@ def test_error_frames_on_the_wire_are_frames_not_faults() -> None:
                 noisy.send(can.Message(arbitration_id=0x7F0, data=bytes([k % 256]),
                                        is_extended_id=False))
             at = rig.cycles()
-            assert rig.recovered_within(at) <= RECOVERY_CYCLES
+            assert rig.recovered_within(at, "error frames on the wire") <= RECOVERY_CYCLES
         finally:
             noisy.shutdown()
         receive = rig.host.bus_stats()["default"]["receive"]

@@ -102,7 +102,7 @@ EVENTS = st.lists(st.one_of(
 ), max_size=60)
 
 
-@settings(max_examples=300)
+@settings(max_examples=200)
 @given(events=EVENTS, listen_only=st.booleans())
 def test_no_interleaving_leaves_a_patch_in_a_stale_state(
         events: list[tuple[str, object]], listen_only: bool) -> None:
