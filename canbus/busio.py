@@ -36,6 +36,7 @@ import canopen
 
 from canbus.ratelog import RateLimitedLog
 from canbus.rxfilter import refresh as refresh_receive_filter
+from skin.errors import SkinError
 
 logger = logging.getLogger(__name__)
 
@@ -72,10 +73,14 @@ class ReceiveStats:
 
 
 def describe(err: BaseException) -> str:
-    """``Type: message``, with the cause python-can wraps (``could not unpack ...``)."""
+    """``Type: message``, with the cause a python-can error wraps (``could not unpack
+    received message (ValueError: ...)``); our own errors are their one line."""
+    if isinstance(err, SkinError):
+        return str(err)
     text = f"{type(err).__name__}: {err}"
     cause = err.__cause__ or err.__context__
-    if cause is not None and str(cause) and str(cause) not in text:
+    if isinstance(err, can.CanError) and cause is not None and str(cause) \
+            and str(cause) not in text:
         text += f" ({type(cause).__name__}: {cause})"
     return text
 
