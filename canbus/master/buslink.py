@@ -7,11 +7,11 @@ its own whose one listener is a :class:`~canbus.master.pdo_router.PdoRouter`) or
 master): then the data plane and the SYNC follower are added to that network's notifier
 and canopen's own listener keeps seeing every frame, as it did.
 
-A link's own notifier is a :class:`~canbus.busio.ReceiveLoop`: whatever the bus's ``recv``
+A link's own notifier is a :class:`~canbus.receiveloop.ReceiveLoop`: whatever the bus's ``recv``
 or a listener raises is counted, logged and survived; a bus that the caller gave as a
 :class:`~canbus.busio.ResilientBus` is opened again when it keeps failing, and when it is
 gone for good :attr:`BusLink.gone` says why (a joined network keeps its own notifier:
-give it a ``ReceiveLoop`` too, :func:`canbus.busio.connect`).
+give it a ``ReceiveLoop`` too, :func:`canbus.receiveloop.connect`).
 """
 
 from __future__ import annotations
@@ -22,13 +22,14 @@ from collections.abc import Callable, Iterable
 import can
 import canopen
 
-from canbus.busio import ReceiveLoop, ResilientBus
+from canbus.busio import ResilientBus
 from canbus.master.busconfig import BusConfig
 from canbus.master.dataplane import DataPlane
 from canbus.master.discovery import BootListener, bound_lss_answers
 from canbus.master.liveness import HeartbeatMonitor
 from canbus.master.pdo_router import PdoRouter
 from canbus.master.sync_producer import SyncFollower, SyncProducer
+from canbus.receiveloop import ReceiveLoop
 from canbus.rxfilter import OwnFrameGate, ReceiveFilter, receive_filter
 from skin.errors import BusError
 
@@ -105,7 +106,7 @@ class BusLink:
         """What receiving from this bus survived (``canbus.busio.ReceiveStats``)."""
         notifier = self.network.notifier
         if isinstance(notifier, ReceiveLoop):
-            return notifier.report()
+            return dict(notifier.report())
         if isinstance(self.bus, ResilientBus):
             return self.bus.stats.as_dict()
         return {}

@@ -130,12 +130,13 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     import canopen
     import numpy as np
 
-    from canbus.busio import ResilientBus, connect, disconnect
+    from canbus.busio import ResilientBus
     from canbus.busload import spread
     from canbus.device.patch_server import PatchServer
     from canbus.master.busconfig import BusConfig
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig, PatchConfig, predefined_tpdo_cob_ids
+    from canbus.receiveloop import connect, disconnect
     from sim import Simulator
     from skin.commands import demo_summary
     from skin.commands.demo_rig import BusClock, Record, Replay

@@ -146,7 +146,8 @@ def _run_pinned(args: argparse.Namespace) -> int:
 
     import canopen
 
-    from canbus.busio import ResilientBus, connect, disconnect
+    from canbus.busio import ResilientBus
+    from canbus.receiveloop import connect, disconnect
     from skin.commands.busargs import default_channel, open_from_namespace
     from skin.errors import ConfigError
 

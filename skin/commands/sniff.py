@@ -111,7 +111,7 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
              args: argparse.Namespace) -> Capture:
     """Receive until the end (Ctrl-C, SIGTERM, SIGHUP included); the recording is closed
     complete whatever ends it."""
-    from canbus.busio import ReceiveLoop
+    from canbus.receiveloop import ReceiveLoop
     from canbus.tools.recorder import Recorder, log_channel_name
     from skin.commands.signals import until_stopped
 

@@ -60,7 +60,7 @@ class BusForces:
         self._notifier: can.Notifier | None = None
 
     def start(self, view: SkinView) -> None:
-        from canbus.busio import ReceiveLoop
+        from canbus.receiveloop import ReceiveLoop
 
         self.reader.on_sample(view.update)
         self.reader.start()

@@ -9,7 +9,8 @@ import time
 import can
 import pytest
 
-from canbus.busio import BusGoneError, ReceiveLoop, ResilientBus
+from canbus.busio import BusGoneError, ResilientBus
+from canbus.receiveloop import ReceiveLoop
 from tests.canbus.test_host import eventually
 
 FRAME = can.Message(arbitration_id=0x181, data=b"\x01\x02", is_extended_id=False)

@@ -15,11 +15,12 @@ import can
 import canopen
 import pytest
 
-from canbus.busio import ReceiveLoop, ResilientBus, connect
+from canbus.busio import ResilientBus
 from canbus.device.patch_server import PatchServer
 from canbus.master.dataplane import ForceFrame
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, PatchConfig
+from canbus.receiveloop import ReceiveLoop, connect
 from tests.canbus.faults import FaultyBus
 from tests.canbus.test_host import eventually, press, source
 

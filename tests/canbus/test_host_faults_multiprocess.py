@@ -25,8 +25,8 @@ from pathlib import Path
 import can
 import pytest
 
-from canbus.busio import ReceiveLoop
 from canbus.master.hostconfig import predefined_tpdo_cob_ids
+from canbus.receiveloop import ReceiveLoop
 from tests.canbus.faults import UdpInjector, rss_bytes, stall
 
 ROOT = Path(__file__).resolve().parents[2]
