@@ -77,6 +77,9 @@ class ActiveMaster:
         self.scanning = self.parts.config.scan
         self.jobs = SetupJobs(self.parts)
         self.jobs.paused = self.scanning
+        for patch in self.parts.patches.values():  # halted by an earlier stop
+            if isinstance(patch.node.sdo, HaltableSdoClient):
+                patch.node.sdo.resume()
 
     def planned(self, patch: PatchRecord) -> PatchSetup:
         """The set-up the host will make for a patch, before it answers."""
@@ -128,9 +131,7 @@ class ActiveMaster:
         for patch in parts.patches.values():
             patch.force_node.on_cob_ids_changed = None
             patch.force_node.detach()
-            network = patch.link.network
-            if patch.node.id in network.nodes:
-                del network[patch.node.id]
+            _remove_node(patch)
         self._foreign_log.flush()
 
     # -- discovery ---------------------------------------------------------------------
@@ -304,6 +305,24 @@ class ActiveMaster:
     def _ensure(self, patch: PatchRecord) -> None:
         if self.jobs is not None and not self.scanning:
             self.jobs.ensure(patch)
+
+
+def _remove_node(patch: PatchRecord) -> None:
+    """Take the patch's node off its network, however far adding it got (a stop may come
+    in the middle of canopen's ``add_node``)."""
+    network, node = patch.link.network, patch.node
+    node_id = int(node.id or 0)
+    subscriptions = [(0x700 + node_id, node.nmt.on_heartbeat),
+                     (0x80 + node_id, node.emcy.on_emcy), (0, node.nmt.on_command),
+                     *((sdo.tx_cobid, sdo.on_response) for sdo in node.sdo_channels)]
+    if network.nodes.get(node_id) is node:
+        if node.has_network():
+            for cob_id, callback in subscriptions:  # complete a half-done add_node: the
+                network.subscribe(cob_id, callback)  # removal unsubscribes every one
+        del network[node_id]
+    for cob_id, callback in subscriptions:  # whatever is left of it
+        if callback in network.subscribers.get(cob_id, []):
+            network.unsubscribe(cob_id, callback)
 
 
 def _set_tpdo_cob_ids(force: ForceNode, cob_ids: tuple[int, ...]) -> None:

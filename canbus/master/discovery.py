@@ -105,6 +105,10 @@ class HaltableSdoClient(SdoClient):
         self.halted.set()
         self.responses.put(self.HALTED)
 
+    def resume(self) -> None:
+        """Take requests again (the host starts again)."""
+        self.halted.clear()
+
     def send_request(self, request: bytes | bytearray) -> None:
         if self.halted.is_set():
             raise SdoCommunicationError("halted: the host is stopping")

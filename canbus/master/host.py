@@ -206,16 +206,18 @@ class HostManager:
             return
         self._running.clear()
         self._stopping.set()
+        # Each step on its own: a stop (a signal) may come at any point of a start, and
+        # what one step finds half done must not leave the others undone.
         for link in self.links.values():
-            link.stop_sync()
+            _step("stopping SYNC", link.stop_sync)
         if any(link.sync is not None and link.sync.cycle for link in self.links.values()):
             self._await_last_answers()
         for link in self.links.values():
             if link.dataplane is not None:
-                link.dataplane.flush()
-        self.policy.stop()
+                _step("publishing the last samples", link.dataplane.flush)
+        _step("stopping the policy", self.policy.stop)
         for link in self.links.values():
-            link.close()
+            _step(f"closing bus {link.name!r}", link.close)
         self.taxel_log.flush()
         self.channels.emcy_log.flush()
         self.fanout.close()
@@ -423,3 +425,10 @@ class HostManager:
         if node_id in self.config.other_nodes:
             return
         self.policy.on_unknown_boot(link, node_id)
+
+
+def _step(what: str, step: Callable[[], object]) -> None:
+    try:
+        step()
+    except Exception:
+        logger.exception("host stop: %s failed", what)

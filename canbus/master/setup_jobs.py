@@ -164,7 +164,7 @@ class SetupJobs:
         identity = read_identity(node.sdo)
         if identity.kind != "patch":
             raise SetupRefusedError(f"node {patch.node_id} is not a patch: "
-                               f"{describe_identity(identity)}")
+                                    f"{describe_identity(identity)}")
         node.nmt.send_command(NMT_PRE_OPERATIONAL)
         setup = setup_patch(node, patch.config.mode, heartbeat_ms=parts.config.heartbeat_ms,
                             fd=patch.link.fd)

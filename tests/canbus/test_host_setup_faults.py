@@ -240,3 +240,19 @@ def test_answers_nobody_asked_for_are_kept_bounded(rig: Rig) -> None:
     eventually(lambda: sdo.dropped >= flood - 256, "the SDO answers handled", timeout=60.0)
     assert sdo.responses.qsize() <= 256 and host.network.lss.responses.qsize() <= 256
     assert host.health()[1].state == "operational"
+
+
+def test_a_host_stopped_in_its_start_starts_again_and_configures(rig: Rig) -> None:
+    from canbus.master.host import HostManager
+
+    rig.serve(1, source(1, press({})))
+    host = HostManager(rig.bus, config(PatchConfig(1), scan_ms=1500))
+    starting = threading.Thread(target=host.start)
+    starting.start()
+    eventually(lambda: host.running, "the start under way")
+    host.stop()  # in the scan: its SDO clients are halted
+    starting.join(timeout=WAIT_S)
+    assert not starting.is_alive() and not host.running
+    rig.host = host
+    host.start()
+    assert host.wait_operational(timeout=WAIT_S)
