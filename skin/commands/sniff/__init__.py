@@ -52,9 +52,13 @@ class Capture:
     recorded: int
     error: BaseException | None
     stopped_by: str | None
+    receive: dict[str, Any] | None = None  # what receiving survived (canbus.busio)
 
 
 def _sniff(args: argparse.Namespace) -> int:
+    from functools import partial
+
+    from canbus.busio import ResilientBus
     from canbus.tools.pdo_names import Dictionary, parse_assignment
     from canbus.tools.recorder import check_channel_name, enlarge_receive_buffer, recording_format
     from canbus.tools.services import ServiceDecoder
@@ -91,10 +95,12 @@ def _sniff(args: argparse.Namespace) -> int:
     switch = sys.getswitchinterval()
     try:
         sys.setswitchinterval(min(switch, _SWITCH_S))
-        with open_bus(args) as bus:
-            if args.rcvbuf:
-                enlarge_receive_buffer(bus, args.rcvbuf)
+        # What recv raises is survived; a bus that keeps failing is opened again (busio).
+        with ResilientBus(partial(open_bus, args), name=f"{args.interface}:{args.channel}",
+                          prepare=partial(enlarge_receive_buffer, size=args.rcvbuf)
+                          if args.rcvbuf else None) as bus:
             capture = _capture(bus, sniffer, shown, printer, stats, view, args)
+            capture.receive = bus.stats.as_dict()
     finally:
         sys.setswitchinterval(switch)
     _report(sniffer.snapshot(), capture, stats, view, args)
@@ -108,8 +114,7 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
              args: argparse.Namespace) -> Capture:
     """Receive until the end (Ctrl-C, SIGTERM, SIGHUP included); the recording is closed
     complete whatever ends it."""
-    import can
-
+    from canbus.receiveloop import ReceiveLoop
     from canbus.tools.recorder import Recorder, log_channel_name
     from skin.commands.common.signals import until_stopped
 
@@ -118,7 +123,7 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
         (f" → {args.record}" if args.record else "")
     started, cpu = time.monotonic(), time.process_time()
     recorder: Recorder | None = None
-    notifier: can.Notifier | None = None
+    notifier: ReceiveLoop | None = None
     try:
         with until_stopped() as stopped:  # Ctrl-C is how a sniffer is meant to end
             if args.record:
@@ -126,7 +131,8 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
                                     rotate_s=args.rotate_seconds)
             listeners: list[can.Listener] = [sniffer] if recorder is None else \
                 [recorder, sniffer]
-            notifier = can.Notifier(bus, listeners, timeout=_TICK_S)
+            notifier = ReceiveLoop(bus, listeners, timeout=_TICK_S,
+                                   name=f"{args.interface}:{args.channel}")
             if printer is not None:
                 printer.start()
             _watch(notifier, recorder, printer, sniffer, shown, stats, view, header, args,
@@ -164,7 +170,7 @@ def _report(snap: Snapshot, capture: Capture, stats: ViewStats, view: str,
             "recording": None if capture.saved is None else
             {"path": str(capture.saved), "frames": capture.recorded,
              "files": [str(p) for p in capture.files]},
-            "stopped_by": capture.stopped_by,
+            "stopped_by": capture.stopped_by, "receive": capture.receive,
             "view": {"mode": view, "redraws": stats.redraws,
                      "redraws_skipped": stats.redraws_skipped, "lines": stats.lines,
                      "lines_dropped": stats.lines_dropped}}

@@ -178,6 +178,10 @@ def moment_view(path: str, t: float, layout: Layout, scale_N: float, *,
 
 
 def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) -> int:
+    from functools import partial
+
+    from canbus.busio import ResilientBus
+    from canbus.tools.recorder import enlarge_receive_buffer
     from skin.commands.common.busargs import default_channel
     from skin.commands.common.busopen import open_bus
     from skin.commands.view.sources import BusDecode, BusForces, force_specs
@@ -186,12 +190,12 @@ def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) ->
     seconds = args.seconds
     if seconds is None and args.snapshot:
         seconds = SNAPSHOT_SECONDS
-    bus = open_bus(args)  # BusError "cannot open the bus IFACE:CHANNEL: ..." in one line
+    # opened again when it keeps failing (canbus.busio); the first open's failure is
+    # BusError "cannot open the bus IFACE:CHANNEL: ..." in one line
+    bus = ResilientBus(partial(open_bus, args), name=f"{args.interface}:{args.channel}",
+                       prepare=partial(enlarge_receive_buffer, size=args.rcvbuf)
+                       if args.rcvbuf else None)
     with bus:
-        if args.rcvbuf:
-            from canbus.tools.recorder import enlarge_receive_buffer
-
-            enlarge_receive_buffer(bus, args.rcvbuf)
         source: BusForces | BusDecode = BusDecode(bus, config) if args.decode and config \
             else BusForces(bus, force_specs(config))
         where = f"{args.interface}:{args.channel}"
