@@ -25,7 +25,7 @@ from pathlib import Path
 import can
 import pytest
 
-from canbus.master.hostconfig import predefined_tpdo_cob_ids
+from canbus.master.cobids import predefined_tpdo_cob_ids
 from canbus.receiveloop import ReceiveLoop
 from tests.canbus.faults import UdpInjector, rss_bytes, stall
 

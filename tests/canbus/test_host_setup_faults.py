@@ -14,9 +14,10 @@ import can
 import pytest
 from canopen.emcy import EmcyConsumer
 
+from canbus.master.cobids import predefined_tpdo_cob_ids
 from canbus.master.dataplane import ForceFrame
 from canbus.master.emcy import EMCY_LOG_KEPT
-from canbus.master.hostconfig import PatchConfig, predefined_tpdo_cob_ids
+from canbus.master.hostconfig import PatchConfig
 from decoder.reasons import Reason
 from tests.canbus.faults import rss_bytes
 from tests.canbus.test_host import Rig, config, eventually, press, source
