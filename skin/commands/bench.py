@@ -13,6 +13,9 @@ from typing import Any
 SCENES = ("paper", "paper-noisy")
 """The paper's protocol as published (noise-free), and the noise study (read noise, ADC)."""
 TABLE1_SCENES = ("paper", "paper-noisy", "indenter")
+TABLE1_SEEDS = 10
+TABLE1_QUICK_SEEDS = 3
+"""Table 1 over seed pairs 1/2, 3/4, ... 19/20 (``--quick``: 1/2, 3/4, 5/6)."""
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -24,6 +27,7 @@ def add_subparser(subparsers: Any) -> None:
                     "5..14 (the paper's Table 1) on `paper`, `paper-noisy` and `indenter`, "
                     "and choose the hidden layer by the paper's method (--hidden auto). "
                     "cross: every decoder trained on one scene and tested on the others. "
+                    "paper: the paper's Figures 8, 9 and 10 with its claims beside ours. "
                     "sim: the simulator's speed. dataplane: 16 patches' TPDOs absorbed, "
                     "decoded and republished as force TPDOs, against the same work through "
                     "canopen's PdoMap callbacks. server: N simulated patches served on "
@@ -31,7 +35,7 @@ def add_subparser(subparsers: Any) -> None:
                     "frame against python-can's own send of the same frames in the same run, "
                     "SYNC to the last TPDO, patches per core.")
     parser.add_argument("target", nargs="?",
-                        choices=("decoders", "cross", "sim", "dataplane", "server"),
+                        choices=("decoders", "cross", "paper", "sim", "dataplane", "server"),
                         default="decoders")
     parser.add_argument("--quick", action="store_true",
                         help="one seed, smaller batches and sets (about a minute or less)")
@@ -41,10 +45,21 @@ def add_subparser(subparsers: Any) -> None:
                              "function) or on the mapminmax-scaled outputs")
     parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     parser.add_argument("--plot", metavar="FILE.png", help="draw speed against error")
+    parser.add_argument("--random", type=_count, default=0, metavar="N",
+                        help="cross: N more scene pairs drawn at random (bench.pairs)")
+    parser.add_argument("--png", metavar="FILE.png",
+                        help="paper: draw the paper's Figures 8, 9 and 10 as ours")
     from skin.commands.bench_server import add_arguments
 
     add_arguments(parser)
     parser.set_defaults(func=run)
+
+
+def _count(text: str) -> int:
+    value = int(text)
+    if not 0 <= value <= 1000:
+        raise argparse.ArgumentTypeError(f"must be in 0..1000, got {value}")
+    return value
 
 
 def _write_json(path: str, data: dict[str, Any]) -> None:
@@ -96,8 +111,11 @@ def run_decoders(quick: bool, goal_units: str = "N",
     from decoder.registry import available_decoders, create_decoder
 
     seeds, batch, repeats = (1, 20_000, 2) if quick else (3, 200_000, 5)
+    table_seeds = TABLE1_QUICK_SEEDS if quick else TABLE1_SEEDS
     params = mlp_params(goal_units)
-    result: dict[str, Any] = {"goal_units": goal_units, "seeds": seeds, "scenes": []}
+    result: dict[str, Any] = {"goal_units": goal_units, "seeds": seeds, "scenes": [],
+                              "table1_seed_pairs": [[2 * s + 1, 2 * s + 2]
+                                                    for s in range(table_seeds)]}
     splits: dict[str, list[tuple[Any, ...]]] = {}
     for name in SCENES:
         stage(f"decoders on {name}")
@@ -113,7 +131,7 @@ def run_decoders(quick: bool, goal_units: str = "N",
     table = []
     for name in TABLE1_SCENES:
         stage(f"Table 1 on {name}")
-        scene_splits = splits.get(name) or _splits(name, seeds)
+        scene_splits = _splits(name, table_seeds)
         table += benchmark.table1(scene_splits, sim.load_scene(name).mode, name,
                                   params=params["lm-mlp"])
     result["table1"] = table
@@ -199,10 +217,17 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             _write_json(args.json, result)
         return 0
+    if args.target == "paper":
+        from bench.paper_view import run_command
+
+        result = run_command(args.quick, args.goal_units, args.json, args.png)
+        if args.json:
+            _write_json(args.json, result)
+        return 0
     if args.target == "cross":
         from skin.commands.bench_cross import print_cross, run_cross
 
-        result = run_cross(args.quick, mlp_params(args.goal_units))
+        result = run_cross(args.quick, mlp_params(args.goal_units), args.random)
         print_cross(result)
         if args.json:
             _write_json(args.json, result)
