@@ -21,7 +21,7 @@ def _scene_table(part: dict[str, Any], seeds: int) -> None:
     columns = ["decoder", "AveRelErr %", "floored %", "x oracle", "RMSE %FS",
                "max rel floored %", "train s"]
     if speed:
-        columns += ["patch-samples/s", "latency us"]
+        columns += ["patch-samples/s", "latency us", "flagged us"]
     o = part["oracle"]
     rows = [["oracle", _f(o["ave_rel_err_pct"]), _f(o["ave_rel_err_floored_pct"]), "",
              _f(o["rmse_pct_fs"]), *[""] * (len(columns) - 5)]]
@@ -32,7 +32,8 @@ def _scene_table(part: dict[str, Any], seeds: int) -> None:
                  _f(ratio, 3), _f(d["rmse_pct_fs"]), _f(d["max_rel_err_floored_pct"], 2),
                  _f(d["train_s"])]
         if speed:
-            cells += [f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}"]
+            cells += [f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}",
+                      _f(d.get("latency_flagged_us"), 1)]
         rows.append(cells)
     show(title, columns, rows)
     print(f"best: {part['best']}")
@@ -86,8 +87,9 @@ def print_decoders(result: dict[str, Any]) -> None:
     speed = result["analytic_taxel_samples_per_s"]
     lm = result["lm_vs_scipy"]
     show("3-axis decode speed ('indenter' scene, 27 pillars per patch)",
-         ["decoder", "patch-samples/s", "latency us"],
-         [[d["name"], f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}"]
+         ["decoder", "patch-samples/s", "latency us", "flagged us"],
+         [[d["name"], f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}",
+           _f(d.get("latency_flagged_us"), 1)]
           for d in result["xyz_speed"]])
     print(f"analytic: {speed['z']:,.0f} taxel-samples/s z-only, "
           f"{speed['xyz']:,.0f} 3-axis")
