@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,8 +36,9 @@ import canopen
 import numpy as np
 from numpy.typing import NDArray
 
-from canbus import codes
+from canbus import codes, contact_record
 from canbus.device.patch_node import PatchNode
+from canbus.master.contact import PatchContact, summarize_batch
 from canbus.master.dataplane import DataPlane, PatchChannel
 from canbus.master.forcenode import VALID, ForceNode, forces_to_mN, valid_bits
 from canbus.od import load_od
@@ -85,7 +87,14 @@ def build_stream(patches: int, cycles: int, mode: str, seed: int = 0) -> Stream:
     if not 1 <= patches <= 63:
         raise ConfigError("patches", f"must be in 1..63 (force nodes at +64), got {patches}")
     dataset = sim.generate_dataset(SCENES[mode], cycles * patches, seed)
-    r = dataset.resistance_ohm.reshape(cycles, patches, 9, -1)
+    return stream_of(dataset.resistance_ohm.reshape(cycles, patches, 9, -1), mode)
+
+
+def stream_of(resistance_ohm: NDArray[np.float64], mode: str) -> Stream:
+    """The patch TPDO frames of ``(cycles, patches, 9, P)`` resistances: patch p is node
+    p + 1, cycle k one SYNC, each patch's TPDOs packed by its own ``PdoCodec``."""
+    r = resistance_ohm
+    cycles, patches = r.shape[:2]
     nodes = [PatchNode(p + 1, mode=mode) for p in range(patches)]
     per_patch = []
     for p, node in enumerate(nodes):
@@ -111,16 +120,19 @@ def build_stream(patches: int, cycles: int, mode: str, seed: int = 0) -> Stream:
 
 
 class DataPlaneRig:
-    """The data plane with its force nodes, publishing to a sink."""
+    """The data plane with its force nodes, publishing to a sink; ``contact``: the force
+    nodes' contact judges (:func:`contact_judge`), None: no contact summary."""
 
     def __init__(self, stream: Stream, decoder: Decoder, *, background: bool = False,
-                 window_s: float = 0.9 * PERIOD_S) -> None:
+                 window_s: float = 0.9 * PERIOD_S,
+                 contact: Callable[[int], PatchContact] | None = None) -> None:
         self.sink = SinkBus()
         self.network = canopen.Network(self.sink)
         self.force_nodes = []
         self.plane = DataPlane(self.sink, sync_window_s=window_s, background=background)
         for node in stream.nodes:
-            force_node = ForceNode(node.node_id + FORCE_NODE_OFFSET, node.node_id, heartbeat_ms=0)
+            force_node = ForceNode(node.node_id + FORCE_NODE_OFFSET, node.node_id, heartbeat_ms=0,
+                                   contact=None if contact is None else contact(node.node_id))
             force_node.attach(self.network)
             force_node.start()
             self.force_nodes.append(force_node)
@@ -152,10 +164,13 @@ class DataPlaneRig:
 
 
 class CanopenRig:
-    """The same work the canopen way: PdoMap callbacks in, PdoMap transmit out."""
+    """The same work the canopen way: PdoMap callbacks in, PdoMap transmit out; with
+    ``contact``, each force node's contact PDO too (the same summaries)."""
 
-    def __init__(self, stream: Stream, decoder: Decoder) -> None:
+    def __init__(self, stream: Stream, decoder: Decoder, *,
+                 contact: Callable[[int], PatchContact] | None = None) -> None:
         self.decoder = decoder
+        self.contacts = None if contact is None else [contact(n.node_id) for n in stream.nodes]
         self.sink = SinkBus()
         self.network = canopen.Network(self.sink)
         self.listener = canopen.network.MessageListener(self.network)
@@ -182,7 +197,8 @@ class CanopenRig:
             self.network.add_node(local)
             local.tpdo.read(from_od=True)
             self.publishers.append([(pdo, [_force_column(v.index, v.subindex) for v in pdo])
-                                    for pdo in local.tpdo.values() if pdo.enabled])
+                                    for pdo in local.tpdo.values() if pdo.enabled and (
+                                        self.contacts is not None or not _maps_contact(pdo))])
         self.sink.sent.clear()
 
     def _watch(self, pdo: Any, patch: int, bit: int) -> NDArray[np.bool_]:
@@ -220,7 +236,13 @@ class CanopenRig:
         valid = decoded.valid & ~missing
         mN, bus_valid = forces_to_mN(decoded.force_N, valid)
         bits = valid_bits(bus_valid, complete)
-        rows = np.concatenate([mN.reshape(len(mN), 27), bits[:, None]], axis=1).tolist()
+        parts: list[NDArray[np.int64]] = [mN.reshape(len(mN), 27).astype(np.int64),
+                                          bits[:, None].astype(np.int64)]
+        if self.contacts is not None:
+            force = np.where(valid[..., None], decoded.force_N, 0.0)
+            batch = summarize_batch(self.contacts, force, valid)
+            parts.append(contact_record.encode(batch, range(1, contact_record.SUBS + 1)))
+        rows: list[list[int]] = np.concatenate(parts, axis=1).tolist()
         for row, maps in zip(rows, self.publishers, strict=True):
             for pdo, columns in maps:
                 for var, column in zip(pdo, columns, strict=True):
@@ -244,9 +266,15 @@ def _configured_od(node: PatchNode) -> canopen.ObjectDictionary:
     return od
 
 
+def _maps_contact(pdo: Any) -> bool:
+    return any(v.index == contact_record.CONTACT for v in pdo)
+
+
 def _force_column(index: int, subindex: int) -> int:
     if index == VALID:
         return 27
+    if index == contact_record.CONTACT:
+        return 27 + subindex
     if index != 0x2000:
         raise ConfigError("pdo mapping", f"0x{index:04X} is not published by the benchmark")
     return subindex - 1
@@ -308,7 +336,8 @@ def notifier_rate(frames: int = 20_000) -> float:
         queued.close()
 
 
-def pipeline_rate(stream: Stream, decoder: Decoder) -> dict[str, float]:
+def pipeline_rate(stream: Stream, decoder: Decoder,
+                  contact: Callable[[int], PatchContact] | None = None) -> dict[str, float]:
     """The whole path in one process: virtual bus -> ``Notifier`` -> data plane (its thread).
 
     The sender opens each cycle (``on_sync``), sends its frames and waits until the data
@@ -317,7 +346,7 @@ def pipeline_rate(stream: Stream, decoder: Decoder) -> dict[str, float]:
     channel = f"dataplane-pipeline-{id(stream)}"
     sender = can.Bus(interface="virtual", channel=channel)
     receiver = can.Bus(interface="virtual", channel=channel)
-    rig = DataPlaneRig(stream, decoder, background=True, window_s=0.0)
+    rig = DataPlaneRig(stream, decoder, background=True, window_s=0.0, contact=contact)
     notifier = can.Notifier(receiver, [rig.plane], timeout=0.05)
     per_cycle = len(stream.frames[0])
     try:
@@ -345,16 +374,25 @@ def pipeline_rate(stream: Stream, decoder: Decoder) -> dict[str, float]:
             "mean_batch": stats["samples"] / max(stats["batches"], 1)}
 
 
+def contact_judge(node_id: int) -> PatchContact:
+    """A patch's contact judge as a host config without ``[contact]`` gives it."""
+    return PatchContact()
+
+
 def run_dataplane_benchmark(patches: int = 16, cycles: int = 300, mode: str = "xyz", *,
-                            repeats: int = 3, seed: int = 0) -> dict[str, Any]:
+                            repeats: int = 3, seed: int = 0,
+                            contact: bool = True) -> dict[str, Any]:
     """Figures of both paths over the same stream; the best of ``repeats`` interleaved runs.
 
     Also python-can's delivery alone (:func:`notifier_rate`) and the whole threaded path
-    (:func:`pipeline_rate`), each the best of its runs.
+    (:func:`pipeline_rate`), each the best of its runs. ``contact``: the force nodes publish
+    their patches' contact summaries (TPDO 8), as a host does by default.
     """
     stream = build_stream(patches, cycles, mode, seed)
     decoder = create_decoder("analytic")
-    fast, slow = DataPlaneRig(stream, decoder), CanopenRig(stream, decoder)
+    judge = contact_judge if contact else None
+    fast = DataPlaneRig(stream, decoder, contact=judge)
+    slow = CanopenRig(stream, decoder, contact=judge)
     try:
         fast.run(stream)
         slow.run(stream)
@@ -374,6 +412,7 @@ def run_dataplane_benchmark(patches: int = 16, cycles: int = 300, mode: str = "x
     best = {k: min(v) for k, v in times.items()}
     result: dict[str, Any] = {
         "patches": patches, "cycles": cycles, "mode": mode, "repeats": repeats,
+        "contact": contact,
         "frames_in": n, "frames_out": frames_out, "identical_output": identical,
         "all_samples_complete": stats["incomplete_samples"] == 0,
     }
@@ -385,7 +424,7 @@ def run_dataplane_benchmark(patches: int = 16, cycles: int = 300, mode: str = "x
     result["speedup"] = best["canopen"][0] / best["dataplane"][0]
     result["speedup_per_patch"] = best["canopen"][0] / best["per_patch"][0]
     result["notifier_frames_per_s"] = max(notifier_rate() for _ in range(repeats))
-    pipeline = max((pipeline_rate(stream, decoder) for _ in range(min(repeats, 3))),
+    pipeline = max((pipeline_rate(stream, decoder, judge) for _ in range(min(repeats, 3))),
                    key=lambda figures: figures["frames_per_s"])
     result["pipeline_frames_per_s"] = pipeline["frames_per_s"]
     result["pipeline_mean_batch"] = pipeline["mean_batch"]

@@ -2,7 +2,7 @@
 
 Layout::
 
-    {"schema": "canskin.decoder", "version": 3, "name": str,
+    {"schema": "canskin.decoder", "version": 4, "name": str,
      "params": {str: value}, "state": {str: value}, "meta": {str: value}}
 
 where a value is None, bool, int, float, str, a map of values (depth-limited)
@@ -13,9 +13,12 @@ names the field: a corrupt, truncated or hostile file never becomes a model.
 ``meta`` (version 2) is what training reports and decoding does not need: how
 the hidden nodes were chosen, the validation curve, where training stopped.
 Version 3 adds hybrid's residual threshold (``residual_threshold_``) and, for
-lm-mlp in 3-axis mode, the per-taxel band of its training domain. Files of
-versions 1 (no ``meta``, no training domain) and 2 are still read; each decoder
-class says how an older state is upgraded (``BaseDecoder._upgrade``).
+lm-mlp in 3-axis mode, the per-taxel band of its training domain. Version 4
+replaces lm-mlp's ellipsoid and bands by the checks of the whole patch
+(``domain_.pattern`` and ``domain_.departure``, :mod:`decoder.patchcheck`). Files of
+versions 1 (no ``meta``, no training domain), 2 and 3 are still read and decode as
+they did; each decoder class says how an older state is upgraded
+(``BaseDecoder._upgrade``).
 """
 
 from __future__ import annotations
@@ -30,10 +33,11 @@ import numpy as np
 
 from skin.atomic import atomic_write
 from skin.errors import ModelFileError
+from skin.inputs.fields import short
 
 SCHEMA = "canskin.decoder"
-VERSION = 3
-READABLE_VERSIONS = (1, 2, 3)
+VERSION = 4
+READABLE_VERSIONS = (1, 2, 3, 4)
 MAX_FILE_BYTES = 64 * 1024 * 1024
 MAX_ARRAY_ELEMENTS = 4_000_000
 MAX_DIMS = 4
@@ -44,7 +48,8 @@ DTYPES: dict[str, np.dtype[Any]] = {
 }
 TOP_KEYS = {1: frozenset({"schema", "version", "name", "params", "state"}),
             2: frozenset({"schema", "version", "name", "params", "state", "meta"}),
-            3: frozenset({"schema", "version", "name", "params", "state", "meta"})}
+            3: frozenset({"schema", "version", "name", "params", "state", "meta"}),
+            4: frozenset({"schema", "version", "name", "params", "state", "meta"})}
 
 
 @dataclass(frozen=True)
@@ -128,6 +133,9 @@ def _decode(value: Any, field: str, depth: int) -> Any:
             return decode_array(value, field)
         if depth >= MAX_DEPTH:
             raise ModelFileError(f"{field}: nested deeper than {MAX_DEPTH} levels")
+        for key in value:
+            if not isinstance(key, str):
+                raise ModelFileError(f"{field}: key {short(key)} is not a string")
         return {k: _decode(v, f"{field}.{k}", depth + 1) for k, v in value.items()}
     raise ModelFileError(f"{field}: unsupported value of type {type(value).__name__}")
 
@@ -150,13 +158,16 @@ def unpack_model(payload: bytes) -> ModelContent:
         raise ModelFileError(f"file: not a valid msgpack document ({err})") from err
     if not isinstance(doc, dict):
         raise ModelFileError("file: top level must be a map")
+    for key in doc:
+        if not isinstance(key, str):
+            raise ModelFileError(f"file: key {short(key)} is not a string")
     if doc.get("schema") != SCHEMA:
-        raise ModelFileError(f"schema: expected {SCHEMA!r}, got {doc.get('schema')!r}")
+        raise ModelFileError(f"schema: expected {SCHEMA!r}, got {short(doc.get('schema'))}")
     version = doc.get("version")
     if isinstance(version, bool) or version not in READABLE_VERSIONS:
         *older, newest = (str(v) for v in READABLE_VERSIONS)
         raise ModelFileError(f"version: this canskin reads versions {', '.join(older)} and "
-                             f"{newest}, got {version!r}")
+                             f"{newest}, got {short(version)}")
     keys = TOP_KEYS[version]
     missing = sorted(keys - set(doc))
     extra = sorted(set(doc) - keys)
@@ -174,9 +185,17 @@ def unpack_model(payload: bytes) -> ModelContent:
 
 
 def read_model(path: str | os.PathLike[str]) -> ModelContent:
-    """Read and validate a model file; ModelFileError names the first bad field."""
-    with open(path, "rb") as handle:
-        payload = handle.read(MAX_FILE_BYTES + 1)
+    """Read and validate a model file; ModelFileError names the file and the first bad
+    field."""
+    try:
+        with open(path, "rb") as handle:
+            payload = handle.read(MAX_FILE_BYTES + 1)
+    except FileNotFoundError as err:
+        raise ModelFileError(f"{os.fspath(path)}: no such file") from err
+    except IsADirectoryError as err:
+        raise ModelFileError(f"{os.fspath(path)}: is a folder, not a model file") from err
+    except OSError as err:
+        raise ModelFileError(f"{os.fspath(path)}: cannot read: {err.strerror}") from err
     try:
         return unpack_model(payload)
     except ModelFileError as err:

@@ -14,7 +14,7 @@ from decoder.modelfile import VERSION, read_model, write_model
 from decoder.physics import Inverse, make_inverse, solve
 from decoder.reasons import reason_name
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
-from skin.errors import DecodeError, ModelFileError, NotFittedError
+from skin.errors import ConfigError, DecodeError, ModelFileError, NotFittedError
 
 F64 = NDArray[np.float64]
 Progress = Callable[[int, float, float], None]
@@ -281,12 +281,14 @@ class BaseDecoder:
                                  f"got {sorted(state)}")
         kwargs = dict(params)
         try:
-            if not isinstance(kwargs["constants"], dict):
-                raise TypeError("must be a map")
-            kwargs["constants"] = SensorConstants.from_dict(kwargs["constants"])
+            kwargs["constants"] = SensorConstants.from_dict(kwargs["constants"],
+                                                            "params.constants")
+        except ConfigError as err:
+            raise ModelFileError(f"{where}: {err}") from err
+        try:
             model = cls(**kwargs)
-        except (TypeError, ValueError) as err:
-            raise ModelFileError(f"{where}: params: {err}") from err
+        except (TypeError, ValueError, ArithmeticError) as err:
+            raise ModelFileError(f"{where}: params.{cls._culprit(kwargs)}: {err}") from err
         for key, value in state.items():
             setattr(model, key, value)
         try:
@@ -295,6 +297,18 @@ class BaseDecoder:
             raise ModelFileError(f"{where}: {err}") from err
         model._loaded_meta = dict(meta or {})
         return model
+
+    @classmethod
+    def _culprit(cls, kwargs: dict[str, Any]) -> str:
+        """The parameter that makes ``cls(**kwargs)`` fail: the first one that fails alone."""
+        for key, value in kwargs.items():
+            if key == "constants":
+                continue
+            try:
+                cls(constants=kwargs["constants"], **{key: value})
+            except (TypeError, ValueError, ArithmeticError):
+                return key
+        return "(their combination)"
 
     def _check_state(self) -> None:
         """Validate loaded state; subclasses raise ModelFileError("state.<field>: ...")."""

@@ -135,7 +135,7 @@ def _force_sample(patch: PatchAudit, node: canopen.RemoteNode, frames: dict[int,
         patch.published.append((False, ()))
         return
     values: dict[tuple[int, int], int] = {}
-    for k, pdo in enumerate(node.tpdo.values()):
+    for k, pdo in enumerate(list(node.tpdo.values())[:7]):  # the forces (TPDO 8: contact)
         pdo.on_message(pdo.cob_id, bytearray(frames[k]), 0.0)
         values.update({(v.index, v.subindex): v.raw for v in pdo})
     forces = tuple(values[(0x2000, s)] for s in range(1, 28))

@@ -81,11 +81,12 @@ class BusClock:
     def for_patches(cls, patches: Sequence[int], *, fd: bool, bitrate: int | None,
                     data_bitrate: int | None) -> BusClock:
         """The clock of a bus whose patches' force nodes (node-ID + 64) publish on their
-        predefined TPDO COB-IDs: one force PDO a sample in CAN FD, seven in classic CAN."""
-        from canbus.master.cobids import predefined_tpdo_cob_ids
+        default TPDO COB-IDs: one force PDO a sample in CAN FD, eight in classic CAN (the
+        seven of the forces and the contact's, which is sent last)."""
+        from canbus.master.cobids import force_tpdo_cob_ids
         from canbus.master.hostconfig import FORCE_NODE_OFFSET
 
-        pdos = {n: predefined_tpdo_cob_ids(n + FORCE_NODE_OFFSET)[:1 if fd else 7]
+        pdos = {n: force_tpdo_cob_ids(n + FORCE_NODE_OFFSET)[:1 if fd else 8]
                 for n in patches}
         clock = cls({cob_ids[-1]: n for n, cob_ids in pdos.items()}, bitrate, data_bitrate)
         clock.force_cobs = {c for cob_ids in pdos.values() for c in cob_ids}

@@ -63,11 +63,12 @@ class LocalDevice:
     NOT_STORED: frozenset[int] = frozenset()
     """Command objects of the device that 0x1010 does not keep."""
 
-    def __init__(self, node_id: int, eds: str, *, serial: int = 0,
-                 nv: NvStore | None = None) -> None:
+    def __init__(self, node_id: int, eds: str, tpdo_count: int = TPDO_COUNT, *,
+                 serial: int = 0, nv: NvStore | None = None) -> None:
         if not (1 <= node_id <= 127 or node_id == UNCONFIGURED):
             raise ValueError(f"node-ID must be 1..127 or 0xFF (unconfigured), got {node_id}")
         self.eds = eds
+        self.tpdo_count = tpdo_count
         self.identity = Identity(*eds_identity(eds), serial=serial)
         self.nv = nv if nv is not None else NvStore(None, self.identity)
         if self.nv.content.node_id is not None:
@@ -97,7 +98,7 @@ class LocalDevice:
         self.node_id = node_id
         od_id = node_id if self.configured else 1  # an unconfigured device sends nothing
         self.store = ObjectStore(od_id, load_od(self.eds, od_id))
-        self.tpdo = TpdoTable(self.store, TPDO_COUNT)
+        self.tpdo = TpdoTable(self.store, self.tpdo_count)
         self.heartbeat = HeartbeatProducer(od_id)
         self.nmt = NmtSlave(od_id, on_reset=self._reset, on_state=self._on_state)
         self.history.attach(self.store)

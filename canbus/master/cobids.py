@@ -60,6 +60,12 @@ def predefined_tpdo_cob_ids(node_id: int) -> tuple[int, ...]:
     return tuple(base + node_id for base in _TPDO_BASES)
 
 
+def force_tpdo_cob_ids(node_id: int) -> tuple[int, ...]:
+    """TPDO 1..8 of the force EDS: the patch's 7, and the contact's at 0x500 + node-ID
+    (RPDO 4's identifier, free on a node without RPDOs)."""
+    return (*predefined_tpdo_cob_ids(node_id), 0x500 + node_id)
+
+
 def node_cob_ids(node_id: int) -> dict[int, str]:
     """Every COB-ID a CANopen node may transmit on in the predefined connection set."""
     ids = {0x080 + node_id: "EMCY", 0x580 + node_id: "SDO tx", 0x600 + node_id: "SDO rx",
@@ -74,9 +80,15 @@ def node_cob_ids(node_id: int) -> dict[int, str]:
 def force_cob_ids(patch: PatchNodes) -> frozenset[int]:
     """Every COB-ID the force node of ``patch`` transmits on: its TPDOs as configured,
     EMCY, SDO responses and heartbeat."""
-    node = patch.force_node
-    tpdos = patch.force_cob_ids or predefined_tpdo_cob_ids(node)
-    return frozenset({0x080 + node, 0x580 + node, 0x700 + node, *tpdos})
+    return frozenset({0x080 + patch.force_node, 0x580 + patch.force_node,
+                      0x700 + patch.force_node, *_force_tpdos(patch)})
+
+
+def _force_tpdos(patch: PatchNodes) -> tuple[int, ...]:
+    """The force node's TPDO 1..8 COB-IDs as configured (7 given: TPDO 8 its own)."""
+    default = force_tpdo_cob_ids(patch.force_node)
+    given = patch.force_cob_ids or ()
+    return (*given, *default[len(given):])
 
 
 def restricted(cob_id: int) -> bool:
@@ -127,15 +139,14 @@ def _check_bus(config: HostNodes, bus: str) -> None:
             continue
         where = f"patches[{i}]"
         services = node_cob_ids(patch.force_node)
-        default_tpdos = predefined_tpdo_cob_ids(patch.force_node)
+        default_tpdos = force_tpdo_cob_ids(patch.force_node)
         for cob_id in set(services) - set(default_tpdos):
             claim(cob_id, f"{where}.force_node {services[cob_id]}", f"{where}.force_node")
-        if patch.force_cob_ids is None:
-            for cob_id, service in _tpdos(default_tpdos).items():
-                claim(cob_id, f"{where}.force_node {service}", f"{where}.force_node")
-        else:
-            for k, cob_id in enumerate(patch.force_cob_ids):
-                claim(cob_id, f"{where}.force_node TPDO {k + 1}", f"{where}.force_cob_ids[{k}]")
+        given = len(patch.force_cob_ids or ())
+        tpdos = list(enumerate(_force_tpdos(patch)))
+        for k, cob_id in tpdos[given:] + tpdos[:given]:  # a clash is named where it was given
+            field = f"{where}.force_cob_ids[{k}]" if k < given else f"{where}.force_node"
+            claim(cob_id, f"{where}.force_node TPDO {k + 1}", field)
 
 
 def _tpdos(cob_ids: tuple[int, ...]) -> dict[int, str]:

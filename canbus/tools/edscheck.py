@@ -15,6 +15,12 @@ canopen uses; it must also load with ``canopen.import_od``. Rules:
 6. what lely's ``dcfchk`` checks (``canbus.tools.edslint``): CiA 306 keys and sections,
    object lists by range, values that parse as integers of their type and inside the
    limits, and no REAL default that lely and python-canopen read as different numbers.
+
+Before these rules, the file is read and its values checked as
+:mod:`canbus.edsfile` does for every EDS canskin loads (parse errors, non-numeric or
+out-of-range values, LowLimit above HighLimit, bad ``$NODEID`` expressions, counts):
+when a value is unreadable, only those problems are reported (the rules above would
+only repeat them), and counts are checked before anything loops over them.
 """
 
 from __future__ import annotations
@@ -25,7 +31,10 @@ import re
 
 import canopen
 
+from canbus.busopen import reason
+from canbus.edsfile import read_eds, reference_problems, value_problems
 from canbus.tools.edslint import lint
+from skin.errors import ConfigError
 
 LISTS = ("MandatoryObjects", "OptionalObjects", "ManufacturerObjects")
 MANDATORY = (0x1000, 0x1001, 0x1018)
@@ -36,42 +45,28 @@ TYPE_BITS = {0x01: 1, 0x02: 8, 0x03: 16, 0x04: 32, 0x05: 8, 0x06: 16, 0x07: 32, 
              0x1A: 56, 0x1B: 64}
 _OBJECT = re.compile(r"^([0-9A-Fa-f]{4})$")
 _SUB = re.compile(r"^([0-9A-Fa-f]{4})sub([0-9A-Fa-f]{1,2})$")
+MAX_MAPPED = 0x40
+"""A PDO maps at most 64 entries (CiA 301: sub-index 0 of a mapping object, 0..0x40)."""
 
 
-def _read(path: str | os.PathLike[str]) -> configparser.RawConfigParser:
-    eds = configparser.RawConfigParser(inline_comment_prefixes=(";",), strict=False)
-    eds.optionxform = str  # type: ignore[assignment,method-assign]
-    with open(path, encoding="utf-8", errors="replace") as handle:
-        eds.read_file(handle)
-    return eds
-
-
-class _NotANumberError(ValueError):
-    """A value the rules need as a number is none: the problem names where it is."""
-
-
-def _int(text: str, where: str = "") -> int:
-    number = text.replace("$NODEID", "0").replace("+", " + ").split("+")[-1].strip()
+def _int(text: str) -> int:
+    """The number of a value (its ``$NODEID`` term as 0); -1 when it has none."""
+    compact = text.replace(" ", "").upper().replace("$NODEID", "0")
     try:
-        return int(number, 16 if number.lower().startswith(("0x", "-0x")) else 10)
+        return sum(int(term, 0) for term in compact.split("+"))
     except ValueError:
-        raise _NotANumberError(f"{where} {text!r} is not a number".strip()) from None
+        return -1
 
 
 def check(path: str | os.PathLike[str]) -> list[str]:
     """One line per problem found in the EDS at ``path``; empty when it is valid."""
     try:
-        eds = _read(path)
-    except (OSError, configparser.Error, UnicodeError) as err:
-        return ["cannot read: " + "; ".join(str(err).split("\n"))]
-    try:
-        return _check(path, eds)
-    except _NotANumberError as err:
-        return [str(err)]
-
-
-def _check(path: str | os.PathLike[str], eds: configparser.RawConfigParser) -> list[str]:
-    problems: list[str] = []
+        eds = read_eds(path)
+    except ConfigError as err:
+        return [err.problem]
+    problems = value_problems(eds)
+    if problems:
+        return problems
     objects = {int(m.group(1), 16): s for s in eds.sections() if (m := _OBJECT.match(s))}
     subs: dict[int, dict[int, str]] = {}
     for section in eds.sections():
@@ -83,12 +78,15 @@ def _check(path: str | os.PathLike[str], eds: configparser.RawConfigParser) -> l
         problems += _check_object(eds, index, section, subs.get(index, {}))
     for index in sorted(i for i in objects if 0x1600 <= i <= 0x17FF or 0x1A00 <= i <= 0x1BFF):
         problems += _check_mapping(eds, index, subs.get(index, {}))
-    problems += lint(eds)
+    mentioned = {p.split("]")[0] for p in problems if p.startswith("[")}
+    problems += [p for p in reference_problems(eds) if p.split("]")[0] not in mentioned]
+    mentioned = {p.split("]")[0] for p in problems if p.startswith("[")}
+    problems += [p for p in lint(eds) if p.split("]")[0] not in mentioned]
     if not problems:
         try:
             canopen.import_od(os.fspath(path), 1)
-        except Exception as err:
-            problems.append(f"canopen cannot load it: {err}")
+        except Exception as err:  # canopen's parser raises whatever it meets
+            problems.append(f"canopen cannot load it: {reason(err)}")
     return problems
 
 
@@ -99,12 +97,11 @@ def _check_lists(eds: configparser.RawConfigParser, objects: dict[int, str]) -> 
             problems.append(f"[{name}] is missing")
             continue
         entries = {k: v for k, v in eds.items(name) if k != "SupportedObjects"}
-        count = _int(eds.get(name, "SupportedObjects", fallback="0"),
-                     f"[{name}] SupportedObjects")
+        count = _int(eds.get(name, "SupportedObjects", fallback="0"))
         if count != len(entries):
             problems.append(f"[{name}] SupportedObjects={count} but lists {len(entries)} objects")
-        for key, value in entries.items():
-            index = _int(value, f"[{name}] {key}")
+        for value in entries.values():
+            index = _int(value)
             listed.add(index)
             if index not in objects:
                 problems.append(f"[{name}] lists 0x{index:04X}, which has no section")
@@ -114,9 +111,9 @@ def _check_lists(eds: configparser.RawConfigParser, objects: dict[int, str]) -> 
 
 def _check_object(eds: configparser.RawConfigParser, index: int, section: str,
                   subs: dict[int, str]) -> list[str]:
-    object_type = _int(eds.get(section, "ObjectType", fallback="0x7"), f"[{section}] ObjectType")
+    object_type = _int(eds.get(section, "ObjectType", fallback="0x7"))
     if object_type in (0x8, 0x9):
-        claimed = _int(eds.get(section, "SubNumber", fallback="0"), f"[{section}] SubNumber")
+        claimed = _int(eds.get(section, "SubNumber", fallback="0"))
         problems = []
         if claimed != len(subs):
             problems.append(f"[{section}] SubNumber={claimed} but has {len(subs)} sub-objects")
@@ -148,13 +145,15 @@ def _check_mapping(eds: configparser.RawConfigParser, index: int,
                    subs: dict[int, str]) -> list[str]:
     if 0 not in subs:
         return [f"[{index:04X}] has no sub-index 0 (number of mapped objects)"]
-    count = _int(eds.get(subs[0], "DefaultValue", fallback="0"), f"[{subs[0]}] DefaultValue")
+    count = _int(eds.get(subs[0], "DefaultValue", fallback="0"))
+    if not 0 <= count <= MAX_MAPPED:
+        return [f"[{subs[0]}] maps {count} objects; a PDO maps 0..{MAX_MAPPED}"]
     problems, total = [], 0
     for s in range(1, count + 1):
         if s not in subs:
             problems.append(f"[{index:04X}] maps {count} objects but has no sub-index {s}")
             continue
-        raw = _int(eds.get(subs[s], "DefaultValue", fallback="0"), f"[{subs[s]}] DefaultValue")
+        raw = _int(eds.get(subs[s], "DefaultValue", fallback="0"))
         target, sub, bits = raw >> 16, (raw >> 8) & 0xFF, raw & 0xFF
         total += bits
         name = f"0x{target:04X}:{sub:02X}"
@@ -164,9 +163,9 @@ def _check_mapping(eds: configparser.RawConfigParser, index: int,
         if found is None:
             problems.append(f"[{subs[s]}] maps {name}, which does not exist")
             continue
-        if not _int(eds.get(found, "PDOMapping", fallback="0"), f"[{found}] PDOMapping"):
+        if not _int(eds.get(found, "PDOMapping", fallback="0")):
             problems.append(f"[{subs[s]}] maps {name}, which is not PDO-mappable")
-        size = TYPE_BITS.get(_int(eds.get(found, "DataType", fallback="0"), f"[{found}] DataType"))
+        size = TYPE_BITS.get(_int(eds.get(found, "DataType", fallback="0")))
         if size != bits:
             problems.append(f"[{subs[s]}] maps {bits} bits of {name}, which has {size}")
     if total > 64:

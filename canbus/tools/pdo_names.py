@@ -9,7 +9,8 @@ Units: an EDS ``Factor``/``Unit`` (canopen reads both) applies to any node. The 
 products add theirs: a patch's resistance codes (0x2000) are ohms by its LSB (0x2001)
 with the reserved codes named (short, saturated, open); a force node's forces (0x2000,
 INTEGER16 mN) are newtons with 0x8000 as "no value"; taxel status bytes and the valid
-taxel mask (0x2005) are spelled out.
+taxel mask (0x2005) are spelled out; its contact summary (0x2008) is in N, N·m and mm with
+the state bits named, and the PDO that carries only it is labelled ``contact``.
 
 :class:`Dictionary` chooses the EDS per node-ID: 1..64 the patch, 65..127 the force node
 (the host's default is patch node-ID + 64), unless told otherwise; an identity read by
@@ -28,7 +29,7 @@ from dataclasses import dataclass
 import canopen
 import numpy as np
 
-from canbus import codes
+from canbus import codes, contact_record
 from canbus.mappings import force_fd_entries, patch_fd_entries
 from canbus.od import load_od
 from canbus.patch_constants import LSB_SCALE, scale_of
@@ -72,7 +73,11 @@ class PdoEntry:
 
     @property
     def label(self) -> str:
-        return f"{self.kind}{self.layout.number}"
+        label = f"{self.kind}{self.layout.number}"
+        contact = contact_record.CONTACT
+        if self.layout.entries and all(e.index == contact for e in self.layout.entries):
+            return f"{label} contact"
+        return label
 
 
 def shipped_default(node_id: int) -> str:
@@ -146,7 +151,7 @@ class NodeView:
 
     def adopt_fd(self, mode: str = "xyz") -> bool:
         """Take canskin's CAN FD mapping (``canbus.mappings``): the node's whole answer or
-        sample in TPDO 1, TPDO 2..7 invalid, as if a master's SDO writes had been seen.
+        sample in TPDO 1, every other TPDO invalid, as if a master's SDO writes had been seen.
         False (nothing changed) for a node that is not a canskin patch or force node."""
         if self.product == FORCES_PRODUCT:
             entries = force_fd_entries()
@@ -154,10 +159,10 @@ class NodeView:
             entries = patch_fd_entries(mode)
         else:
             return False
-        read = self._reader()
-        for n in range(1, 7):
-            if TPDO_COMM + n in self.od:
-                self.seen[(TPDO_COMM + n, 1)] = read(TPDO_COMM + n, 1) | COB_ID_INVALID
+        read, n = self._reader(), 1
+        while TPDO_COMM + n in self.od:
+            self.seen[(TPDO_COMM + n, 1)] = read(TPDO_COMM + n, 1) | COB_ID_INVALID
+            n += 1
         self.seen[(TPDO_MAP, 0)] = len(entries)
         for sub, entry in enumerate(entries, start=1):
             self.seen[(TPDO_MAP, sub)] = entry.to_raw()
@@ -220,6 +225,9 @@ class NodeView:
             return lambda value: _reason(f"S{subindex - 1}", int(value))
         if product == FORCES_PRODUCT and index == 0x2005:
             return _valid_taxels
+        if product == FORCES_PRODUCT and index == contact_record.CONTACT and \
+                1 <= subindex <= contact_record.SUBS:
+            return functools.partial(_contact, subindex)
         if index == 0x1001:
             return lambda value: NamedValue("ER", value, "", f"ER=0x{int(value):02X}")
         var = self._variable(index, subindex)
@@ -396,6 +404,11 @@ def _force(name: str, value: float) -> NamedValue:
     if int(value) == NO_FORCE:
         return NamedValue(name, None, "N", f"{name}=none")
     return NamedValue(name, value / 1000.0, "N", f"{name}={value / 1000.0:+.3f} N")
+
+
+def _contact(sub: int, value: float) -> NamedValue:
+    """A force node's 0x2008 sub-index ``sub`` (:mod:`canbus.contact_record`)."""
+    return NamedValue(*contact_record.describe(sub, int(value)))
 
 
 def _valid_taxels(value: float) -> NamedValue:

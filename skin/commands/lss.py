@@ -17,13 +17,13 @@ from typing import Any
 
 
 def _network(args: argparse.Namespace) -> Any:
-    import can.cli
     import canopen
 
     from skin.commands.common.busargs import default_channel
+    from skin.commands.common.busopen import open_bus
 
     default_channel(args)
-    network = canopen.Network(can.cli.create_bus_from_namespace(args))
+    network = canopen.Network(open_bus(args))
     network.NOTIFIER_CYCLE = 0.05
     network.connect()
     return network
@@ -75,24 +75,27 @@ def _serial(text: str) -> int:
 
 
 def add_subparser(subparsers: Any) -> None:
-    import can.cli
-
+    from skin.commands.common import argtypes
     from skin.commands.common.busargs import node_id
+
+    step_s = argtypes.number("timeout", above=0.0, high=60.0, unit="s")
+    scan_s = argtypes.number("scan time", above=0.0, high=600.0, unit="s")
 
     parser = subparsers.add_parser("lss", help="patches by identity: scan, assign node-IDs "
                                                "(LSS, CiA 305)")
     group = parser.add_subparsers(title="lss commands", metavar="ACTION", required=True)
     scan = group.add_parser("scan", help="list the nodes on the bus by identity, configured "
                                          "or waiting for LSS")
-    scan.add_argument("--json", metavar="FILE", help="write the list as JSON")
-    scan.add_argument("--timeout", type=float, default=0.1, metavar="S",
+    scan.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                      help="write the list as JSON")
+    scan.add_argument("--timeout", type=step_s, default=0.1, metavar="S",
                       help="how long a fastscan step waits for an answer (default 0.1 s)")
     scan.add_argument("--thorough", action="store_true",
                       help="walk every vendor, product and revision, not only canskin "
                            "patches'")
-    scan.add_argument("--scan-s", type=float, default=0.3, metavar="S",
+    scan.add_argument("--scan-s", type=scan_s, default=0.3, metavar="S",
                       help="how long the SDO scan of configured nodes waits (default 0.3 s)")
-    can.cli.add_bus_arguments(scan)
+    argtypes.add_bus_arguments(scan)
     scan.set_defaults(func=_scan, interface="virtual")
     assign = group.add_parser("assign", help="give the patch with a serial number a node-ID")
     assign.add_argument("serial", type=_serial, metavar="SERIAL",
@@ -101,7 +104,7 @@ def add_subparser(subparsers: Any) -> None:
     assign.add_argument("--store", action="store_true",
                         help="LSS store configuration: the patch keeps the node-ID across "
                              "power cycles")
-    can.cli.add_bus_arguments(assign)
+    argtypes.add_bus_arguments(assign)
     assign.set_defaults(func=_assign, interface="virtual")
 
 

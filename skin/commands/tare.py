@@ -11,23 +11,25 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from skin.commands.common import argtypes
+
 ABORTS = {0x0800_0022: "the patch is loaded, or not operational: unload it and try again",
           0x0609_0030: "the value is not a tare command",
           0x0602_0000: "the node has no tare object: is it a canskin force node?"}
 
 
 def _tare(args: argparse.Namespace) -> int:
-    import can.cli
     import canopen
     from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
     from canbus.master.forcenode import TARE, TARE_COMMAND
     from canbus.od import load_od
     from skin.commands.common.busargs import default_channel
+    from skin.commands.common.busopen import open_bus
     from skin.errors import BusError
 
     default_channel(args)
-    with can.cli.create_bus_from_namespace(args) as bus:
+    with open_bus(args) as bus:
         network = canopen.Network(bus)
         network.connect()
         try:
@@ -50,19 +52,17 @@ def _tare(args: argparse.Namespace) -> int:
 
 
 def add_subparser(subparsers: Any) -> None:
-    import can.cli
 
-    from skin.commands.common.busargs import node_id
 
     parser = subparsers.add_parser(
         "tare", help="re-zero a patch through its force node (SDO write of 0x2007)",
         description="Re-zero the patch a force node publishes, by an SDO write of 1 to its "
                     "object 0x2007, as any CANopen master can. Refused while the patch is "
                     "loaded.")
-    parser.add_argument("node", type=node_id, metavar="NODE",
+    parser.add_argument("node", type=argtypes.node_id, metavar="NODE",
                         help="the force node's node-ID (a patch's is its node-ID + 64 by "
                              "default)")
-    parser.add_argument("--timeout", type=float, default=1.0, metavar="S",
+    parser.add_argument("--timeout", type=argtypes.seconds, default=1.0, metavar="S",
                         help="SDO response time-out (default 1 s)")
-    can.cli.add_bus_arguments(parser)
+    argtypes.add_bus_arguments(parser)
     parser.set_defaults(func=_tare, interface="virtual")

@@ -6,6 +6,7 @@ import argparse
 import time
 from typing import Any
 
+from skin.commands.common import argtypes
 from skin.errors import ConfigError
 
 
@@ -39,8 +40,10 @@ def add_subparser(subparsers: Any) -> None:
                         help="where the goal MSE is measured (lm-mlp, hybrid): on the forces "
                              "in newtons (default, as MATLAB's trainlm) or on the scaled "
                              "outputs")
-    parser.add_argument("--seed", type=int, help="random seed of the weights and the split")
-    parser.add_argument("-o", "--output", required=True, metavar="MODEL.msgpack")
+    parser.add_argument("--seed", type=argtypes.seed,
+                        help="random seed of the weights and the split")
+    parser.add_argument("-o", "--output", type=argtypes.output_file, required=True,
+                        metavar="MODEL.msgpack")
     parser.set_defaults(func=run)
 
 
@@ -63,6 +66,9 @@ def _report(decoder: Any) -> list[str]:
                      f"{crosstalk['kernel_side']:.4f}, diagonal {crosstalk['kernel_diagonal']:.4f}"
                      f"; held-out MSE kernel {crosstalk['val_mse_kernel_N2']:.3e}, full "
                      f"{crosstalk['val_mse_full_N2']:.3e} N²)")
+    domain = meta.get("domain")
+    if domain is not None:
+        lines.append(_domain_line(domain))
     residual = meta.get("residual")
     if residual is not None:
         used = int(residual["used"].sum())
@@ -80,16 +86,30 @@ def _report(decoder: Any) -> list[str]:
     return lines
 
 
+def _domain_line(domain: dict[str, Any]) -> str:
+    """lm-mlp's checks of the whole patch, in one line (a warning where the departure check
+    could not be calibrated)."""
+    ratio = domain["exchangeable_ratio"]
+    if domain["departure_check"] == "validation rows":
+        return (f"domain: pattern and departure checks calibrated on held-out rows (held-out "
+                f"blocks {ratio:.2f}x as unfamiliar as held-out rows; readings' box margin "
+                f"{100 * domain['input_margin']:.0f} %)")
+    return (f"domain: warning: held-out blocks of the training data are {ratio:.3g}x as "
+            f"unfamiliar as held-out rows (a few long episodes): the departure check is off "
+            f"and the pattern check alone decides; off this scene the network may be wrong "
+            f"without a flag (train on more episodes, or use hybrid)")
+
+
 def run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from decoder.registry import create_decoder
     from skin.commands.common.blas import limit_blas_threads
-    from skin.dataset import read_dataset
+    from skin.dataset import read_training_set
 
     limit_blas_threads()
-    dataset = read_dataset(args.data)
+    dataset = read_training_set(args.data)
     given = (("hidden", args.hidden), ("seed", args.seed), ("goal_units", args.goal_units))
     params = {k: v for k, v in given if v is not None}
     try:

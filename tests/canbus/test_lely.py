@@ -101,7 +101,7 @@ def test_dcfgen_builds_the_example_bus(tmp_path: Path) -> None:
     for node_id in (1, 2):  # the patches' resistance TPDOs too
         for cob, entries in _remote_tpdos(EDS / "skin-patch.eds", node_id):
             assert master[cob] == entries
-    assert len(master) == 4 * 7
+    assert len(master) == 2 * 7 + 2 * 8  # the patches' 7 TPDOs, the force nodes' 7 and the contact
 
 
 def _layout(patches: list[int], offset: int, with_patches: bool, sync_us: int) -> str:

@@ -33,6 +33,7 @@ from canbus.tools.replay import Recording
 from canbus.tools.services import Service, ServiceDecoder, route
 from canbus.tools.sniffer import FrameFilter, Sniffer, frame_bits
 from skin.cli import main
+from skin.commands.common import busopen
 from skin.commands.sniff.view import ViewStats, render
 from skin.constants import DEFAULT_CONSTANTS
 from tests.canbus.virtual_channels import ctrl_c, listening, read_out
@@ -302,22 +303,25 @@ def test_bad_arguments_fail_before_the_bus_opens(tmp_path: Path,
     def no_bus(*args: object, **kwargs: object) -> None:
         raise AssertionError("the bus was opened")
 
-    monkeypatch.setattr(can.cli, "create_bus_from_namespace", no_bus)
+    monkeypatch.setattr(busopen, "open_bus", no_bus)
     for argv, message in [
         (["--record", str(tmp_path / "x.txt")], "--record: unknown recording format '.txt'"),
         (["--eds", "3=missing.eds"], "eds: no shipped EDS 'missing.eds'"),
-        (["--seconds", "0"], "--seconds: must be positive"),
         (["--rotate-size", "1M"], "--rotate-size/--rotate-seconds: rotate a recording: give "
                                   "--record FILE too"),
-        (["--record", str(tmp_path / "r.log"), "--rotate-seconds", "0"],
-         "--rotate-seconds: must be positive, got 0.0"),
     ]:
         assert main(["sniff", *argv]) == 1
         assert message in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        main(["sniff", "--record", str(tmp_path / "r.log"), "--rotate-size", "10T"])
-    assert "argument --rotate-size: not a positive size in bytes: '10T'" in \
-        capsys.readouterr().err
+    for argv, message in [
+        (["--seconds", "0"], "argument --seconds: must be > 0 s"),
+        (["--record", str(tmp_path / "r.log"), "--rotate-seconds", "0"],
+         "argument --rotate-seconds: must be > 0 s"),
+        (["--record", str(tmp_path / "r.log"), "--rotate-size", "10T"],
+         "argument --rotate-size: must be in 1.0 KiB..1.0 TiB"),
+    ]:
+        with pytest.raises(SystemExit) as usage:
+            main(["sniff", *argv])
+        assert usage.value.code == 2 and message in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
 
 

@@ -188,7 +188,7 @@ def test_nodes_sharing_an_eds_keep_their_own_cob_ids() -> None:
     patch5, forces70 = dictionary.view(5), dictionary.view(70)
     assert patch5 is not None and forces70 is not None
     assert sorted(patch5.pdos) == [0x185, 0x205, 0x285, 0x305, 0x385, 0x405, 0x485]
-    assert sorted(forces70.pdos) == [0x1C6, 0x246, 0x2C6, 0x346, 0x3C6, 0x446, 0x4C6]
+    assert sorted(forces70.pdos) == [0x1C6, 0x246, 0x2C6, 0x346, 0x3C6, 0x446, 0x4C6, 0x546]
     patch6 = dictionary.view(6)
     assert patch6 is not None and patch6.od is patch5.od  # one parse per EDS
     assert dictionary.view(0) is None and dictionary.view(128) is None

@@ -35,10 +35,10 @@ def test_subscribers_get_the_frames_the_api_gives_by_patch_bus_host_and_skin() -
                 subscribe(host="another-host", settings=settings) as nobody:
             wait_until(lambda: skin.received >= 40 and one.received >= 20 and bus.received,
                        what="40 samples of the skin, 20 of patch 2")
-        # closed: each iterator ends once it handed out what its subscription held
-        got = list(skin.samples(timeout=0))
-        got_one = list(one.frames(timeout=0))
-        got_bus = list(bus.frames(timeout=0))
+        # closed, each subscription's iterator gives what it holds and ends
+        got = list(skin.samples(timeout=0.2))
+        got_one = list(one.frames(timeout=0.2))
+        got_bus = list(bus.frames(timeout=0.2))
         assert nobody.received == 0
     api = rig.by_cycle()
     assert len(got) >= 40
@@ -79,9 +79,11 @@ def test_state_changes_emcys_and_statistics_arrive_as_events() -> None:
                                data=[0x00, 0x50, 0x81, 4, 0x01, 0, 0, 0])
             rig.patch_bus.send(emcy)
             wait_until(lambda: any("/emcy/" in k for k, _ in events), what="the EMCY event")
-            rig.host.take_offline(rig.host.patch(1), "lost")
+            rig.server.stop()  # the patch falls silent: lost after two heartbeat periods
             wait_until(lambda: any(f.get("state") == "lost" for _, f in events),
                        what="the state event")
+            wait_until(lambda: any(k.endswith("/stats") for k, _ in events),
+                       what="a statistics event")
         finally:
             session.close()
     emcys = [f for k, f in events if k == "canskin/test-host/default/emcy/1"]

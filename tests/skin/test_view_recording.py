@@ -149,7 +149,10 @@ def test_the_snapshot_reads_the_same_from_the_force_pdos_and_decoding_the_patche
     assert [line for line in bus[1:] if " Hz " not in line] == \
         [line for line in decoded[1:] if " Hz " not in line]
     row = ["│ " in line for line in bus].index(True) + 2 - pressed // 3  # +y up
-    assert f"{round(fz, 1):5.1f}" in bus[row][2 + 6 * (pressed % 3):8 + 6 * (pressed % 3)]
+    cell = bus[row][2 + 6 * (pressed % 3):8 + 6 * (pressed % 3)]
+    assert f"{round(fz, 1):5.1f}" in cell.replace("◆", " ")  # ◆: the CoP's nearest taxel
+    assert sum(line.count("◆") for line in bus) >= 1 and any(
+        line.startswith("CoP") for line in bus)  # the contact lines are there
 
 
 def test_a_gif_animates_the_span(run: HostRun, tmp_path: Path,

@@ -7,11 +7,13 @@ import argparse
 from collections.abc import Callable
 from typing import Any
 
+from skin.commands.common import argtypes
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("publish", "skin bench publish (--patches, --seconds "
                                                  "as above; defaults 32 and 10)")
-    group.add_argument("--hosts", type=int, default=None, metavar="H",
+    group.add_argument("--hosts", type=argtypes.count("hosts", 1, 16), default=None, metavar="H",
                        help="host processes, each with its patches on its own "
                             "udp_multicast bus (default 4)")
     group.add_argument("--express", action="store_true",

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from skin.commands.common import argtypes
+
 DEFAULT_PATCHES = 16
 SCENE = "indenter"  # 3-axis, 100 Hz; here on every patch (every one loaded, none cached)
 
@@ -12,16 +14,17 @@ SCENE = "indenter"  # 3-axis, 100 Hz; here on every patch (every one loaded, non
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("server", "skin bench server (udp_multicast, another "
                                                 "process as the master)")
-    group.add_argument("--patches", type=int, default=None, metavar="N",
+    group.add_argument("--patches", type=argtypes.patches, default=None, metavar="N",
                        help=f"patches served, 3-axis at 100 Hz (default {DEFAULT_PATCHES}; "
                             "publish: 32)")
-    group.add_argument("--seconds", type=float, default=None, metavar="S",
+    group.add_argument("--seconds", type=argtypes.seconds, default=None, metavar="S",
                        help="length of each phase (default 3; --quick 1)")
-    group.add_argument("--rounds", type=int, default=None, metavar="R",
+    group.add_argument("--rounds", type=argtypes.count("rounds", 1, 1000), default=None,
+                       metavar="R",
                        help="serve and send phases, alternating (default 3; --quick 1)")
     group.add_argument("--channel", default="239.74.163.254", metavar="GROUP",
                        help="the multicast group (default 239.74.163.254)")
-    group.add_argument("--port", type=int, default=None, metavar="PORT",
+    group.add_argument("--port", type=argtypes.port, default=None, metavar="PORT",
                        help="the UDP port (default: one of this process's own, 30000..31999)")
 
 

@@ -13,21 +13,14 @@ import math
 import time
 from typing import Any
 
+from skin.commands.common import argtypes
+
 FITS, RECALIBRATE, RETARE = 0, 3, 4
 DEFAULT_TOLERANCE = 1.25
 DEFAULT_SLACK_PCT = 0.1
 
 
-def _fraction(text: str) -> float:
-    value = float(text)
-    if not (math.isfinite(value) and 0 <= value < 1):
-        raise argparse.ArgumentTypeError(f"must be in [0, 1), got {text}")
-    return value
-
-
 def add_subparser(subparsers: Any) -> None:
-    import can.cli
-
     from skin.commands.train import hidden_nodes
 
     parser = subparsers.add_parser(
@@ -40,33 +33,38 @@ def add_subparser(subparsers: Any) -> None:
                     "samples at rest (the tare). --check MODEL D.npz says whether a model "
                     "still fits: exit 0 it fits, 3 recalibrate, 4 re-tare.")
     parser.add_argument("dataset", metavar="D.npz", help="the patch's dataset")
-    parser.add_argument("-o", "--output", metavar="MODEL.msgpack", help="the model to write")
+    parser.add_argument("-o", "--output", type=argtypes.output_file, metavar="MODEL.msgpack",
+                        help="the model to write")
     parser.add_argument("--check", metavar="MODEL", help="check MODEL against D.npz instead")
-    parser.add_argument("--node", type=int, metavar="N",
+    parser.add_argument("--node", type=argtypes.node_id, metavar="N",
                         help="the patch, when the dataset holds several")
     parser.add_argument("--decoders", nargs="+", metavar="NAME[:HIDDEN]",
                         help="candidates, a decoder's name or name:hidden nodes (lm-mlp:8, "
                              "hybrid:auto) (default: analytic and every registered decoder "
                              "that learns)")
-    parser.add_argument("--folds", type=int, default=5, metavar="K",
+    parser.add_argument("--folds", type=argtypes.count("folds", 2, 100), default=5, metavar="K",
                         help="k of the k-fold validation (default 5)")
     parser.add_argument("--hidden", type=hidden_nodes, metavar="N|auto",
                         help="hidden nodes of the network decoders (default: each one's own)")
-    parser.add_argument("--seed", type=int, help="random seed of the network decoders")
-    parser.add_argument("--tie", type=_fraction, default=0.02, metavar="F",
+    parser.add_argument("--seed", type=argtypes.seed, help="random seed of the network decoders")
+    parser.add_argument("--tie", type=argtypes.fraction, default=0.02, metavar="F",
                         help="held-out errors within this fraction of the best tie; the "
                              "faster decoder wins (default 0.02)")
-    parser.add_argument("--max-flagged", type=_fraction, default=0.005, metavar="F",
+    parser.add_argument("--max-flagged", type=argtypes.fraction, default=0.005, metavar="F",
                         help="a candidate that refuses more of the held-out taxels is not "
                              "chosen (default 0.005)")
-    parser.add_argument("--rest-N", type=float, default=0.01, metavar="N",
+    parser.add_argument("--rest-N", type=argtypes.number("force", low=0.0, high=1e3, unit="N"),
+                        default=0.01, metavar="N",
                         help="a sample is at rest when every taxel's reference force is at "
                              "most this (default 0.01 N)")
-    parser.add_argument("--report", metavar="R.json", help="write the calibration report")
-    parser.add_argument("--json", metavar="FILE", help="write the command's figures as JSON")
-    parser.add_argument("--config-snippet", metavar="F.toml",
+    parser.add_argument("--report", type=argtypes.output_file, metavar="R.json",
+                        help="write the calibration report")
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write the command's figures as JSON")
+    parser.add_argument("--config-snippet", type=argtypes.output_file, metavar="F.toml",
                         help="write the host config's [[patches]] table for this patch")
-    parser.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE, metavar="X",
+    parser.add_argument("--tolerance", type=argtypes.number("tolerance", above=0.0, high=1e6),
+                        default=DEFAULT_TOLERANCE, metavar="X",
                         help="--check: the model fits while its floored error is at most X "
                              "times its own held-out figure plus 0.1 points (default 1.25)")
     parser.add_argument("--write-node", action="store_true",
@@ -76,9 +74,9 @@ def add_subparser(subparsers: Any) -> None:
                         help="with --write-node: then save the patch's manufacturer "
                              "parameters (0x1010 sub 4 \"save\"), so the rest survives "
                              "power-off")
-    parser.add_argument("--sdo-timeout", type=float, default=1.0, metavar="S",
+    parser.add_argument("--sdo-timeout", type=argtypes.seconds, default=1.0, metavar="S",
                         help="SDO response time-out for --write-node (default 1 s)")
-    can.cli.add_bus_arguments(parser)
+    argtypes.add_bus_arguments(parser)
     parser.set_defaults(func=_run, interface="virtual")
 
 
@@ -132,12 +130,12 @@ def _fit(args: argparse.Namespace) -> int:
     from skin.commands.calibrate.output import model_meta, save_model, snippet, write_json
     from skin.commands.common.blas import limit_blas_threads
     from skin.constants import SensorConstants
-    from skin.dataset import read_dataset
+    from skin.dataset import read_training_set
     from skin.errors import ConfigError
 
     started = time.perf_counter()
     limit_blas_threads()
-    ds = read_dataset(args.dataset)
+    ds = read_training_set(args.dataset)
     node, k = _patch(args, ds.meta, ds.resistance_ohm.shape[1])
     constants = SensorConstants.from_dict(ds.meta["constants"])
     r, f = ds.resistance_ohm[:, k], ds.force_N[:, k]
@@ -245,6 +243,7 @@ def _fmt(value: float | None, digits: int = 3) -> str:
 
 
 def _check(args: argparse.Namespace) -> int:
+    from decoder.calibration import check_calibration_meta
     from decoder.modelfile import read_model
     from decoder.protocol import BaseDecoder
     from decoder.registry import load_decoder
@@ -256,10 +255,7 @@ def _check(args: argparse.Namespace) -> int:
 
     if not (math.isfinite(args.tolerance) and args.tolerance >= 1):
         raise ConfigError("--tolerance", f"must be >= 1, got {args.tolerance}")
-    own = read_model(args.check).meta.get("calibration")
-    if not isinstance(own, dict) or "heldout_floored_pct" not in own:
-        raise ConfigError("--check", f"{args.check} has no calibration report (it was not "
-                          "written by skin calibrate)")
+    own = check_calibration_meta(read_model(args.check).meta.get("calibration"), args.check)
     model = load_decoder(args.check)
     ds = read_dataset(args.dataset)
     node, k = _patch(args, ds.meta, ds.resistance_ohm.shape[1], own.get("node_id"))

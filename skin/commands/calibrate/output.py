@@ -134,7 +134,6 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
     """SDO downloads of the rest values to the patch's 0x2002 (sub taxel·3 + pillar + 1),
     then with ``args.store`` 0x1010 sub 4 "save"; returns how many were written. BusError
     names the sub-index a patch refused."""
-    import can.cli
     import canopen
     import numpy as np
     from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
@@ -142,12 +141,13 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
     from canbus.od import load_od
     from canbus.patch_constants import encode_si
     from skin.commands.common.busargs import default_channel
+    from skin.commands.common.busopen import open_bus
     from skin.errors import BusError, ConfigError
 
     rest = np.asarray(rest_ohm, dtype=np.float64)
     default_channel(args)
     written = 0
-    with can.cli.create_bus_from_namespace(args) as bus:
+    with open_bus(args) as bus:
         network = canopen.Network(bus)
         network.connect()
         try:

@@ -3,6 +3,12 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    pass
+
+from skin.commands.common import argtypes
 
 DEFAULT_CHANNELS = {"virtual": "skin", "timed": "skin", "udp_multicast": "239.74.163.2"}
 """The channel every command uses when none is given, so that they meet on the same bus
@@ -19,15 +25,11 @@ def default_channel(args: argparse.Namespace) -> None:
 def add_rcvbuf_argument(parser: argparse.ArgumentParser) -> None:
     from canbus.tools.recorder import DEFAULT_RCVBUF
 
-    parser.add_argument("--rcvbuf", type=int, default=DEFAULT_RCVBUF, metavar="BYTES",
+    parser.add_argument("--rcvbuf", type=argtypes.rcvbuf, default=DEFAULT_RCVBUF, metavar="BYTES",
                         help="socket receive buffer to ask for on socket buses (udp_multicast, "
                              "socketcan); 0 keeps the system's (default "
                              f"{DEFAULT_RCVBUF >> 20} MiB)")
 
 
-def node_id(text: str) -> int:
-    """An argparse type: a CANopen node-ID, 1..127 (decimal or 0x hex)."""
-    value = int(text, 0)
-    if not 1 <= value <= 127:
-        raise argparse.ArgumentTypeError(f"node-ID must be in 1..127, got {text}")
-    return value
+node_id = argtypes.node_id
+"""An argparse type: a CANopen node-ID, 1..127 (decimal or 0x hex)."""

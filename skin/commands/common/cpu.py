@@ -21,6 +21,7 @@ from contextlib import contextmanager
 
 from skin.errors import ConfigError
 
+MAX_CPU = 4095
 ALL = "all"
 LAST = "last"
 
@@ -49,8 +50,8 @@ def parse_cpus(spec: str, allowed: set[int]) -> set[int] | None:
         except ValueError as err:
             raise ConfigError("--cpu", f"expected a list like 3 or 0,2-3, 'last' or 'all', "
                               f"got {spec!r}") from err
-        if first < 0 or last < first:
-            raise ConfigError("--cpu", f"{part!r} is not a CPU range")
+        if first < 0 or last < first or last > MAX_CPU:
+            raise ConfigError("--cpu", f"{part!r} is not a CPU range (CPUs 0..{MAX_CPU})")
         cpus.update(range(first, last + 1))
     outside = sorted(cpus - allowed)
     if outside:

@@ -85,3 +85,34 @@ def configured_logging(args: argparse.Namespace) -> Iterator[None]:
         root.removeHandler(handler)
         root.setLevel(before[0])
         commands.setLevel(before[1])
+
+
+class _Held(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(logging.NOTSET)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+
+@contextlib.contextmanager
+def held_back(*names: str) -> Iterator[None]:
+    """Hold the log records of the loggers ``names`` (python-can's ``can``, ``canopen``)
+    back while inside: a library's own lines around a failure (a missing driver, a bus
+    "not properly shut down", an EDS warning) would only surround the one line that says
+    what is wrong. Dropped when the block raises, logged as usual when it succeeds."""
+    held = _Held()
+    loggers = [logging.getLogger(name) for name in names]
+    before = [logger.propagate for logger in loggers]
+    for logger in loggers:
+        logger.addHandler(held)
+        logger.propagate = False
+    try:
+        yield
+    finally:
+        for logger, propagate in zip(loggers, before, strict=True):
+            logger.removeHandler(held)
+            logger.propagate = propagate
+    for record in held.records:
+        logging.getLogger(record.name).handle(record)

@@ -6,6 +6,8 @@ import argparse
 import importlib
 from typing import Any
 
+from skin.commands.common import argtypes
+
 
 def _dataset(args: argparse.Namespace) -> int:
     from sim import generate_dataset, load_scene
@@ -26,11 +28,13 @@ def add_subparser(subparsers: Any) -> None:
     group = parser.add_subparsers(title="sim commands", metavar="ACTION", required=True)
     dataset = group.add_parser("dataset", help="write a dataset (.npz) of a scene")
     dataset.add_argument("scene", metavar="SCENE", help="a shipped scene name or a .toml path")
-    dataset.add_argument("-n", type=int, required=True, metavar="N", help="number of samples")
+    dataset.add_argument("-n", type=argtypes.count("samples", 1, 10**12), required=True,
+                         metavar="N", help="number of samples")
     dataset.add_argument(
-        "--seed", type=int, default=None, help="random seed (default: the scene's own)"
+        "--seed", type=argtypes.seed, default=None, help="random seed (default: the scene's own)"
     )
-    dataset.add_argument("-o", "--output", required=True, metavar="FILE", help="output .npz")
+    dataset.add_argument("-o", "--output", type=argtypes.output_file, required=True,
+                         metavar="FILE", help="output .npz")
     dataset.set_defaults(func=_dataset)
     try:  # `skin sim run` lives in its own module
         sim_run = importlib.import_module("skin.commands.sim.run")

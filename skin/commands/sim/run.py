@@ -33,6 +33,8 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any
 
+from skin.commands.common import argtypes
+
 if TYPE_CHECKING:
     import canopen
 
@@ -40,6 +42,7 @@ if TYPE_CHECKING:
     from sim import Scene
 
 _NOTIFIER_CYCLE_S = 0.05
+_POLL_S = 0.1  # how often a run looks at its buses
 SPACING_M = 0.05
 UDP_DEFAULT_PORT = 43113  # python-can's udp_multicast default
 AHEAD_S = 0.1
@@ -141,10 +144,14 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_pinned(args: argparse.Namespace) -> int:
-    import can.cli
+    from functools import partial
+
     import canopen
 
+    from canbus.busio import ResilientBus
+    from canbus.receiveloop import connect, disconnect
     from skin.commands.common.busargs import default_channel
+    from skin.commands.common.busopen import open_bus
     from skin.errors import ConfigError
 
     scene = scene_on_patches(args.scene, args.patches)
@@ -159,21 +166,23 @@ def _run_pinned(args: argparse.Namespace) -> int:
     flags = bus_namespaces(args, args.buses)
     networks: list[canopen.Network] = []
     try:
-        for each in flags:
-            network = canopen.Network(can.cli.create_bus_from_namespace(each))
+        for each in flags:  # opened again when they keep failing (canbus.busio)
+            network = canopen.Network(ResilientBus(partial(open_bus, each),
+                                                   name=_describe(each)))
             # canopen's notifier blocks in recv() for up to NOTIFIER_CYCLE (1 s by default)
             # and disconnect() joins it: a short cycle makes --seconds S end after ~S.
             network.NOTIFIER_CYCLE = _NOTIFIER_CYCLE_S
-            network.connect()  # starts canopen's notifier on the bus it was given
+            connect(network)  # canopen's listeners on a notifier that survives the bus
             networks.append(network)
         return _serve(args, scene, networks, flags, planned)
     finally:
         for network in networks:
-            network.disconnect()
+            disconnect(network)
 
 
 def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Network],
            flags: list[argparse.Namespace], planned: Plan) -> int:
+    from canbus.busio import gone
     from canbus.device.patch_server import PatchServer
     from canbus.device.source import SimulatorSource
     from canbus.device.truth import TruthSource, truth_log
@@ -181,12 +190,12 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
     from skin.atomic import atomic_write
     from skin.commands.common.signals import until_stopped
     from skin.commands.sim.identity import patch_identities
+    from skin.errors import BusError
 
     simulator = Simulator(scene, seed=args.seed)
     truth = TruthSource(simulator) if args.truth else None
     ahead = max(1, round(AHEAD_S * scene.rate_hz))
     source = truth or SimulatorSource(simulator, ahead=ahead)
-    stop = threading.Event()
     # With --truth each SYNC reads its own step in the SYNC handler (no sample thread).
     server = PatchServer(networks, source, event_rate_hz=0.0 if truth else scene.rate_hz,
                          accept_only_consumed=True, **patch_identities(args, scene))
@@ -200,7 +209,7 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
                       else contextlib.nullcontext()) as log, until_stopped() as stopped:
             started, cpu0 = time.monotonic(), os.times()
             _announce(scene, server, flags)
-            stop.wait(args.seconds)
+            _until(args.seconds, started, networks)
     finally:
         gc.unfreeze()
     elapsed, cpu1 = time.monotonic() - started, os.times()
@@ -221,11 +230,28 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
     if args.json:
         record = _record(scene, server, flags, planned, elapsed, cpu)
         record["stopped_by"] = stopped.signal
+        record["bus_gone"] = gone(n.bus for n in networks)
         if log is not None:
             record.update(truth_samples=log.writer.samples, truth_late=log.late)
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
+    lost = gone(n.bus for n in networks)
+    if lost is not None:
+        raise BusError(f"{lost}: the patches cannot be heard")
     return 0
+
+
+def _until(seconds: float | None, started: float, networks: list[canopen.Network]) -> None:
+    """Wait out ``seconds`` from ``started`` (None: until a stop signal), or until a bus is
+    gone for good."""
+    from canbus.busio import gone
+
+    stop = threading.Event()
+    deadline = None if seconds is None else started + seconds
+    while (deadline is None or time.monotonic() < deadline) and \
+            gone(n.bus for n in networks) is None:
+        stop.wait(_POLL_S if deadline is None else
+                  max(0.0, min(_POLL_S, deadline - time.monotonic())))
 
 
 def _record(scene: Scene, server: Any, flags: list[argparse.Namespace], planned: Plan,
@@ -265,8 +291,6 @@ def _ids(ids: list[int]) -> str:
 
 
 def add_subparser(group_subparsers: Any) -> None:
-    import can.cli
-
     from skin.commands.common.cpu import add_cpu_argument
     from skin.commands.sim.identity import add_identity_arguments
 
@@ -278,19 +302,21 @@ def add_subparser(group_subparsers: Any) -> None:
                     "43113), virtual and timed channels CHANNEL0..CHANNEL<N-1>, any "
                     "interface -c CH0,CH1,...")
     parser.add_argument("scene", metavar="SCENE", help="a shipped scene name or a .toml path")
-    parser.add_argument("--patches", type=int, default=None, metavar="N",
+    parser.add_argument("--patches", type=argtypes.patches, default=None, metavar="N",
                         help="the scene's loads and effects on N patches, node-IDs 1..N")
-    parser.add_argument("--buses", type=int, default=1, metavar="N",
+    parser.add_argument("--buses", type=argtypes.buses, default=1, metavar="N",
                         help="spread the patches over N buses in node order (default 1)")
-    parser.add_argument("--seconds", type=float, default=None, metavar="S",
+    parser.add_argument("--seconds", type=argtypes.seconds, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C)")
-    parser.add_argument("--seed", type=int, default=None, help="random seed (default: the scene's)")
-    parser.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
-    parser.add_argument("--truth", metavar="F.csv",
+    parser.add_argument("--seed", type=argtypes.seed, default=None,
+                        help="random seed (default: the scene's)")
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write the run's figures as JSON")
+    parser.add_argument("--truth", type=argtypes.output_file, metavar="F.csv",
                         help="also write the true forces of every answer as reference forces "
                              "(docs/calibrate.md); each SYNC then steps the simulator once "
                              "(one bus only)")
     add_identity_arguments(parser)
     add_cpu_argument(parser, default="all")
-    can.cli.add_bus_arguments(parser)
+    argtypes.add_bus_arguments(parser)
     parser.set_defaults(func=_run, interface="virtual")

@@ -25,6 +25,8 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from skin.commands.common import argtypes
+
 if TYPE_CHECKING:
     from pathlib import Path
 
@@ -53,16 +55,20 @@ class Capture:
     recorded: int
     error: BaseException | None
     stopped_by: str | None
+    receive: dict[str, Any] | None = None  # what receiving survived (canbus.busio)
 
 
 def _sniff(args: argparse.Namespace) -> int:
-    import can.cli
+    from functools import partial
 
+    from canbus.busio import ResilientBus
     from canbus.tools.pdo_names import Dictionary, parse_assignment
     from canbus.tools.recorder import check_channel_name, enlarge_receive_buffer, recording_format
     from canbus.tools.services import ServiceDecoder
     from canbus.tools.sniffer import FrameFilter, Sniffer
     from skin.commands.common.busargs import default_channel
+    from skin.commands.common.busopen import open_bus
+    from skin.commands.common.logs import held_back
     from skin.errors import BusError, ConfigError
 
     if args.record:
@@ -77,8 +83,9 @@ def _sniff(args: argparse.Namespace) -> int:
         if value is not None and not value > 0:
             raise ConfigError(f"--{name.replace('_', '-')}", f"must be positive, got {value}")
     assignments: dict[int, str] = {}
-    for text in args.eds:
-        assignments |= parse_assignment(text)
+    with held_back("canopen"):
+        for text in args.eds:
+            assignments |= parse_assignment(text)
     decoder = ServiceDecoder(Dictionary(assignments))
     shown = FrameFilter(args.node, args.service)
     view = args.view or ("live" if sys.stdout.isatty() else "lines")
@@ -91,10 +98,12 @@ def _sniff(args: argparse.Namespace) -> int:
     switch = sys.getswitchinterval()
     try:
         sys.setswitchinterval(min(switch, _SWITCH_S))
-        with can.cli.create_bus_from_namespace(args) as bus:
-            if args.rcvbuf:
-                enlarge_receive_buffer(bus, args.rcvbuf)
+        # What recv raises is survived; a bus that keeps failing is opened again (busio).
+        with ResilientBus(partial(open_bus, args), name=f"{args.interface}:{args.channel}",
+                          prepare=partial(enlarge_receive_buffer, size=args.rcvbuf)
+                          if args.rcvbuf else None) as bus:
             capture = _capture(bus, sniffer, shown, printer, stats, view, args)
+            capture.receive = bus.stats.as_dict()
     finally:
         sys.setswitchinterval(switch)
     _report(sniffer.snapshot(), capture, stats, view, args)
@@ -108,8 +117,7 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
              args: argparse.Namespace) -> Capture:
     """Receive until the end (Ctrl-C, SIGTERM, SIGHUP included); the recording is closed
     complete whatever ends it."""
-    import can
-
+    from canbus.receiveloop import ReceiveLoop
     from canbus.tools.recorder import Recorder, log_channel_name
     from skin.commands.common.signals import until_stopped
 
@@ -118,7 +126,7 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
         (f" → {args.record}" if args.record else "")
     started, cpu = time.monotonic(), time.process_time()
     recorder: Recorder | None = None
-    notifier: can.Notifier | None = None
+    notifier: ReceiveLoop | None = None
     try:
         with until_stopped() as stopped:  # Ctrl-C is how a sniffer is meant to end
             if args.record:
@@ -126,7 +134,8 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
                                     rotate_s=args.rotate_seconds)
             listeners: list[can.Listener] = [sniffer] if recorder is None else \
                 [recorder, sniffer]
-            notifier = can.Notifier(bus, listeners, timeout=_TICK_S)
+            notifier = ReceiveLoop(bus, listeners, timeout=_TICK_S,
+                                   name=f"{args.interface}:{args.channel}")
             if printer is not None:
                 printer.start()
             logger.info("capturing %s; Ctrl-C stops", header)  # receiving from here on
@@ -165,7 +174,7 @@ def _report(snap: Snapshot, capture: Capture, stats: ViewStats, view: str,
             "recording": None if capture.saved is None else
             {"path": str(capture.saved), "frames": capture.recorded,
              "files": [str(p) for p in capture.files]},
-            "stopped_by": capture.stopped_by,
+            "stopped_by": capture.stopped_by, "receive": capture.receive,
             "view": {"mode": view, "redraws": stats.redraws,
                      "redraws_skipped": stats.redraws_skipped, "lines": stats.lines,
                      "lines_dropped": stats.lines_dropped}}
@@ -218,22 +227,10 @@ def _watch(notifier: can.Notifier, recorder: Recorder | None, printer: LinePrint
                            time.monotonic() - started, rows), refresh=True)
 
 
-_SIZE = re.compile(r"(\d+)([kKmMgG]?)[bB]?")
-
-
-def _size(text: str) -> int:
-    """``1000``, ``64k``, ``10M``, ``1G`` (powers of 1024) as bytes."""
-    match = _SIZE.fullmatch(text.strip())
-    if match is None or int(match[1]) == 0:
-        raise argparse.ArgumentTypeError(f"not a positive size in bytes: {text!r} (e.g. "
-                                         "1000000, 64k, 10M, 1G)")
-    return int(match[1]) << 10 * " KMG".index(match[2].upper() or " ")
 
 
 def add_subparser(subparsers: Any) -> None:
-    import can.cli
-
-    from skin.commands.common.busargs import add_rcvbuf_argument, node_id
+    from skin.commands.common.busargs import add_rcvbuf_argument
 
     parser = subparsers.add_parser(
         "sniff", help="live, EDS-aware bus view; --record to .log/.asc/.blf/.pcap",
@@ -242,30 +239,33 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--eds", action="append", default=[], metavar="NODE=FILE",
                         help="decode node NODE (or FIRST-LAST) with FILE (a path or a shipped "
                              "EDS name); default: 1..64 skin-patch, 65..127 skin-forces")
-    parser.add_argument("--node", action="append", type=node_id, default=[], metavar="N",
+    parser.add_argument("--node", action="append", type=argtypes.node_id, default=[], metavar="N",
                         help="show only node N (repeatable); statistics still see every frame")
     parser.add_argument("--service", action="append", choices=SERVICES, default=[],
                         help="show only this service (repeatable)")
-    parser.add_argument("--record", metavar="FILE",
+    parser.add_argument("--record", type=argtypes.output_file, metavar="FILE",
                         help="record every frame to FILE: .log (candump -L), .asc, .blf, .pcap")
-    parser.add_argument("--rotate-size", type=_size, default=None, metavar="BYTES",
+    parser.add_argument("--rotate-size", type=argtypes.rotate_size, default=None, metavar="BYTES",
                         help="go on in a new file (run.001.log, run.002.log, ...) once one "
                              "reaches BYTES (k, M, G: powers of 1024); each file is a whole "
                              "recording")
-    parser.add_argument("--rotate-seconds", type=float, default=None, metavar="S",
+    parser.add_argument("--rotate-seconds", type=argtypes.seconds, default=None, metavar="S",
                         help="go on in a new file every S seconds")
     parser.add_argument("--channel-name", default=None, metavar="NAME",
                         help="the interface name a .log recording gives every frame, as "
                              "log2asc and canplayer expect it (default: the bus's channel "
                              "if it is an interface name, else can0)")
-    parser.add_argument("--seconds", type=float, default=None, metavar="S",
+    parser.add_argument("--seconds", type=argtypes.seconds, default=None, metavar="S",
                         help="stop after S seconds (default: at Ctrl-C)")
     parser.add_argument("--view", choices=("live", "lines", "none"), default=None,
                         help="live table, one line per frame, or summary only "
                              "(default: live on a terminal, else lines)")
-    parser.add_argument("--refresh", type=float, default=4.0, metavar="HZ",
+    parser.add_argument("--refresh",
+                        type=argtypes.number("rate", above=0.0, high=1000.0, unit="Hz"),
+                        default=4.0, metavar="HZ",
                         help="live view redraws per second at most (default 4)")
     add_rcvbuf_argument(parser)
-    parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
-    can.cli.add_bus_arguments(parser, filter_arg=True)
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write the summary as JSON")
+    argtypes.add_bus_arguments(parser, filter_arg=True)
     parser.set_defaults(func=_sniff, interface="virtual")

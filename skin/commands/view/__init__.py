@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from skin.commands.common import argtypes
 from skin.commands.view.layout import Layout, layout_from_positions, parse_layout
 from skin.commands.view.term import DEFAULT_SCALE_N, SkinView
 
@@ -177,26 +178,24 @@ def moment_view(path: str, t: float, layout: Layout, scale_N: float, *,
 
 
 def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) -> int:
-    import can.cli
+    from functools import partial
 
+    from canbus.busio import ResilientBus
+    from canbus.tools.recorder import enlarge_receive_buffer
     from skin.commands.common.busargs import default_channel
+    from skin.commands.common.busopen import open_bus
     from skin.commands.view.sources import BusDecode, BusForces, force_specs
-    from skin.errors import BusError
 
     default_channel(args)
     seconds = args.seconds
     if seconds is None and args.snapshot:
         seconds = SNAPSHOT_SECONDS
-    try:
-        bus = can.cli.create_bus_from_namespace(args)
-    except argparse.ArgumentError as err:  # how python-can reports a bus it cannot open
-        cause = err.__cause__ or err
-        raise BusError(f"cannot open the bus: {type(cause).__name__}: {cause}") from err
+    # opened again when it keeps failing (canbus.busio); the first open's failure is
+    # BusError "cannot open the bus IFACE:CHANNEL: ..." in one line
+    bus = ResilientBus(partial(open_bus, args), name=f"{args.interface}:{args.channel}",
+                       prepare=partial(enlarge_receive_buffer, size=args.rcvbuf)
+                       if args.rcvbuf else None)
     with bus:
-        if args.rcvbuf:
-            from canbus.tools.recorder import enlarge_receive_buffer
-
-            enlarge_receive_buffer(bus, args.rcvbuf)
         source: BusForces | BusDecode = BusDecode(bus, config) if args.decode and config \
             else BusForces(bus, force_specs(config))
         where = f"{args.interface}:{args.channel}"
@@ -414,9 +413,13 @@ def _trace(args: argparse.Namespace, config: HostConfig | None, times: Recording
     return 0
 
 
-def add_subparser(subparsers: Any) -> None:
-    import can.cli
+_SCALE = argtypes.number("force", above=0.0, high=1e4, unit="N")
+_REFRESH = argtypes.number("rate", above=0.0, high=1000.0, unit="Hz")
+_MOMENT = argtypes.number("seconds", low=0.0, high=1e10, unit="s")
+_OUT = argtypes.output_file
 
+
+def add_subparser(subparsers: Any) -> None:
     from skin.commands.common.busargs import add_rcvbuf_argument
 
     parser = subparsers.add_parser(
@@ -438,44 +441,46 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--decode", action="store_true",
                         help="decode the patches' resistance PDOs here (listen-only host of "
                              "--config) instead of reading the force nodes' PDOs")
-    parser.add_argument("--scale", type=float, default=DEFAULT_SCALE_N, metavar="N",
+    parser.add_argument("--scale", type=_SCALE, default=DEFAULT_SCALE_N, metavar="N",
                         help=f"the colour scale's top, in N (default {DEFAULT_SCALE_N:g}; "
                              "bottom 0 N)")
-    parser.add_argument("--seconds", type=float, default=None, metavar="S",
+    parser.add_argument("--seconds", type=argtypes.seconds, default=None, metavar="S",
                         help="stop after S seconds (default: Ctrl-C or the recording's end)")
-    parser.add_argument("--refresh", type=float, default=4.0, metavar="HZ",
+    parser.add_argument("--refresh", type=_REFRESH, default=4.0, metavar="HZ",
                         help="live view redraws per second at most (default 4)")
     parser.add_argument("--fast", action="store_true",
                         help="play FILE as fast as it goes (default: its recorded timing)")
     parser.add_argument("--snapshot", action="store_true",
                         help="print one frame as plain text: after --seconds (default 1) on "
                              "a bus, at --at T in FILE")
-    parser.add_argument("--at", type=float, default=None, metavar="T",
+    parser.add_argument("--at", type=_MOMENT, default=None, metavar="T",
                         help="seconds from FILE's first frame (default: its end)")
     _add_picture_arguments(parser)
-    parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
+    parser.add_argument("--json", type=_OUT, metavar="FILE", help="write the summary as JSON")
     from skin.commands.view.zenoh import add_zenoh_arguments
 
     add_zenoh_arguments(parser)
     add_rcvbuf_argument(parser)
-    can.cli.add_bus_arguments(parser)
+    argtypes.add_bus_arguments(parser)
     parser.set_defaults(func=_view, interface="virtual")
 
 
 def _add_picture_arguments(parser: argparse.ArgumentParser) -> None:
     pictures = parser.add_argument_group("pictures of FILE (matplotlib: the plot extra)")
-    pictures.add_argument("--png", metavar="F.png", help="one moment (--at)")
-    pictures.add_argument("--gif", metavar="F.gif", help="an animation (--from, --to, --fps)")
-    pictures.add_argument("--mp4", metavar="F.mp4", help="an animation; needs ffmpeg")
-    pictures.add_argument("--from", dest="start", type=float, default=None, metavar="T0",
+    pictures.add_argument("--png", type=_OUT, metavar="F.png", help="one moment (--at)")
+    pictures.add_argument("--gif", type=argtypes.output_file, metavar="F.gif",
+                          help="an animation (--from, --to, --fps)")
+    pictures.add_argument("--mp4", type=_OUT, metavar="F.mp4", help="an animation; needs ffmpeg")
+    pictures.add_argument("--from", dest="start", type=_MOMENT, default=None, metavar="T0",
                           help="span start, s from FILE's first frame (default 0)")
-    pictures.add_argument("--to", dest="end", type=float, default=None, metavar="T1",
+    pictures.add_argument("--to", dest="end", type=_MOMENT, default=None, metavar="T1",
                           help="span end (default: FILE's end)")
-    pictures.add_argument("--fps", type=int, default=None, metavar="N",
+    pictures.add_argument("--fps", type=argtypes.count("fps", 1, 100), default=None, metavar="N",
                           help=f"animation frames per second (default {DEFAULT_FPS:g})")
-    pictures.add_argument("--plot", metavar="F.png",
+    pictures.add_argument("--plot", type=argtypes.output_file, metavar="F.png",
                           help="Fx, Fy, Fz of one taxel over time (--patch, --taxel)")
-    pictures.add_argument("--patch", type=int, default=None, metavar="N", help="patch node-ID")
-    pictures.add_argument("--taxel", type=int, default=None, metavar="K", help="taxel 0..8")
+    pictures.add_argument("--patch", type=argtypes.node_id, metavar="N", help="patch node-ID")
+    pictures.add_argument("--taxel", type=argtypes.count("taxel", 0, 8), default=None, metavar="K",
+                          help="taxel 0..8")
     pictures.add_argument("--raw", action="store_true",
                           help="also the taxel's raw resistances, from the patch's own PDOs")

@@ -22,6 +22,8 @@ DEFAULT_PITCH_M = DEFAULT_CONSTANTS.taxel_pitch_m
 ROW_SPACING_M = 0.05
 """Centre to centre of patches in a default row: a 45 mm patch and a 5 mm gap."""
 
+POSITION_LIMIT_M = 1000.0
+
 
 @dataclass(frozen=True)
 class Layout:
@@ -98,10 +100,10 @@ def parse_layout(texts: Iterable[str], pitch_m: float = DEFAULT_PITCH_M) -> Layo
             x, y = float(x_text), float(y_text)
         except ValueError:
             patch, x, y = 0, math.nan, math.nan
-        if not sep or not comma or not 1 <= patch <= 127 or not (math.isfinite(x)
-                                                                 and math.isfinite(y)):
-            raise ConfigError("--layout", f"expected NODE=X,Y (node-ID 1..127, metres), got "
-                              f"{text!r}")
+        if not sep or not comma or not 1 <= patch <= 127 or not (abs(x) <= POSITION_LIMIT_M
+                                                                 and abs(y) <= POSITION_LIMIT_M):
+            raise ConfigError("--layout", f"expected NODE=X,Y (node-ID 1..127, metres within "
+                              f"±{POSITION_LIMIT_M:g}), got {text!r}")
         if patch in positions:
             raise ConfigError("--layout", f"patch {patch} is placed twice")
         positions[patch] = (x, y)

@@ -6,7 +6,9 @@ view; a colour bar in N whose pointed ends stand for values beyond the scale), e
 taxel's Fz written in its corner, its shear (Fx, Fy) as an arrow from its centre (a quarter
 of the scale's force, 1.25 N of 5 N, reaches the taxel's edge; a key shows 1 N), invalid
 taxels hatched grey with their reason's short code, and per patch its state (coloured
-when not live) and rate; the time in the title. An animation (:func:`save_animation`)
+when not live) and rate, its centre of pressure as a ring and its net shear as a thick
+arrow from it (green; amber near slip, red and ``SLIP`` when slipping); the time in the
+title. An animation (:func:`save_animation`)
 is such moments at a fixed rate, written by Pillow (GIF) or ffmpeg (MP4). A trace
 (:func:`save_trace`) is one taxel's Fx, Fy, Fz over time, optionally over its pillars'
 raw resistances. Every file is written to a temporary name and renamed into place.
@@ -14,18 +16,18 @@ raw resistances. Every file is written to a temporary name and renamed into plac
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import shutil
-import tempfile
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from skin.atomic import atomic_path
+from skin.commands.view.contact import ViewContact, view_contact
 from skin.commands.view.term import SHEAR_MIN_N, reason_code
 from skin.errors import ConfigError
 
@@ -38,6 +40,8 @@ DPI = 100
 HATCH_GREY = "#9e9e9e"
 ARROW_COLOUR = "#00d7ff"
 STATE_COLOURS = {"live": "black", "waiting": "#616161", "stale": "#e65100", "lost": "#c62828"}
+CONTACT_COLOURS = {"": "#39ff14", "near": "#ffab00", "SLIP": "#d50000"}
+"""The CoP ring and net-shear arrow: in contact, near slip, slipping."""
 
 
 def pyplot(flag: str) -> Any:
@@ -50,26 +54,6 @@ def pyplot(flag: str) -> Any:
     import matplotlib.pyplot as plt
 
     return plt
-
-
-@contextlib.contextmanager
-def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
-    """A temporary path beside ``target`` with its suffix (writers that pick the format by
-    suffix need it), renamed onto ``target`` only if the block succeeds."""
-    target = Path(target)
-    fd, name = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=target.suffix,
-                                dir=target.parent if str(target.parent) else ".")
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    try:
-        os.chmod(name, 0o666 & ~umask)  # mkstemp's file is owner-only; give open()'s mode
-        yield Path(name)
-        os.replace(name, target)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(name)
-        raise
 
 
 @dataclass
@@ -191,6 +175,8 @@ def _draw_patch(pen: _Pen, patch: int, cx: float, cy: float,
         ax.text(cx, cy, "no sample", ha="center", va="center", fontsize=8, color="#555555")
     else:
         _draw_taxels(pen, sample, taxels)
+        _draw_contact(ax, view_contact(sample), (cx, cy), half, pen.arrow_scale,
+                      pen.shear_min_N)
     return taxels
 
 
@@ -248,6 +234,31 @@ def _draw_frame(figure: Any, pen: _Pen, state: ViewState, title: str,
     bar.set_label("normal force Fz (N)")
     when = "" if time_s is None else f"  t = {time_s:.3f} s"
     ax.set_title(f"{title}{when}", fontsize=11, loc="left")
+
+
+def _draw_contact(ax: Any, contact: ViewContact | None, centre: tuple[float, float],
+                  half: float, arrow_scale: float, shear_min_N: float) -> None:
+    """The centre of pressure (a ring: red when slipping, amber near slip), the net shear
+    as a thick arrow from it, and SLIP or near in the patch's bottom-right corner."""
+    if contact is None:
+        return
+    colour = CONTACT_COLOURS[contact.mark]
+    cx, cy = centre
+    if contact.cop_m is not None:
+        x, y = cx + 1000.0 * contact.cop_m[0], cy + 1000.0 * contact.cop_m[1]
+        fx, fy = contact.shear_N
+        if math.hypot(fx, fy) >= shear_min_N:
+            ax.quiver([x], [y], [fx], [fy], angles="xy", scale_units="xy", scale=arrow_scale,
+                      color=colour, edgecolor="black", linewidth=0.8, width=0.02,
+                      minlength=0.0, zorder=7)
+        ax.plot([x], [y], marker="o", markersize=9, markerfacecolor="none",
+                markeredgecolor=colour, markeredgewidth=2.5, zorder=8)
+        ax.plot([x], [y], marker="o", markersize=12, markerfacecolor="none",
+                markeredgecolor="black", markeredgewidth=0.8, zorder=8)
+    if contact.mark:
+        ax.text(cx + half - 0.05 * half, cy - half + 0.05 * half, contact.mark, ha="right",
+                va="bottom", fontsize=9, fontweight="bold", color="white", zorder=9,
+                bbox={"facecolor": colour, "pad": 1.5, "linewidth": 0})
 
 
 def _decimal(value: float) -> str:

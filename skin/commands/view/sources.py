@@ -60,11 +60,11 @@ class BusForces:
         self._notifier: can.Notifier | None = None
 
     def start(self, view: SkinView) -> None:
-        import can
+        from canbus.receiveloop import ReceiveLoop
 
         self.reader.on_sample(view.update)
         self.reader.start()
-        self._notifier = can.Notifier(self.bus, [self.reader], timeout=0.05)
+        self._notifier = ReceiveLoop(self.bus, [self.reader], timeout=0.05)
 
     def stop(self) -> None:
         if self._notifier is not None:

@@ -17,8 +17,12 @@ Seen from above: +x right, +y up, so taxel 0 is bottom left and taxel 8 top righ
 
 Per patch: its state (``waiting``, ``live``, ``stale``, ``lost``;
 :mod:`canbus.tools.sample_tracker`), samples per second and the share of complete samples
-over the last second, and its largest Fz. Rendering reads a copy of the tracker's state;
-:meth:`SkinView.update` only files the sample, so a producer never waits for a redraw.
+over the last second, and its largest Fz; and its contact summary where the sample has one
+(:mod:`skin.commands.view.contact`): the net normal force and net shear (``ΣF``), the
+centre of pressure in mm (patch frame) with ``◆`` on the taxel nearest it, and ``SLIP``
+(at the friction cone) or ``near`` (within its margin). Rendering reads a copy of the
+tracker's state; :meth:`SkinView.update` only files the sample, so a producer never waits
+for a redraw.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from skin.commands.view.contact import contact_lines, nearest_taxel, view_contact
 from skin.commands.view.layout import Layout
 
 if TYPE_CHECKING:
@@ -60,6 +65,7 @@ ROWS = ((6, 7, 8), (3, 4, 5), (0, 1, 2))  # top row first: +y up
 STATE_STYLES = {"waiting": "dim", "live": "bold green", "stale": "bold yellow",
                 "lost": "bold red"}
 INVALID_STYLE = "bold #ff5f5f on #262626"
+MARK_STYLES = {"SLIP": "bold white on #c62828", "near": "bold #ffaf00"}
 EMPTY_STYLE = "dim"
 Segment = tuple[str, str]
 Line = list[Segment]
@@ -224,7 +230,9 @@ class SkinView:
                       ""))
         glyphs: Line = [(f"shear → ≥ {self.shear_min_N:g} N, ⇒ ≥ {self.shear_strong_N:g} N; "
                          "+x right, +y up, taxel 0 bottom left", "dim")]
-        lines = [title, ramp, glyphs]
+        contact: Line = [("ΣF net force and shear, ◆ centre of pressure (CoP x y in mm), SLIP "
+                          "at the friction cone, near within its margin", "dim")]
+        lines = [title, ramp, glyphs, contact]
         codes = sorted({int(c) for s in state.statuses.values() if s.last is not None
                         for c, ok in zip(s.last.reason.tolist(), s.last.valid.tolist(),
                                          strict=True) if not ok})
@@ -268,25 +276,35 @@ class SkinView:
         else:
             text = f"{status.rate_hz:5.1f} Hz {status.complete_pct:3.0f}% complete"
             figures = [(text.ljust(BLOCK_W), "yellow" if status.complete_pct < 100 else "")]
+        contact = view_contact(last) if last is not None else None
+        marked = -1 if contact is None or contact.cop_m is None else \
+            nearest_taxel(contact.cop_m, self.layout.pitch_m)
         out = [head, figures, [("┌" + "─" * (BLOCK_W - 2) + "┐", "")]]
         for row in ROWS:
             line: Line = [("│ ", "")]
-            line += [self._cell(last, k) for k in row]
+            line += [self._cell(last, k, k == marked) for k in row]
             line.append((" │", ""))
             out.append(line)
         out.append([("└" + "─" * (BLOCK_W - 2) + "┘", "")])
         out.append([(_peak(last, status).ljust(BLOCK_W), "")])
+        first, where = contact_lines(contact, lambda fx, fy: arrow(
+            fx, fy, self.shear_min_N, self.shear_strong_N))
+        mark = contact.mark if contact is not None else ""
+        out.append([(first.ljust(BLOCK_W), "")])
+        out.append([(where.ljust(BLOCK_W - 5), ""), (mark.rjust(5), MARK_STYLES.get(mark, ""))])
         return out
 
-    def _cell(self, sample: SampleLike | None, k: int) -> Segment:
+    def _cell(self, sample: SampleLike | None, k: int, cop: bool = False) -> Segment:
         if sample is None:
             return "    - ", EMPTY_STYLE
         if not sample.valid[k]:
             return f"{reason_code(int(sample.reason[k]))[0]:>5} ", INVALID_STYLE
         fx, fy, fz = (float(v) for v in sample.force_N[k])
         shown = round(fz, 1) or 0.0  # no "-0.0"
-        return (f"{shown:5.1f}{arrow(fx, fy, self.shear_min_N, self.shear_strong_N)}",
-                cell_style(fz, self.scale_N))
+        text = f"{shown:5.1f}{arrow(fx, fy, self.shear_min_N, self.shear_strong_N)}"
+        if cop and text[0] == " ":
+            text = "◆" + text[1:]
+        return text, cell_style(fz, self.scale_N)
 
 
 def _peak(sample: SampleLike | None, status: PatchStatus | None) -> str:
