@@ -19,7 +19,6 @@ import argparse
 import contextlib
 import json
 import logging
-import re
 import sys
 import time
 from dataclasses import dataclass
