@@ -81,7 +81,7 @@ class UdpInjector:
             while k < due:
                 make(k)
                 k += 1
-            time.sleep(0.002)
+            time.sleep(0.002)  # pacing: the rate, sent in bursts every 2 ms
         return k
 
     def nmt(self, command: int, node_id: int) -> None:
@@ -198,8 +198,8 @@ def stall(pid: int, times: int, seconds: float, gap_s: float) -> None:
     """Stop ``pid`` ``times`` times for ``seconds`` each, ``gap_s`` apart."""
     for _ in range(times):
         with stopped_process(pid):
-            time.sleep(seconds)
-        time.sleep(gap_s)
+            time.sleep(seconds)  # pacing: how long the process stays stopped is the fault
+        time.sleep(gap_s)  # pacing: the process runs this long between two stalls
 
 
 def rss_bytes(pid: int | None = None) -> int:

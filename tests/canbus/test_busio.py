@@ -3,6 +3,7 @@ again, and one that is gone for good."""
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 
@@ -10,7 +11,7 @@ import can
 import pytest
 
 from canbus.busio import BusGoneError, ResilientBus
-from canbus.receiveloop import ReceiveLoop
+from canbus.receiveloop import PAUSE_MAX_S, ReceiveLoop
 from tests.canbus.test_host import eventually
 
 FRAME = can.Message(arbitration_id=0x181, data=b"\x01\x02", is_extended_id=False)
@@ -22,6 +23,7 @@ class Scripted(can.BusABC):
     def __init__(self, fails: int = 0, *, always: bool = False) -> None:
         self.fails, self.always = fails, always
         self.calls = 0
+        self.tries: list[float] = []  # time.monotonic() of each recv
         self.sent: list[can.Message] = []
         self.channel_info = "scripted"
         self._given = False
@@ -29,13 +31,14 @@ class Scripted(can.BusABC):
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         self.calls += 1
+        self.tries.append(time.monotonic())
         if self.always or self.fails > 0:
             self.fails -= 1
             raise can.CanOperationError("could not unpack received message")
         if not self._given:
             self._given = True
             return FRAME
-        time.sleep(min(timeout or 0.01, 0.01))
+        time.sleep(min(timeout or 0.01, 0.01))  # pacing: an idle bus waits out its timeout
         return None
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
@@ -80,15 +83,26 @@ def test_a_listener_that_raises_is_counted_and_the_others_still_get_the_frame(
         loop.stop()
 
 
+def _slowest_of_last(tries: list[float], count: int) -> float:
+    """The shortest of the last ``count`` gaps between tries (0 before there are that many)."""
+    last = list(tries)[-count - 1:]
+    if len(last) <= count:
+        return 0.0
+    return min(later - earlier for earlier, later in itertools.pairwise(last))
+
+
 def test_a_bus_that_keeps_failing_at_once_does_not_spin_a_core() -> None:
+    """Once a spell of failures is past its young part (a burst draining), every try waits
+    a pause that doubles up to PAUSE_MAX_S: a bus failing for good is tried about twice a
+    second. A pause never ends early, so a loop that pauses shows four tries in a row that
+    far apart however loaded the machine is; one that spins (~100,000 tries a second) never
+    does."""
     bus = Scripted(always=True)
     loop = ReceiveLoop(bus, [], timeout=0.01)
     try:
-        eventually(lambda: loop.report()["errors"] > 0, "a failure")
-        time.sleep(1.5)  # past the spin of a draining burst: the pauses have grown
-        calls = bus.calls
-        time.sleep(1.0)
-        assert bus.calls - calls < 50, bus.calls - calls  # spinning: ~100,000
+        eventually(lambda: _slowest_of_last(bus.tries, 4) >= 0.9 * PAUSE_MAX_S,
+                   "four tries in a row of a failing bus, each a full pause after the last")
+        assert loop.exception is None and loop.report()["errors"] >= len(bus.tries) - 1
     finally:
         loop.stop()
 

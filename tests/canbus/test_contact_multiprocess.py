@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
@@ -12,6 +11,7 @@ import canopen
 import numpy as np
 import pytest
 
+from bench.rigs import children
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import SimulatorSource
 from canbus.master.dataplane import ForceFrame
@@ -53,11 +53,10 @@ def test_a_canopen_master_maps_the_contact_pdo_and_reads_what_the_api_gives(
         with server, HostManager(bus, config) as host:
             host.on_forces(frames.append)
             assert host.wait_operational(timeout=10.0), host.health()
-            run = subprocess.run(
+            run = children.run(
                 [sys.executable, "-m", "bench.rigs.contact_master",
                  udp_channel, str(udp_port), "65", str(CYCLES), str(out)],
-                cwd=Path(__file__).resolve().parents[2], capture_output=True, text=True,
-                timeout=60)
+                cwd=Path(__file__).resolve().parents[2], timeout=60)
     finally:
         bus.shutdown()
         patches.disconnect()

@@ -5,7 +5,6 @@ take its time, a foreign node at a force node's ID, an EMCY flood."""
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections.abc import Iterator
@@ -24,6 +23,7 @@ from tests.canbus.test_host import Rig, config, eventually, press, source
 
 RECOVERY_CYCLES = 300  # 3 s of SYNC at 100 Hz
 WAIT_S = 20.0
+LONGEST_MS = 600_000  # the longest scan and SDO time-out a config may ask for: 10 minutes
 NOMINAL, IDENTITY = 0x2002, 0x1018
 
 
@@ -39,13 +39,14 @@ def _cycles(rig: Rig) -> int:
     return rig.host.stats()["sync_cycles"]
 
 
-@pytest.mark.parametrize("rogue", [0.0, math.nan, -1.0])
 def test_a_rogue_r0_is_a_setup_failure_with_its_reason_retried_until_it_is_fixed(
-        rig: Rig, rogue: float, caplog: pytest.LogCaptureFixture) -> None:
+        rig: Rig, caplog: pytest.LogCaptureFixture) -> None:
+    """R0 is an UNSIGNED32 count of mOhm on the wire (eds/skin-patch.eds): 0 is the one
+    rogue value it can carry (NaN and negative ones cannot be sent)."""
     server = rig.serve(1, source(1, press({})))
     node = server.nodes[0]
     good = float(node.store.value(NOMINAL, 4))
-    node.store.store(NOMINAL, 4, rogue)  # taxel 1, pillar z
+    node.store.store(NOMINAL, 4, 0)  # taxel 1, pillar z
     caplog.set_level(logging.WARNING, logger="canbus.master.setup_jobs")
     host = rig.start(config(PatchConfig(1)))
     eventually(lambda: host.health()[1].setup_failures >= 2, "set-up retried")
@@ -90,7 +91,7 @@ def test_garbled_sdo_answers_during_a_setup_fail_it_and_it_is_retried(rig: Rig) 
                                                                          0x40, 1, 2, 3, 4]),
                                      is_extended_id=False))
                 garbled += 1
-                time.sleep(0.0005)
+                time.sleep(0.0005)  # pacing: about 2,000 garbled answers a second
 
     flooding = threading.Thread(target=flood)
     flooding.start()
@@ -108,11 +109,13 @@ def test_garbled_sdo_answers_during_a_setup_fail_it_and_it_is_retried(rig: Rig) 
 
 
 def test_stop_ends_a_long_scan_at_once(rig: Rig) -> None:
+    """start() in a 10-minute scan ends with stop(), long before the scan would: the wait
+    for it has a deadline of seconds."""
     rig.serve(1, source(1, press({})))
     started = threading.Event()
     from canbus.master.host import HostManager
 
-    host = HostManager(rig.bus, config(PatchConfig(1), scan_ms=30000))
+    host = HostManager(rig.bus, config(PatchConfig(1), scan_ms=LONGEST_MS))
 
     def run() -> None:
         started.set()
@@ -124,17 +127,16 @@ def test_stop_ends_a_long_scan_at_once(rig: Rig) -> None:
     eventually(lambda: host.running, "the start under way")
     began = time.monotonic()
     host.stop()
-    starting.join(timeout=WAIT_S)
-    took = time.monotonic() - began
-    print(f"\nstop() in a 30 s scan: start and stop ended after {took:.3f} s")
-    assert not starting.is_alive()
-    assert took < 10.0  # not the 30 s scan
+    eventually(lambda: not starting.is_alive(), "start() ended, 10 minutes before its scan")
+    print(f"\nstop() in a 10-minute scan: start and stop ended after "
+          f"{time.monotonic() - began:.3f} s")
     assert not host.running
 
 
 def test_stop_cuts_a_setup_waiting_on_sdo_short(rig: Rig) -> None:
     """A node that answers the scan and beats, then never answers SDO: its set-up waits
-    on a 20 s time-out per request, which stop() does not wait out."""
+    on a 10-minute time-out per request, which stop() does not wait out (the wait for the
+    start to end has a deadline of seconds)."""
     net = rig.network()
 
     def on_request(can_id: int, data: bytearray, timestamp: float) -> None:
@@ -145,16 +147,17 @@ def test_stop_cuts_a_setup_waiting_on_sdo_short(rig: Rig) -> None:
     net.send_periodic(0x701, b"\x7f", 0.1)
     from canbus.master.host import HostManager
 
-    host = HostManager(rig.bus, config(PatchConfig(1), sdo_timeout_ms=20000))
+    host = HostManager(rig.bus, config(PatchConfig(1), sdo_timeout_ms=LONGEST_MS))
     starting = threading.Thread(target=host.start)
     starting.start()
     eventually(lambda: host.health()[1].state == "configuring", "the set-up under way")
     began = time.monotonic()
     host.stop()
-    starting.join(timeout=WAIT_S)
-    took = time.monotonic() - began
-    print(f"\nstop() in a set-up waiting on a 20 s SDO time-out: ended after {took:.3f} s")
-    assert not starting.is_alive() and took < 10.0
+    eventually(lambda: not starting.is_alive(),
+               "start() ended, 10 minutes before its SDO time-out")
+    print(f"\nstop() in a set-up waiting on a 10-minute SDO time-out: ended after "
+          f"{time.monotonic() - began:.3f} s")
+    assert not host.running
     net.disconnect()
     rig.servers.clear()
 

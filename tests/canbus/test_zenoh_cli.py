@@ -129,8 +129,9 @@ def test_skin_run_refuses_a_bad_zenoh_table_in_one_line(tmp_path: Path,
                       '[zenoh]\nlisten = ["nowhere"]\n')
     assert main(["run", str(config)]) == 1
     err = capsys.readouterr().err
+    examples = "tcp/127.0.0.1:7447, tls/host:7447"  # no socket: the message's examples
     assert err == f"skin: error: {config}: zenoh.listen[0]: 'nowhere' is not an endpoint " \
-                  "(PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447, tls/host:7447)\n"  # no socket
+                  f"(PROTOCOL/ADDRESS, e.g. {examples})\n"
 
 
 def test_skin_view_zenoh_refuses_what_does_not_go_with_it(

@@ -2,9 +2,12 @@
 
 :func:`run` calls ``skin.cli.main`` with stdout and stderr captured and a hang guard (a
 timer that interrupts a command still running after :data:`HANG_S`: a hang is a failure,
-not a slow machine). :func:`refused` is the promise every broken input is held to: a
-non-zero exit, one line on stderr naming the problem, no traceback, and not the
-catch-all's "unexpected" line (which would mean no reader checked it).
+not a slow machine). The guard shares SIGALRM's timer with the test's own time-out
+(pytest-timeout): it leaves that one in charge when it is due first, and sets it going
+again, for what is left of it, after the command. :func:`refused` is the promise every
+broken input is held to: a non-zero exit, one line on stderr naming the problem, no
+traceback, and not the catch-all's "unexpected" line (which would mean no reader checked
+it).
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import io
 import json
 import math
 import signal
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,13 +51,20 @@ def _hang_guard() -> Iterator[None]:
     def interrupt(signum: int, frame: Any) -> None:
         raise HungError(f"still running after {HANG_S:g} s")
 
+    outer = signal.getitimer(signal.ITIMER_REAL)[0]  # the test's time-out; 0: none
+    if outer and outer <= HANG_S:  # due first: it stops a hang, with the test's stacks
+        yield
+        return
     before = signal.signal(signal.SIGALRM, interrupt)
     signal.setitimer(signal.ITIMER_REAL, HANG_S)
+    began = time.monotonic()
     try:
         yield
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, before)
+        if outer:
+            signal.setitimer(signal.ITIMER_REAL, max(outer - (time.monotonic() - began), 1e-3))
 
 
 def run(*argv: str | Path) -> Result:

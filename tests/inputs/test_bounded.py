@@ -1,12 +1,12 @@
 """Bounded memory and time, seen from outside: ``skin`` in a process whose address space
 is capped (as ``ulimit -v`` caps it) refuses what would not fit with the figure, in one
-line, instead of being killed or swapping; and what used to loop for ever ends."""
+line, instead of being killed or swapping; and what used to loop for ever ends: each
+command is a child (bench.rigs.children) with a deadline, killed and failed if it runs on."""
 
 from __future__ import annotations
 
 import io
 import os
-import resource
 import struct
 import subprocess
 import sys
@@ -16,22 +16,25 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.rigs import children
 from tests.inputs.test_recordings import _blf, _can_objects
 
 CAP = 3 << 30
 """The address space of the process (numpy and its BLAS alone reserve most of a GiB)."""
-HANG_S = 300
+HANG_S = 240
+"""A command still running after this long is hung (each takes seconds): below the test's
+own time-out, so the failure names the command."""
+CAPPED = ("import resource, runpy, sys; cap = int(sys.argv.pop(1)); "
+          "resource.setrlimit(resource.RLIMIT_AS, (cap, cap)); "
+          "runpy.run_module('skin.cli', run_name='__main__', alter_sys=True)")
+"""``python -m skin.cli`` with its address space capped before skin or numpy is imported."""
 
 
 def _skin(*argv: str | Path) -> subprocess.CompletedProcess[str]:
-    def cap() -> None:
-        resource.setrlimit(resource.RLIMIT_AS, (CAP, CAP))
-
     env = {k: v for k, v in os.environ.items() if k != "SKIN_MEMORY_BUDGET"}
     env["OPENBLAS_NUM_THREADS"] = "1"
-    return subprocess.run([sys.executable, "-m", "skin.cli", *map(str, argv)], env=env,
-                          capture_output=True, text=True, timeout=HANG_S, preexec_fn=cap,
-                          check=False)
+    return children.run([sys.executable, "-c", CAPPED, str(CAP), *map(str, argv)], env=env,
+                        timeout=HANG_S)
 
 
 def _one_line(result: subprocess.CompletedProcess[str], *words: str) -> None:
