@@ -10,6 +10,12 @@ and of every mapping value a master writes or reads by SDO (as the sniffer does,
 and turns each node's TPDOs of one sample (:mod:`canbus.tools.pdo_samples`) into a
 :class:`ForceSample`.
 
+Which frames are a force node's: :mod:`canbus.tools.attribution` (the caller's
+:class:`ForceNodeSpec`, SDO transfers on the bus, or the node's defaults once its
+heartbeat and its whole set of PDOs are seen together); frames no node is known to send
+are counted (:attr:`~canbus.tools.pdo_samples.PdoSampleReader.unattributed`), never read
+as some node's forces.
+
 The source patch of a force node: the caller's (a host config's ``force_node``), else its
 0x2001 when an SDO transfer on the bus shows it, else node-ID - 64 (the host's default).
 
@@ -38,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from canbus.tools.attribution import KnownNode
 from canbus.tools.pdo_names import EdsChoice
 from canbus.tools.pdo_samples import PdoAssembly, PdoSampleReader, RawSample
 from canbus.tools.sample_tracker import PatchStatus, SampleTracker
@@ -70,11 +77,15 @@ class ForceSample:
 
 @dataclass(frozen=True)
 class ForceNodeSpec:
-    """What the caller knows about a force node: its patch and TPDO COB-IDs (1..7)."""
+    """What the caller knows about a force node: its patch, its TPDO COB-IDs (1..7), or
+    that it keeps its EDS default COB-IDs (``known``; implied by ``cob_ids``). A node the
+    caller only names is read by the attribution rule (:mod:`canbus.tools.attribution`):
+    once its heartbeat and its whole default set of PDOs are seen."""
 
     node_id: int
     patch: int | None = None
     cob_ids: tuple[int, ...] | None = None
+    known: bool = False
 
 
 @dataclass(frozen=True)
@@ -171,7 +182,8 @@ class ForceReader(PdoSampleReader):
         self._callbacks: tuple[Callable[[ForceSample], None], ...] = ()
         self._columns: dict[int, _Columns] = {}
         super().__init__(self.patches, eds, period_s=period_s,
-                         cob_ids={s.node_id: s.cob_ids for s in specs if s.cob_ids})
+                         known=[KnownNode(s.node_id, eds, cob_ids=s.cob_ids) for s in specs
+                                if s.known or s.cob_ids])
         for spec in specs:
             if spec.patch is not None:
                 self.tracker.expect(spec.patch, spec.node_id)

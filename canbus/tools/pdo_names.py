@@ -110,7 +110,8 @@ class NodeView:
         return f"{self.name} {self.node_id}"
 
     def observe(self, index: int, subindex: int, raw: bytes) -> bool:
-        """A value of ``index:subindex`` seen in an SDO transfer; True if the PDO table changed."""
+        """A value of ``index:subindex`` seen in an SDO transfer; True if the PDO table changed
+        (or a PDO's COB-ID is now known from the bus)."""
         var = self._variable(index, subindex)
         if var is None:
             return False
@@ -125,8 +126,10 @@ class NodeView:
             self._namers.clear()
         if not RPDO_COMM <= index <= _PDO_LAST or not isinstance(value, int):
             return False
+        told = subindex == 1 and (index, subindex) not in self.seen and \
+            (RPDO_COMM <= index < RPDO_MAP or TPDO_COMM <= index < TPDO_MAP)
         self.seen[(index, subindex)] = value
-        return self._rebuild()
+        return self._rebuild() or told  # a COB-ID now known from the bus, not the EDS
 
     def tpdo_layouts(self) -> list[TpdoLayout]:
         """The node's valid TPDOs, from the EDS defaults and the SDO values seen, of any
@@ -162,6 +165,42 @@ class NodeView:
         for sub, entry in enumerate(entries, start=1):
             self.seen[(TPDO_MAP, sub)] = entry.to_raw()
         return self._rebuild()
+
+    def pin(self, *, layouts: Sequence[TpdoLayout] | None = None,
+            cob_ids: Sequence[int] | None = None) -> bool:
+        """What a user's configuration says of the node, as if a master's SDO writes had
+        been seen: its whole TPDO mapping (``layouts``; every other TPDO invalid), or only
+        its TPDO COB-IDs (TPDO 1, 2, ... in order). True if the PDO table changed."""
+        read = self._reader()
+        if layouts is not None:
+            by_number = {layout.number: layout for layout in layouts}
+            number = 0
+            while TPDO_COMM + number in self.od and TPDO_MAP + number in self.od:
+                layout = by_number.get(number + 1)
+                if layout is None:
+                    self.seen[(TPDO_COMM + number, 1)] = read(TPDO_COMM + number, 1) \
+                        | COB_ID_INVALID
+                else:
+                    self.seen[(TPDO_COMM + number, 1)] = layout.cob_id
+                    self.seen[(TPDO_MAP + number, 0)] = len(layout.entries)
+                    for sub, entry in enumerate(layout.entries, start=1):
+                        self.seen[(TPDO_MAP + number, sub)] = entry.to_raw()
+                number += 1
+        for number, cob_id in enumerate(cob_ids or ()):
+            self.seen[(TPDO_COMM + number, 1)] = int(cob_id)
+        return self._rebuild()
+
+    def forget_pdo_parameters(self) -> bool:
+        """Drop every PDO parameter seen (the node booted: it starts again from its stored,
+        usually default, parameters). True if the PDO table changed."""
+        for key in [k for k in self.seen if RPDO_COMM <= k[0] <= _PDO_LAST]:
+            del self.seen[key]
+        return self._rebuild()
+
+    def told(self, entry: PdoEntry) -> bool:
+        """The PDO's COB-ID was seen (an SDO value, or pinned), not taken from the EDS."""
+        comm = TPDO_COMM if entry.kind == "TPDO" else RPDO_COMM
+        return (comm + entry.layout.number - 1, 1) in self.seen
 
     def fd_frame(self, cob_id: int, length: int) -> bool:
         """A CAN FD frame of ``length`` bytes came on ``cob_id``: if it is the node's TPDO 1
@@ -308,27 +347,32 @@ class NodeView:
 
 
 class Dictionary:
-    """Node-ID -> :class:`NodeView`, built on first use; ``assignments`` pin nodes' EDS.
+    """Node-ID -> :class:`NodeView`, built on first use; ``assignments`` pin nodes' EDS
+    (None: a node with no EDS here, no view).
 
     Each EDS is parsed once (``canopen.import_od`` takes ~10 ms) and shared by the views
     of every node that uses it, so a burst of new nodes does not stall the receive thread.
     ``version`` grows whenever a view appears or a view's PDO table changes.
     """
 
-    def __init__(self, assignments: Mapping[int, EdsChoice] | None = None) -> None:
-        self.assignments: dict[int, EdsChoice] = dict(assignments or {})
+    def __init__(self, assignments: Mapping[int, EdsChoice | None] | None = None) -> None:
+        self.assignments: dict[int, EdsChoice | None] = dict(assignments or {})
         self._views: dict[int, NodeView | None] = {}
         self._ods: dict[str, tuple[canopen.ObjectDictionary, int]] = {}
         self.version = 0
+
+    def views(self) -> list[NodeView]:
+        """Every node's view built so far."""
+        return [view for view in list(self._views.values()) if view is not None]
 
     def view(self, node_id: int) -> NodeView | None:
         """The node's view, or None for a node-ID outside 1..127."""
         if node_id in self._views:
             return self._views[node_id]
         view = None
-        if 1 <= node_id <= 127:
-            view = self._new_view(node_id, self.assignments.get(node_id,
-                                                                shipped_default(node_id)))
+        eds = self.assignments.get(node_id, shipped_default(node_id))
+        if 1 <= node_id <= 127 and eds is not None:  # None: a node without an EDS here
+            view = self._new_view(node_id, eds)
         self._views[node_id] = view
         self.version += 1
         return view

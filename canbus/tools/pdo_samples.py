@@ -50,10 +50,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canbus.pdo_codec import TpdoLayout, entry_dtype
+from canbus.tools.attribution import Attribution, KnownNode
 from canbus.tools.pdo_names import Dictionary, EdsChoice, NodeView
 from canbus.tools.services import SdoDecoder
 
 SYNC_COB_ID = 0x080
+HEARTBEAT = 0x700
+_SERVICES = frozenset((SYNC_COB_ID, *range(0x581, 0x680), *range(HEARTBEAT, HEARTBEAT + 0x80)))
 DEFAULT_PERIOD_S = 0.01
 """The sample period assumed until SYNCs are seen: the host's default 100 Hz."""
 HEADLESS_SHARE = 0.8
@@ -125,6 +128,8 @@ class PdoAssembly:
         cob_ids = [layout.cob_id for layout in self.layouts]
         self.first_pdo = cob_ids.index(min(cob_ids)) if cob_ids else 0
         self.last_pdo = -1
+        self.await_first = False
+        """Take nothing before the node's first PDO (it was named mid-sample)."""
         self.seen = 0
         self.first = 0.0
         self.last = 0.0
@@ -140,7 +145,11 @@ class PdoAssembly:
              period_s: float) -> list[RawSample]:
         """One frame of PDO ``cob_id``: the samples it closes (none, one or two)."""
         bit, offset, size = self.slots[cob_id]
-        out = []
+        out: list[RawSample] = []
+        if self.await_first:
+            if bit != self.first_pdo:
+                return out  # the rest of a sample whose beginning was not the node's yet
+            self.await_first = False
         if self.seen:
             if bit == self.first_pdo:
                 out.append(self.close())
@@ -200,26 +209,34 @@ class PdoAssembly:
 
 
 Frame = tuple[int, bytes, float]
+Closed = dict[int, tuple["PdoAssembly", list[RawSample]]]
+_RECENT = 1024
+"""Unattributed frames held for a node that their sample may yet name (a few samples')."""
 
 
 class PdoSampleReader(can.Listener):
-    """Samples of the TPDOs of ``node_ids`` (EDS ``eds``), handed to :meth:`on_raw`.
+    """Samples of the TPDOs of ``node_ids`` (EDS ``eds``), handed to :meth:`on_samples`.
 
-    ``cob_ids`` pins a node's TPDO COB-IDs (TPDO 1, 2, ... in order; a master that set
-    them without SDO, e.g. a host config's ``force_cob_ids``). ``period_s`` fixes the
+    A frame goes to a node's sample only when :mod:`canbus.tools.attribution` attributes
+    its COB-ID to that node: ``known`` says what the caller's configuration knows (a node's
+    TPDO COB-IDs, e.g. a host config's ``force_cob_ids``, or that it keeps its EDS
+    defaults); the others are attributed by SDO transfers seen, or by their defaults once
+    their heartbeat runs and their whole set of TPDOs has been seen together. Frames no
+    node is known to send are counted in :attr:`unattributed`. ``period_s`` fixes the
     sample period the closing rules use (module docstring; default: the median of the
     last SYNC intervals seen, :data:`DEFAULT_PERIOD_S` before two SYNCs).
     """
 
     def __init__(self, node_ids: Iterable[int], eds: EdsChoice, *,
-                 cob_ids: dict[int, Sequence[int]] | None = None,
-                 period_s: float | None = None) -> None:
+                 known: Iterable[KnownNode] = (), period_s: float | None = None) -> None:
         self.node_ids = tuple(sorted(set(node_ids)))
         self.dictionary = Dictionary(dict.fromkeys(self.node_ids, eds))
+        self.attribution = Attribution(self.dictionary, known)
         self.fixed_period_s = period_s
         self.received = 0  # every frame the listener was handed
         self.frames = 0  # PDO frames of the nodes taken
         self.malformed = 0  # of which shorter than their mapping
+        self.unattributed: dict[int, int] = {}  # COB-ID -> frames no node is known to send
         self.syncs = 0
         self.sync_counter: int | None = None
         self.latest = -np.inf  # the newest bus timestamp processed
@@ -227,17 +244,18 @@ class PdoSampleReader(can.Listener):
         self._sync_times: deque[float] = deque(maxlen=_SYNC_INTERVALS + 1)
         self._period_s = DEFAULT_PERIOD_S
         self._pending: deque[Frame] = deque()
+        self._recent: deque[Frame] = deque(maxlen=_RECENT)
         self._lock = threading.Lock()
         self._assemblies: dict[int, PdoAssembly] = {}
         self._table: dict[int, PdoAssembly] = {}
         self._wanted: frozenset[int] = frozenset()
         self._thread: threading.Thread | None = None
         self._stopping = threading.Event()
+        self._version = -1
+        self._started = False
         for node in self.node_ids:
-            view = self._view(node)
-            for n, cob in enumerate((cob_ids or {}).get(node, ())):
-                view.observe(0x1800 + n, 1, int(cob).to_bytes(4, "little"))
             self._rebuild(node)
+        self._started = True  # from now on a node named mid-stream waits for its next sample
 
     # -- receive path -----------------------------------------------------------------
 
@@ -287,30 +305,9 @@ class PdoSampleReader(can.Listener):
         the newest frame's time or ``now`` (bus time), whichever is later."""
         with self._lock:
             pending = self._pending
-            sdo_low, sdo_high = 0x581, 0x67F
-            period = self.period_s()
             closed: dict[int, tuple[PdoAssembly, list[RawSample]]] = {}
             while pending:
-                cob_id, data, timestamp = pending.popleft()
-                if timestamp > self.latest:
-                    self.latest = timestamp
-                assembly = self._table.get(cob_id)
-                if assembly is not None and len(data) > 8 and \
-                        self._view(assembly.node_id).fd_frame(cob_id, len(data)):
-                    self._rebuild(assembly.node_id)  # a force node mapped for CAN FD in place
-                    assembly = self._table.get(cob_id)
-                if assembly is not None:
-                    self.frames += 1
-                    before = assembly.malformed
-                    raws = assembly.take(cob_id, data, timestamp, period)
-                    if raws:
-                        closed.setdefault(id(assembly), (assembly, []))[1].extend(raws)
-                    self.malformed += assembly.malformed - before
-                elif cob_id == SYNC_COB_ID:
-                    self._on_sync(data, timestamp)
-                    period = self.period_s()
-                elif sdo_low <= cob_id <= sdo_high:
-                    self._sdo_frame(cob_id, data)
+                self._one(*pending.popleft(), closed)
             until = self.latest if now is None else max(self.latest, now)
             period = self.period_s()
             for assembly in self._assemblies.values():
@@ -320,6 +317,63 @@ class PdoSampleReader(can.Listener):
             for assembly, raws in closed.values():
                 self.on_samples(assembly, raws)
                 time.sleep(0)  # a thread waiting for the GIL (a bus, a host) goes first
+
+    def _one(self, cob_id: int, data: bytes, timestamp: float, closed: Closed) -> None:
+        """One frame copied by the receive path (lock held)."""
+        if timestamp > self.latest:
+            self.latest = timestamp
+        if cob_id not in _SERVICES:
+            self.attribution.frame(cob_id, timestamp, len(data))
+        if self.dictionary.version != self._version:
+            self._backfill(self._follow_attribution(), closed)
+        assembly = self._table.get(cob_id)
+        if assembly is not None and len(data) > 8 and \
+                self._view(assembly.node_id).fd_frame(cob_id, len(data)):
+            self._rebuild(assembly.node_id)  # a force node mapped for CAN FD in place
+            assembly = self._table.get(cob_id)
+        if assembly is not None:
+            self._take(assembly, cob_id, data, timestamp, closed)
+        elif cob_id == SYNC_COB_ID:
+            self._on_sync(data, timestamp)
+            self.attribution.sync(timestamp)
+        elif 0x581 <= cob_id <= 0x67F:
+            self._sdo_frame(cob_id, data)
+        elif HEARTBEAT <= cob_id <= HEARTBEAT + 0x7F:
+            self.attribution.heartbeat(cob_id - HEARTBEAT,
+                                       data[0] & 0x7F if len(data) == 1 else None, timestamp)
+        else:
+            self.unattributed[cob_id] = self.unattributed.get(cob_id, 0) + 1
+            self._recent.append((cob_id, data, timestamp))
+
+    def _take(self, assembly: PdoAssembly, cob_id: int, data: bytes, timestamp: float,
+              closed: Closed) -> None:
+        self.frames += 1
+        before = assembly.malformed
+        raws = assembly.take(cob_id, data, timestamp, self.period_s())
+        if raws:
+            closed.setdefault(id(assembly), (assembly, []))[1].extend(raws)
+        self.malformed += assembly.malformed - before
+
+    def _backfill(self, named: set[int], closed: Closed) -> None:
+        """The frames held unattributed that nodes just named by their defaults sent since
+        the first of the frames that named them (their sample, now known to be theirs)."""
+        if not named:
+            return
+        keep: deque[Frame] = deque(maxlen=_RECENT)
+        for cob_id, data, timestamp in self._recent:
+            assembly = self._table.get(cob_id)
+            since = self.attribution.named_at.get(assembly.node_id, np.inf) \
+                if assembly is not None and assembly.node_id in named else np.inf
+            if assembly is not None and timestamp >= since:
+                left = self.unattributed[cob_id] - 1
+                if left:
+                    self.unattributed[cob_id] = left
+                else:
+                    del self.unattributed[cob_id]
+                self._take(assembly, cob_id, data, timestamp, closed)
+            else:
+                keep.append((cob_id, data, timestamp))
+        self._recent = keep
 
     def on_samples(self, assembly: PdoAssembly, raws: list[RawSample]) -> None:
         """Samples of one node that closed, in order (called with the reader's lock
@@ -354,10 +408,32 @@ class PdoSampleReader(can.Listener):
         mapping change mid-sample: the node's PDOs before it are of the old one)."""
         view = self._view(node_id)
         self._assemblies[node_id] = PdoAssembly(node_id, view.tpdo_layouts(), view.od)
-        table = {cob: a for a in self._assemblies.values() for cob in a.slots}
-        self._table = table
-        sdo = {base + n for n in self._assemblies for base in (0x580, 0x600)}
-        self._wanted = frozenset(table) | sdo | {SYNC_COB_ID}
+        self._follow_attribution()
+
+    def _follow_attribution(self) -> set[int]:
+        """Route to each node's assembly only the COB-IDs attributed to that node
+        (:mod:`canbus.tools.attribution`); copy every COB-ID any of them may send on, its
+        heartbeat and SDO, and SYNC, so that a node using its defaults can be confirmed.
+        Returns the nodes named just now."""
+        self._version = self.dictionary.version
+        for node, assembly in list(self._assemblies.items()):
+            view = self._view(node)
+            layouts = tuple(view.tpdo_layouts())
+            if layouts != assembly.layouts:  # a boot-up forgot a remap, CAN FD was adopted
+                self._assemblies[node] = PdoAssembly(node, layouts, view.od)
+        owners = self.attribution.table()
+        before = {a.node_id for a in self._table.values()}
+        self._table = {cob: a for a in self._assemblies.values() for cob in a.slots
+                       if (owner := owners.get(cob)) is not None and owner.node == a.node_id}
+        named = set()
+        for assembly in {id(a): a for a in self._table.values()}.values():
+            if self._started and assembly.node_id not in before:  # named mid-stream:
+                assembly.await_first = True  # from its next sample on
+                named.add(assembly.node_id)
+        possible = {cob for a in self._assemblies.values() for cob in a.slots}
+        services = {base + n for n in self._assemblies for base in (0x580, 0x600, HEARTBEAT)}
+        self._wanted = frozenset(possible | set(self._table) | services | {SYNC_COB_ID})
+        return named
 
     def assembly(self, node_id: int) -> PdoAssembly:
         return self._assemblies[node_id]

@@ -75,7 +75,7 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--sdo-timeout", type=float, default=1.0, metavar="S",
                         help="SDO response time-out for --write-node (default 1 s)")
     can.cli.add_bus_arguments(parser)
-    parser.set_defaults(func=_run, interface="virtual")
+    parser.set_defaults(func=_run)
 
 
 def _nodes(meta: dict[str, Any], patches: int) -> list[int]:
@@ -183,9 +183,8 @@ def _fit(args: argparse.Namespace) -> int:
     written = 0
     if args.write_node and tare is not None:
         written = write_rest_to_node(args, node, tare.rest_ohm)
-        print(f"wrote {written} rest values to patch {node}'s 0x2002 on "
-              f"{args.interface}:{args.channel}; an active host reads them when it next "
-              "configures the patch")
+        print(f"wrote {written} rest values to patch {node}'s 0x2002 on {args.described}; an "
+              "active host reads them when it next configures the patch")
     if not args.config_snippet:
         print(text, end="")
     if args.report:

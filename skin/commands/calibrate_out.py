@@ -134,19 +134,19 @@ def snippet(node_id: int, mode: str, model: str, rest_ohm: Any, snippet_path: st
 def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
     """SDO downloads of the rest values to the patch's 0x2002 (sub taxel·3 + pillar + 1);
     returns how many were written. BusError names the sub-index a patch refused."""
-    import can.cli
     import canopen
     import numpy as np
     from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
     from canbus.od import load_od
-    from skin.commands.busargs import default_channel
+    from skin.commands.busopen import open_bus
     from skin.errors import BusError
 
     rest = np.asarray(rest_ohm, dtype=np.float64)
-    default_channel(args)
+    bus, described = open_bus(args, command="skin calibrate --write-node", sends=True)
+    args.described = described
     written = 0
-    with can.cli.create_bus_from_namespace(args) as bus:
+    with bus:
         network = canopen.Network(bus)
         network.connect()
         try:
@@ -163,8 +163,8 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
                                        f"{rest[taxel, pillar]:g} ohm: abort 0x{err.code:08X} "
                                        f"({err})") from err
                     except SdoCommunicationError as err:
-                        raise BusError(f"patch {node_id} did not answer on "
-                                       f"{args.interface}:{args.channel}: {err}") from err
+                        raise BusError(f"patch {node_id} did not answer on {described}: "
+                                       f"{err}") from err
                     written += 1
         finally:
             network.disconnect()

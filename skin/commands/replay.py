@@ -18,11 +18,10 @@ from typing import Any
 
 
 def _replay(args: argparse.Namespace) -> int:
-    import can.cli
 
     from canbus.tools.replay import Recording, RecordingError, Replayer
     from skin.atomic import atomic_write
-    from skin.commands.busargs import default_channel
+    from skin.commands.busopen import open_bus
     from skin.commands.signals import until_stopped
     from skin.errors import ConfigError
 
@@ -34,7 +33,7 @@ def _replay(args: argparse.Namespace) -> int:
         raise ConfigError("--rate", f"must be a positive number of frames/s, got {args.rate}")
     with Recording(args.file):  # suffix and file header checked before the bus is opened
         pass
-    default_channel(args)
+    bus, described = open_bus(args, command="skin replay", sends=True)
     passes = 1 if args.loop is None else args.loop
     rate = args.rate if args.rate is not None else DEFAULT_RATES.get(args.interface)
 
@@ -42,7 +41,7 @@ def _replay(args: argparse.Namespace) -> int:
         if passes != 1:
             print(f"pass {done}: {frames:,} frames", file=sys.stderr, flush=True)
 
-    with can.cli.create_bus_from_namespace(args) as bus:
+    with bus:
         replayer = Replayer(bus, args.file, realtime=not args.fast, passes=passes,
                             skip_s=args.skip, error_frames=args.error_frames,
                             rate_fps=rate if args.fast else None, partial=args.partial)
@@ -61,9 +60,9 @@ def _replay(args: argparse.Namespace) -> int:
           f"{', original timing' if not args.fast else pacing})"
           + (f"; skipped {result.error_frames_skipped:,} error frames"
              if result.error_frames_skipped else "")
-          + (f"; stopped by {stopped.signal}" if stopped.signal else ""))
+          + (f"; stopped by {stopped.signal}" if stopped.signal else "") + f"; bus {described}")
     if args.json:
-        record = {"file": args.file, "frames_sent": result.frames_sent,
+        record = {"file": args.file, "bus": described, "frames_sent": result.frames_sent,
                   "error_frames_skipped": result.error_frames_skipped,
                   "passes": result.passes, "seconds": result.seconds,
                   "timing": "fast" if args.fast else "original",
@@ -115,4 +114,4 @@ def add_subparser(subparsers: Any) -> None:
                         help="also send error frames (most interfaces cannot)")
     parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     can.cli.add_bus_arguments(parser)
-    parser.set_defaults(func=_replay, interface="virtual")
+    parser.set_defaults(func=_replay)

@@ -54,13 +54,14 @@ class Capture:
 
 
 def _sniff(args: argparse.Namespace) -> int:
-    import can.cli
 
+    from canbus.tools.attribution import Attribution
     from canbus.tools.pdo_names import Dictionary, parse_assignment
     from canbus.tools.recorder import check_channel_name, enlarge_receive_buffer, recording_format
     from canbus.tools.services import ServiceDecoder
     from canbus.tools.sniffer import FrameFilter, Sniffer
-    from skin.commands.busargs import default_channel
+    from skin.commands.busopen import open_bus
+    from skin.commands.tool_config import config_nodes, tool_config
     from skin.errors import BusError, ConfigError
 
     if args.record:
@@ -74,10 +75,12 @@ def _sniff(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         if value is not None and not value > 0:
             raise ConfigError(f"--{name.replace('_', '-')}", f"must be positive, got {value}")
-    assignments: dict[int, str] = {}
+    assignments: dict[int, str | None] = {}
     for text in args.eds:
         assignments |= parse_assignment(text)
-    decoder = ServiceDecoder(Dictionary(assignments))
+    config = tool_config(args)
+    decoder = ServiceDecoder(attribution=Attribution(Dictionary(assignments),
+                                                     config_nodes(config, args)))
     shown = FrameFilter(args.node, args.service)
     view = args.view or ("live" if sys.stdout.isatty() else "lines")
     stats = ViewStats()
@@ -85,11 +88,12 @@ def _sniff(args: argparse.Namespace) -> int:
     sniffer = Sniffer(decoder, bitrate=getattr(args, "bitrate", None) or 1_000_000,
                       data_bitrate=getattr(args, "data_bitrate", None),
                       on_frame=printer.on_frame if printer is not None else None)
-    default_channel(args)
     switch = sys.getswitchinterval()
     try:
         sys.setswitchinterval(min(switch, _SWITCH_S))
-        with can.cli.create_bus_from_namespace(args) as bus:
+        bus, args.described = open_bus(args, command="skin sniff", config=config,
+                                       sends=args.ask_by_sdo)
+        with bus:
             if args.rcvbuf:
                 enlarge_receive_buffer(bus, args.rcvbuf)
             capture = _capture(bus, sniffer, shown, printer, stats, view, args)
@@ -110,21 +114,27 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
 
     from canbus.tools.recorder import Recorder, log_channel_name
     from skin.commands.signals import until_stopped
+    from skin.commands.tool_config import asking
 
-    name = args.channel_name or log_channel_name(args.channel)
-    header = f"skin sniff {args.interface}:{args.channel}" + \
-        (f" → {args.record}" if args.record else "")
+    name = args.channel_name or log_channel_name(getattr(args, "channel", None))
+    header = f"skin sniff {args.described}" + (f" → {args.record}" if args.record else "")
     started, cpu = time.monotonic(), time.process_time()
     recorder: Recorder | None = None
     notifier: can.Notifier | None = None
     try:
-        with until_stopped() as stopped:  # Ctrl-C is how a sniffer is meant to end
+        with until_stopped() as stopped, contextlib.ExitStack() as stack:  # Ctrl-C: the end
             if args.record:
                 recorder = Recorder(args.record, channel=name, rotate_bytes=args.rotate_size,
                                     rotate_s=args.rotate_seconds)
             listeners: list[can.Listener] = [sniffer] if recorder is None else \
                 [recorder, sniffer]
+            asker = asking(bus, sniffer.decoder.attribution, args)
+            if asker is not None:
+                listeners.append(asker.listener)
             notifier = can.Notifier(bus, listeners, timeout=_TICK_S)
+            if asker is not None:
+                stack.callback(asker.stop)
+                asker.start()
             if printer is not None:
                 printer.start()
             _watch(notifier, recorder, printer, sniffer, shown, stats, view, header, args,
@@ -150,6 +160,7 @@ def _report(snap: Snapshot, capture: Capture, stats: ViewStats, view: str,
     from skin.atomic import atomic_write
 
     out = sys.stderr if view == "lines" else sys.stdout  # lines mode: stdout is the frames
+    print(f"bus {args.described}", file=out)
     for line in summary_lines(snap, capture.seconds, stats):
         print(line, file=out)
     if capture.saved is not None:
@@ -231,6 +242,7 @@ def add_subparser(subparsers: Any) -> None:
     import can.cli
 
     from skin.commands.busargs import add_rcvbuf_argument, node_id
+    from skin.commands.tool_config import add_config_arguments
 
     parser = subparsers.add_parser(
         "sniff", help="live, EDS-aware bus view; --record to .log/.asc/.blf/.pcap",
@@ -264,5 +276,6 @@ def add_subparser(subparsers: Any) -> None:
                         help="live view redraws per second at most (default 4)")
     add_rcvbuf_argument(parser)
     parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
+    add_config_arguments(parser)
     can.cli.add_bus_arguments(parser, filter_arg=True)
-    parser.set_defaults(func=_sniff, interface="virtual")
+    parser.set_defaults(func=_sniff)

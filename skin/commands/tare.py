@@ -17,17 +17,16 @@ ABORTS = {0x0800_0022: "the patch is loaded, or not operational: unload it and t
 
 
 def _tare(args: argparse.Namespace) -> int:
-    import can.cli
     import canopen
     from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
     from canbus.master.forcenode import TARE, TARE_COMMAND
     from canbus.od import load_od
-    from skin.commands.busargs import default_channel
+    from skin.commands.busopen import open_bus
     from skin.errors import BusError
 
-    default_channel(args)
-    with can.cli.create_bus_from_namespace(args) as bus:
+    bus, described = open_bus(args, command="skin tare", sends=True)
+    with bus:
         network = canopen.Network(bus)
         network.connect()
         try:
@@ -41,11 +40,11 @@ def _tare(args: argparse.Namespace) -> int:
                 raise BusError(f"force node {args.node} refused the tare: abort "
                                f"0x{err.code:08X}{': ' + why if why else ''}") from err
             except SdoCommunicationError as err:
-                raise BusError(f"force node {args.node} did not answer on "
-                               f"{args.interface}:{args.channel}: {err}") from err
+                raise BusError(f"force node {args.node} did not answer on {described}: "
+                               f"{err}") from err
         finally:
             network.disconnect()
-    print(f"force node {args.node}: tared")
+    print(f"force node {args.node}: tared (bus {described})")
     return 0
 
 
@@ -65,4 +64,4 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--timeout", type=float, default=1.0, metavar="S",
                         help="SDO response time-out (default 1 s)")
     can.cli.add_bus_arguments(parser)
-    parser.set_defaults(func=_tare, interface="virtual")
+    parser.set_defaults(func=_tare)

@@ -80,6 +80,9 @@ def _check(args: argparse.Namespace) -> None:
         raise ConfigError("--patch", f"must be a node-ID in 1..127, got {args.patch}")
     if args.decode and not args.config:
         raise ConfigError("--decode", "needs --config host.toml (the patches to decode)")
+    if args.ask_by_sdo and (args.file or args.decode):
+        raise ConfigError("--ask-by-sdo", "asks the force nodes on a live bus: not with a "
+                          "recording FILE or --decode")
     if args.scene and args.config:
         raise ConfigError("--scene", "give the layout by --scene or by --config, not both")
     if args.mp4 or args.gif:
@@ -170,29 +173,22 @@ def moment_view(path: str, t: float, layout: Layout, scale_N: float, *,
 
 
 def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) -> int:
-    import can.cli
-
-    from skin.commands.busargs import default_channel
+    from skin.commands.busopen import open_bus
+    from skin.commands.tool_config import asking
     from skin.commands.view_sources import BusDecode, BusForces, force_specs
-    from skin.errors import BusError
 
-    default_channel(args)
     seconds = args.seconds
     if seconds is None and args.snapshot:
         seconds = SNAPSHOT_SECONDS
-    try:
-        bus = can.cli.create_bus_from_namespace(args)
-    except argparse.ArgumentError as err:  # how python-can reports a bus it cannot open
-        cause = err.__cause__ or err
-        raise BusError(f"cannot open the bus: {type(cause).__name__}: {cause}") from err
+    bus, where = open_bus(args, command="skin view", config=config, sends=args.ask_by_sdo)
     with bus:
         if args.rcvbuf:
             from canbus.tools.recorder import enlarge_receive_buffer
 
             enlarge_receive_buffer(bus, args.rcvbuf)
         source: BusForces | BusDecode = BusDecode(bus, config) if args.decode and config \
-            else BusForces(bus, force_specs(config))
-        where = f"{args.interface}:{args.channel}"
+            else BusForces(bus, force_specs(config),
+                           lambda reader: asking(bus, reader.attribution, args))
         return _live(args, source, layout, seconds, where, lambda view, started:
                      f"{time.monotonic() - started:5.1f} s")
 
@@ -276,6 +272,10 @@ def _report(args: argparse.Namespace, view: SkinView, figures: dict[str, Any], e
               f"{p['complete_pct']:.0f} % complete in the last second")
     if stats is not None and stats.redraws:
         print(f"view: {stats.redraws} redraws ({stats.redraws_skipped} skipped)")
+    if figures.get("unattributed"):
+        from skin.commands.view_sources import warn_unattributed
+
+        warn_unattributed(where, {int(c, 16): n for c, n in figures["unattributed"].items()})
     if args.json:
         record = {"source": where, "decode": bool(args.decode), "seconds": round(elapsed, 3),
                   "scale_N": args.scale, "samples": samples, "incomplete": incomplete,
@@ -367,24 +367,34 @@ def _trace(args: argparse.Namespace, config: HostConfig | None, times: Recording
     import numpy as np
 
     from skin.commands.view_plot import save_trace
-    from skin.commands.view_sources import force_specs, recorded_resistances, recorded_samples
+    from skin.commands.view_sources import (
+        force_specs,
+        recorded_resistances,
+        recorded_samples,
+        unattributed_text,
+        warn_unattributed,
+    )
     from skin.errors import ConfigError
 
     begin = _at(args, times, args.start or 0.0, "--from")
     end = _at(args, times, args.end, "--to")
+    unattributed: dict[int, int] = {}
     samples = [s for s in recorded_samples(args.file, until=end, specs=force_specs(config),
-                                           decode=config if args.decode else None)
+                                           decode=config if args.decode else None,
+                                           unattributed=unattributed)
                if s.patch == args.patch and s.timestamp >= begin]
     if not samples:
         raise ConfigError("--patch", f"patch {args.patch} has no force sample in {args.file} "
-                          f"between {begin - times.first:g} and {end - times.first:g} s")
+                          f"between {begin - times.first:g} and {end - times.first:g} s"
+                          + (f"; {unattributed_text(unattributed)}" if unattributed else ""))
+    warn_unattributed(args.file, unattributed)
     t = [s.timestamp - times.first for s in samples]
     force = np.array([s.force_N[args.taxel] for s in samples])
     valid = np.array([bool(s.valid[args.taxel]) for s in samples])
     raw_t, raw = None, None
     if args.raw:
-        raws = [r for r in recorded_resistances(args.file, args.patch, until=end)
-                if r.timestamp >= begin]
+        raws = [r for r in recorded_resistances(args.file, args.patch, until=end,
+                                                config=config) if r.timestamp >= begin]
         if not raws:
             raise ConfigError("--raw", f"patch {args.patch} sent no resistance PDO in "
                               f"{args.file} in that span")
@@ -411,6 +421,7 @@ def add_subparser(subparsers: Any) -> None:
     import can.cli
 
     from skin.commands.busargs import add_rcvbuf_argument
+    from skin.commands.tool_config import add_config_arguments
 
     parser = subparsers.add_parser(
         "view", help="every patch's taxels at its place: live, or pictures of a recording",
@@ -463,5 +474,6 @@ def add_subparser(subparsers: Any) -> None:
                           help="also the taxel's raw resistances, from the patch's own PDOs")
     parser.add_argument("--json", metavar="FILE", help="write the summary as JSON")
     add_rcvbuf_argument(parser)
+    add_config_arguments(parser, config=False)
     can.cli.add_bus_arguments(parser)
-    parser.set_defaults(func=_view, interface="virtual")
+    parser.set_defaults(func=_view)

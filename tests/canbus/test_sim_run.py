@@ -136,7 +136,7 @@ def test_sim_run_warns_when_one_bus_cannot_carry_the_skin(capsys: pytest.Capture
 ])
 def test_sim_run_refuses_bad_buses_in_one_line(argv: list[str], message: str,
                                                capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["sim", "run", "indenter", "--seconds", "0.01", *argv]) == 1
+    assert main(["sim", "run", "indenter", "--seconds", "0.01", "-i", "virtual", *argv]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
     assert not Path("never-written.csv").exists()

@@ -106,7 +106,8 @@ def test_pictures_without_matplotlib_or_ffmpeg_say_what_is_missing(
 def test_a_bus_that_cannot_be_opened_is_named(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["view", "-i", "socketcan", "-c", "no-such-can9", "--seconds", "0.1"]) == 1
     err = capsys.readouterr().err
-    assert err.startswith("skin: error: cannot open the bus: ") and err.count("\n") == 1
+    assert err.startswith("skin: error: cannot open the bus socketcan:no-such-can9 (from -i): ")
+    assert err.count("\n") == 1
 
 
 def test_patches_are_placed_by_position_highest_y_on_top() -> None:

@@ -1,0 +1,129 @@
+"""Which bus a command opens: one set of defaults for every command, as ``skin run`` has.
+
+In order:
+
+1. python-can's bus flags on the command line (``-i``, ``-c``, ``-b``, ``--fd``,
+   ``--data-bitrate``, ``--bus-kwargs``);
+2. the host config's ``[bus]`` table, for a command given ``--config HOST.toml`` (``skin
+   sniff``, ``skin view``), as ``skin run`` reads it;
+3. python-can's own configuration (``$CAN_INTERFACE``, ``$CAN_CHANNEL``, ``$CAN_BITRATE``,
+   ``$CAN_CONFIG``, ``~/.canrc``, ``can.ini``).
+
+No interface from any of them is an error that says so: a command never falls back on a
+bus inside its own process, where a user expects a real one (``skin sniff --record``
+would record an empty bus in silence). A channel left unset is python-can's
+configuration's when it names one for the same interface, else canskin's default for
+``virtual``, ``timed`` (``skin``) and ``udp_multicast`` (python-can's IPv4 group), so
+that commands meet on one bus without ``-c``. The command says which bus it opened (an
+INFO line of ``skin.commands``, shown by default) and warns that ``virtual`` and ``timed``
+reach only its own process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from canbus.master.hostconfig import HostConfig
+
+logger = logging.getLogger("skin.commands")
+
+IN_PROCESS = ("virtual", "timed")
+"""Interfaces whose bus lives inside one process."""
+
+
+def python_can_config() -> dict[str, Any]:
+    """python-can's configuration, merged as ``can.util.load_config`` merges it (``can.rc``,
+    the environment, the files), without its check that an interface is named."""
+    import can
+
+    merged: dict[str, Any] = {}
+    try:
+        sources = (can.rc, can.util.load_environment_config(), can.util.load_file_config())
+    except (ValueError, KeyError, OSError) as err:
+        from skin.errors import BusError
+
+        raise BusError(f"python-can's configuration is not usable: {err}") from err
+    for source in sources:
+        for key, value in source.items():
+            if key == "bustype":
+                key = "interface"
+            merged.setdefault(key, can.util.cast_from_string(value)
+                              if isinstance(value, str) else value)
+    return merged
+
+
+def choose_bus(args: argparse.Namespace, *, command: str,
+               config: HostConfig | None = None) -> str:
+    """Fill ``args`` with the bus to open (module docstring); ``interface:channel (from
+    where)``. :class:`~skin.errors.BusError` when nothing names an interface."""
+    from skin.commands.busargs import DEFAULT_CHANNELS
+    from skin.errors import BusError
+
+    configured = python_can_config()
+    if getattr(args, "interface", None):
+        source = "-i"
+    elif config is not None and len(config.buses) == 1 and config.buses[0].interface:
+        _from_config(args, config)
+        source = f"{config.source} [bus]"
+    elif configured.get("interface"):
+        args.interface = configured["interface"]
+        source = "python-can's configuration"
+    else:
+        raise BusError(f"{command}: no bus: give -i IFACE [-c CHANNEL] (e.g. -i socketcan -c "
+                       "can0, or -i udp_multicast to meet skin sim run and skin run in other "
+                       "processes), a host config with a [bus] table (--config), or "
+                       "python-can's configuration ($CAN_INTERFACE, ~/.canrc)")
+    if getattr(args, "channel", None) is None:
+        if configured.get("channel") is not None and \
+                configured.get("interface") in (None, args.interface):
+            args.channel = configured["channel"]
+        elif args.interface in DEFAULT_CHANNELS:
+            args.channel = DEFAULT_CHANNELS[args.interface]
+    channel = getattr(args, "channel", None)
+    return f"{args.interface}:{channel if channel is not None else '(driver default)'} " \
+           f"(from {source})"
+
+
+def _from_config(args: argparse.Namespace, config: HostConfig) -> None:
+    bus = config.buses[0]
+    args.interface = bus.interface
+    for key in ("channel", "bitrate", "data_bitrate"):
+        if getattr(args, key, None) is None and getattr(bus, key) is not None:
+            setattr(args, key, getattr(bus, key))
+    if bus.fd and not getattr(args, "fd", False):
+        args.fd = True
+    if bus.options:
+        args.bus_kwargs = {**bus.options, **(getattr(args, "bus_kwargs", None) or {})}
+
+
+def announce(command: str, described: str, *, sends: bool = False) -> None:
+    """Say which bus ``command`` uses; warn when it reaches only this process."""
+    logger.info("%s: bus %s", command, described)
+    interface = described.split(":", 1)[0]
+    if interface in IN_PROCESS:
+        verb = "sends to and hears" if sends else "hears"
+        logger.warning("%s: %s is a bus inside this process: it %s nothing of another "
+                       "process (skin sim run, skin run); use -i udp_multicast, or a real "
+                       "bus (-i socketcan -c can0)", command, interface, verb)
+
+
+def open_bus(args: argparse.Namespace, *, command: str, config: HostConfig | None = None,
+             sends: bool = False) -> tuple[Any, str]:
+    """:func:`choose_bus`, :func:`announce`, then the bus (python-can's flags) and its
+    description; one line naming the bus when it cannot be opened."""
+    import can.cli
+
+    from skin.errors import BusError
+
+    described = choose_bus(args, command=command, config=config)
+    try:
+        bus = can.cli.create_bus_from_namespace(args)
+    except argparse.ArgumentError as err:  # how python-can reports a bus it cannot open
+        cause = err.__cause__ or err
+        raise BusError(f"cannot open the bus {described}: {type(cause).__name__}: "
+                       f"{cause}") from err
+    announce(command, described, sends=sends)  # after: a failure is one line, naming it
+    return bus, described
