@@ -169,6 +169,8 @@ class ForceReader(PdoSampleReader):
     default 65..127) on whatever bus it listens to (module docstring). ``eds``: their EDS
     (a path or a shipped name; e.g. a CAN FD force node's)."""
 
+    order = "tpdo"  # the host's force nodes send a sample's PDOs in TPDO order
+
     def __init__(self, nodes: Iterable[int | ForceNodeSpec] | None = None, *,
                  eds: EdsChoice = "skin-forces", period_s: float | None = None,
                  tracker: SampleTracker | None = None) -> None:

@@ -102,6 +102,7 @@ class NodeView:
         self.lsb_ohm = float(lsb.default) if self.product == PATCH_PRODUCT and lsb is not None \
             and lsb.default is not None else 0.05
         self.pdos: dict[int, PdoEntry] = {}
+        self._tpdos: tuple[TpdoLayout, ...] = ()
         self._namers: dict[tuple[int, int], Callable[[float], NamedValue]] = {}
         self._rebuild()
 
@@ -134,16 +135,34 @@ class NodeView:
     def tpdo_layouts(self) -> list[TpdoLayout]:
         """The node's valid TPDOs, from the EDS defaults and the SDO values seen, of any
         length (a CAN FD PDO too); a TPDO whose mapping is half-way through a rewrite
-        (an entry the dictionary does not have) is left out, the others kept."""
+        (an entry the dictionary does not have), or was only partly seen being rewritten
+        (:meth:`mapping_known`), is left out, the others kept."""
+        return list(self._tpdos)
+
+    def mapping_known(self, mapping: int) -> bool:
+        """Whether the mapping at ``mapping`` (0x1A00.., 0x1600..) is known: the EDS default
+        while no SDO transfer touched it, else its count and every entry up to the count
+        seen (a whole rewrite, or a whole read-back). A recording that begins in the middle
+        of a master's rewrite shows some entries and not others: such a mapping is not
+        guessed from the EDS."""
+        touched = [sub for index, sub in self.seen if index == mapping]
+        if not touched:
+            return True
+        count = self.seen.get((mapping, 0))
+        return count is not None and all((mapping, sub) in self.seen
+                                         for sub in range(1, count + 1))
+
+    def _layouts(self, comm: int, mapping: int) -> list[TpdoLayout]:
         read, layouts = self._reader(), []
         number = 0
-        while TPDO_COMM + number in self.od and TPDO_MAP + number in self.od:
-            try:
-                found = read_layouts(read, 1, comm=TPDO_COMM + number,
-                                     mapping=TPDO_MAP + number)
-            except (ConfigError, KeyError):
-                found = []
-            layouts += [dataclasses.replace(layout, number=number + 1) for layout in found]
+        while comm + number in self.od and mapping + number in self.od:
+            if self.mapping_known(mapping + number):
+                try:
+                    found = read_layouts(read, 1, comm=comm + number,
+                                         mapping=mapping + number)
+                except (ConfigError, KeyError):
+                    found = []
+                layouts += [dataclasses.replace(layout, number=number + 1) for layout in found]
             number += 1
         return layouts
 
@@ -328,18 +347,16 @@ class NodeView:
         return read
 
     def _rebuild(self) -> bool:
-        read, table = self._reader(), {}
+        table = {}
         for kind, comm, mapping in (("TPDO", TPDO_COMM, TPDO_MAP), ("RPDO", RPDO_COMM, RPDO_MAP)):
-            count = 0
-            while comm + count in self.od and mapping + count in self.od:
-                count += 1
-            try:
-                layouts = read_layouts(read, count, comm=comm, mapping=mapping)
-                for layout in layouts:
+            layouts = self._layouts(comm, mapping)
+            if kind == "TPDO":
+                self._tpdos = tuple(layouts)
+            for layout in layouts:
+                try:
                     table[layout.cob_id] = PdoEntry(kind, layout, PdoCodec([layout], self.od))
-            except (ConfigError, KeyError, ValueError):
-                continue  # a mapping half-way through a rewrite (or longer than the
-                # codec's 8 bytes): keep the rest
+                except (ConfigError, KeyError, ValueError):
+                    continue  # an entry the dictionary does not have: keep the rest
         changed = {c: e.layout for c, e in table.items()} != \
             {c: e.layout for c, e in self.pdos.items()}
         self.pdos = table
@@ -380,9 +397,10 @@ class Dictionary:
     def _new_view(self, node_id: int, eds: EdsChoice) -> NodeView:
         key = os.fspath(eds)
         if key not in self._ods:
-            self._ods[key] = (load_od(eds, node_id), node_id)
+            self._ods[key] = (_parsed(key, _stamp(key), node_id), node_id)
         od, od_node_id = self._ods[key]
         return NodeView(node_id, od, od_node_id)
+
 
     def observe(self, node_id: int, index: int, subindex: int, raw: bytes) -> None:
         """Feed an SDO value to the node's view (and follow an identity it reveals)."""
@@ -397,6 +415,20 @@ class Dictionary:
                 return
         if view.observe(index, subindex, raw):
             self.version += 1
+
+
+def _stamp(key: str) -> float:
+    """A file's modification time (0 for a shipped name): a changed file is parsed again."""
+    try:
+        return os.stat(key).st_mtime
+    except OSError:
+        return 0.0
+
+
+@functools.lru_cache(maxsize=16)
+def _parsed(key: str, stamp: float, node_id: int) -> canopen.ObjectDictionary:
+    """An EDS parsed once per process (the views only read it)."""
+    return load_od(key, node_id)
 
 
 def parse_assignment(text: str) -> dict[int, str]:

@@ -11,8 +11,11 @@ Where a sample begins. A classic PDO carries no cycle number, but a node sends t
 of one sample together and in a fixed order, and the PDO with the lowest COB-ID comes
 first in both orders a sender may use: TPDO number order (one transmit FIFO, the host's
 force nodes) and ascending COB-ID (queued frames leave a CAN controller by arbitration);
-it is TPDO 1 in the predefined connection set. That PDO, the *first*, begins a sample. So
-a sample closes:
+it is TPDO 1 in the predefined connection set. That PDO, the *first*, begins a sample.
+(Where a configuration gives TPDO 1 a higher COB-ID than another TPDO, the two orders
+differ: a reader then takes the order its nodes use, ``PdoSampleReader.order``; the force
+reader TPDO order, as the host's force nodes send. Read in the other order, two samples
+would be joined.) So a sample closes:
 
 - *complete* when every mapped PDO came once;
 - *partial* when the next first PDO comes (the next sample began), or when a PDO it
@@ -91,7 +94,7 @@ class PdoAssembly:
     """One node's TPDO mapping and the sample being assembled (not thread-safe)."""
 
     def __init__(self, node_id: int, layouts: Sequence[TpdoLayout],
-                 od: canopen.ObjectDictionary) -> None:
+                 od: canopen.ObjectDictionary, *, order: str = "cob-id") -> None:
         self.node_id = node_id
         self.layouts = tuple(layouts)
         self.slots: dict[int, tuple[int, int, int]] = {}  # COB-ID -> (PDO bit, offset, size)
@@ -126,7 +129,7 @@ class PdoAssembly:
         self._pdo = np.array([v.pdo for v in variables], dtype=np.int64)
         self.full = (1 << len(self.layouts)) - 1
         cob_ids = [layout.cob_id for layout in self.layouts]
-        self.first_pdo = cob_ids.index(min(cob_ids)) if cob_ids else 0
+        self.first_pdo = 0 if not cob_ids or order == "tpdo" else cob_ids.index(min(cob_ids))
         self.last_pdo = -1
         self.await_first = False
         """Take nothing before the node's first PDO (it was named mid-sample)."""
@@ -215,6 +218,11 @@ _RECENT = 1024
 
 
 class PdoSampleReader(can.Listener):
+    order = "cob-id"
+    """How the nodes send one sample's PDOs when their TPDO 1 is not their lowest COB-ID:
+    ``"cob-id"`` (queued frames leave by arbitration) or ``"tpdo"`` (one FIFO). Where TPDO 1
+    has the lowest COB-ID (the predefined set, ascending custom COB-IDs) both agree."""
+
     """Samples of the TPDOs of ``node_ids`` (EDS ``eds``), handed to :meth:`on_samples`.
 
     A frame goes to a node's sample only when :mod:`canbus.tools.attribution` attributes
@@ -254,7 +262,10 @@ class PdoSampleReader(can.Listener):
         self._version = -1
         self._started = False
         for node in self.node_ids:
-            self._rebuild(node)
+            view = self._view(node)
+            self._assemblies[node] = PdoAssembly(node, view.tpdo_layouts(), view.od,
+                                                order=self.order)
+        self._follow_attribution()
         self._started = True  # from now on a node named mid-stream waits for its next sample
 
     # -- receive path -----------------------------------------------------------------
@@ -407,7 +418,8 @@ class PdoSampleReader(can.Listener):
         """The node's assembly from its current mapping; its open sample is dropped (a
         mapping change mid-sample: the node's PDOs before it are of the old one)."""
         view = self._view(node_id)
-        self._assemblies[node_id] = PdoAssembly(node_id, view.tpdo_layouts(), view.od)
+        self._assemblies[node_id] = PdoAssembly(node_id, view.tpdo_layouts(), view.od,
+                                                order=self.order)
         self._follow_attribution()
 
     def _follow_attribution(self) -> set[int]:
@@ -420,7 +432,8 @@ class PdoSampleReader(can.Listener):
             view = self._view(node)
             layouts = tuple(view.tpdo_layouts())
             if layouts != assembly.layouts:  # a boot-up forgot a remap, CAN FD was adopted
-                self._assemblies[node] = PdoAssembly(node, layouts, view.od)
+                # (or a mapping was seen only in part)
+                self._assemblies[node] = PdoAssembly(node, layouts, view.od, order=self.order)
         owners = self.attribution.table()
         before = {a.node_id for a in self._table.values()}
         self._table = {cob: a for a in self._assemblies.values() for cob in a.slots
