@@ -207,7 +207,8 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             _write_json(args.json, result)
         return 0
-    from skin.commands.bench_view import Stages, check_plot, plot, print_decoders
+    from skin.commands.bench_view import Stages, check_plot, plot, print_decoders, uncovered
+    from skin.commands.eval import NO_RESULT
 
     if args.plot:
         check_plot(args.plot)  # before minutes of work, not after
@@ -221,4 +222,4 @@ def run(args: argparse.Namespace) -> int:
         _write_json(args.json, result)
     if args.plot:
         plot(result, args.plot)
-    return 0
+    return NO_RESULT if uncovered(result) else 0

@@ -10,7 +10,16 @@ from skin.errors import ConfigError
 
 
 def _f(value: float | None, digits: int = 3) -> str:
-    return "-" if value is None else f"{value:.{digits}f}"
+    return "-" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def uncovered(result: dict[str, Any]) -> list[str]:
+    """The figures of a ``skin bench`` run that cover no taxel: ``lm-mlp on paper``."""
+    out = [f"{d['name']} on {part['scene']}" for part in result["scenes"]
+           for d in part["decoders"] if not d["covered_pct"]]
+    out += [f"lm-mlp ({r['hidden']} hidden) on {r['scene']}" for r in result["table1"]
+            if not r["covered_pct"]]
+    return out
 
 
 def _scene_table(part: dict[str, Any], seeds: int) -> None:
@@ -18,19 +27,20 @@ def _scene_table(part: dict[str, Any], seeds: int) -> None:
     title = (f"decoders on '{part['scene']}' ({noise}, z-only; means over {seeds} "
              f"seed{'s' if seeds > 1 else ''})")
     speed = "latency_us" in part["decoders"][0] if part["decoders"] else False
-    columns = ["decoder", "AveRelErr %", "floored %", "x oracle", "RMSE %FS",
+    columns = ["decoder", "covers %", "AveRelErr %", "floored %", "x oracle", "RMSE %FS",
                "max rel floored %", "train s"]
     if speed:
         columns += ["patch-samples/s", "latency us"]
     o = part["oracle"]
-    rows = [["oracle", _f(o["ave_rel_err_pct"]), _f(o["ave_rel_err_floored_pct"]), "",
-             _f(o["rmse_pct_fs"]), *[""] * (len(columns) - 5)]]
+    rows = [["oracle", _f(o["covered_pct"], 2), _f(o["ave_rel_err_pct"]),
+             _f(o["ave_rel_err_floored_pct"]), "", _f(o["rmse_pct_fs"]),
+             *[""] * (len(columns) - 6)]]
     for d in part["decoders"]:
         ratio = (d["ave_rel_err_pct"] / o["ave_rel_err_pct"]
                  if o["ave_rel_err_pct"] > 1e-6 else None)
-        cells = [d["name"], _f(d["ave_rel_err_pct"]), _f(d["ave_rel_err_floored_pct"]),
-                 _f(ratio, 3), _f(d["rmse_pct_fs"]), _f(d["max_rel_err_floored_pct"], 2),
-                 _f(d["train_s"])]
+        cells = [d["name"], _f(d["covered_pct"], 2), _f(d["ave_rel_err_pct"]),
+                 _f(d["ave_rel_err_floored_pct"]), _f(ratio, 3), _f(d["rmse_pct_fs"]),
+                 _f(d["max_rel_err_floored_pct"], 2), _f(d["train_s"])]
         if speed:
             cells += [f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}"]
         rows.append(cells)
@@ -43,7 +53,7 @@ def _table1(result: dict[str, Any]) -> None:
     by = {(r["scene"], r["hidden"]): r for r in result["table1"]}
     title = (f"Table 1: lm-mlp AveRelErr % by hidden nodes (goal MSE 1e-4 in "
              f"{'N' if result['goal_units'] == 'N' else 'scaled units'})")
-    columns = ["hidden", "article"]
+    columns = ["hidden", "article", "covers %"]
     for scene in scenes:
         columns.append(scene)
         if scene == "paper":
@@ -52,7 +62,8 @@ def _table1(result: dict[str, Any]) -> None:
     rows = []
     for h in sorted({r["hidden"] for r in result["table1"]}):
         paper_ref = by[(scenes[0], h)]["paper_ave_rel_err_pct"]
-        cells = [str(h), _f(paper_ref, 2)]
+        cover = min(by[(scene, h)]["covered_pct"] for scene in scenes)
+        cells = [str(h), _f(paper_ref, 2), _f(cover, 2)]
         for scene in scenes:
             row = by[(scene, h)]
             cells.append(_f(row["ave_rel_err_pct"]))
@@ -64,6 +75,12 @@ def _table1(result: dict[str, Any]) -> None:
 
 
 def print_decoders(result: dict[str, Any]) -> None:
+    """The tables; every error beside the share of the taxels it covers ("covers %": of
+    Table 1's, the least over its scenes). A figure that covers nothing is named first."""
+    missing = uncovered(result)
+    if missing:
+        print(f"no result: every taxel masked for {', '.join(missing)}: those figures cover "
+              "nothing")
     for part in result["scenes"]:
         _scene_table(part, result["seeds"])
     _table1(result)

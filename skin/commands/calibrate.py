@@ -263,10 +263,11 @@ def _check(args: argparse.Namespace) -> int:
         out = model.decode(normalise(r, rest_ohm, r0))
         e = evaluate(f, out.force_N, out.valid, mode=mode, constants=constants)
         flagged = float(1.0 - out.valid.mean())
-        floored = e.ave_rel_err_floored_pct if e.floored else math.nan  # none compared
+        floored = e.ave_rel_err_floored_pct  # NaN when nothing was compared: never fits
         fits = floored <= limit and 100 * flagged <= max(1.0, 2 * own.get("flagged_pct", 0.0))
         return {"floored_pct": floored, "ave_rel_err_pct": e.ave_rel_err_pct,
-                "rmse_N": e.rmse_N, "flagged_pct": 100 * flagged, "fits": bool(fits)}
+                "rmse_N": e.rmse_N, "flagged_pct": 100 * flagged,
+                "covered_pct": 100 * e.covered_share, "fits": bool(fits)}
 
     now = figures(rest)
     tare = tare_at_rest(r, f, own.get("tare", {}).get("rest_N", 0.01))
@@ -278,14 +279,20 @@ def _check(args: argparse.Namespace) -> int:
     else:
         verdict, code = "does not fit: recalibrate", RECALIBRATE
     own_pct = own["heldout_floored_pct"]
-    print(f"{args.check} on patch {node} of {args.dataset} ({r.shape[0]} samples): floored "
-          f"{_fmt(now['floored_pct'])} % (its own held-out {own_pct:.3f} %, limit "
-          f"{limit:.3f} %), refused {now['flagged_pct']:.2f} %")
+    where = f"patch {node} of {args.dataset} ({r.shape[0]} samples)"
+    if now["flagged_pct"] >= 100.0:
+        print(f"{args.check} refused every taxel of {where}: no result, its error covers "
+              f"nothing (its own held-out {own_pct:.3f} %, limit {limit:.3f} %)")
+    else:
+        print(f"{args.check} on {where}: floored {_fmt(now['floored_pct'])} % over "
+              f"{100 - now['flagged_pct']:.2f} % of the taxels (its own held-out "
+              f"{own_pct:.3f} %, limit {limit:.3f} %), refused {now['flagged_pct']:.2f} %")
     if retared is not None and tare is not None:
         drift = 100.0 * (np.asarray(tare.rest_ohm) / np.asarray(rest) - 1.0)
         print(f"after a tare on its {tare.samples} samples at rest (rest moved "
               f"{np.min(drift):+.3f}..{np.max(drift):+.3f} %): floored "
-              f"{_fmt(retared['floored_pct'])} %, refused {retared['flagged_pct']:.2f} %")
+              f"{_fmt(retared['floored_pct'])} % over {100 - retared['flagged_pct']:.2f} % of "
+              f"the taxels, refused {retared['flagged_pct']:.2f} %")
     print(f"{args.check} {verdict}")
     if args.json:
         write_json(args.json, {"model": args.check, "dataset": args.dataset, "node_id": node,
