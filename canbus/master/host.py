@@ -54,6 +54,7 @@ from canbus.master.discovery import UnknownNode
 from canbus.master.fanout import FrameCallback, FrameFanout
 from canbus.master.follower import ListenOnly
 from canbus.master.forcenode import ForceNode
+from canbus.master.frame_kinds import bus_cob_ids
 from canbus.master.hostconfig import HostConfig, load_host_config
 from canbus.master.patch_setup import PatchSetup
 from canbus.master.patch_setup import configured_info as configured_info  # re-exported
@@ -167,6 +168,7 @@ class HostManager:
             for link in self.links.values():
                 if link.name in patch_buses:
                     link.dataplane = DataPlane(link.bus, sync_window_s=window_s)
+                    link.dataplane.bus_traffic = bus_cob_ids(self.config, link.name)
                     link.dataplane.subscribe(self._on_frames)
             for patch in self.patches.values():  # one sample per SYNC from the first
                 self.add_placeholder(patch, patch.setup or self.policy.planned(patch))
@@ -287,7 +289,7 @@ class HostManager:
                 out[node_id] = PatchHealth(
                     state=p.state, lost=p.state == "lost",
                     faulty_taxels=tuple(int(k) for k in np.flatnonzero(p.masked)),
-                    last_heartbeat=p.link.monitor.last_heartbeat(node_id),
+                    last_heartbeat_unix_s=p.link.monitor.last_heartbeat(node_id),
                     samples=p.samples, incomplete=p.incomplete, error=p.error,
                     bus=p.link.name)
         return out

@@ -33,7 +33,7 @@ class PatchHealth:
     state: str
     lost: bool
     faulty_taxels: tuple[int, ...]  # reported by EMCY, masked in the output
-    last_heartbeat: float | None  # time.time() of the last heartbeat
+    last_heartbeat_unix_s: float | None  # the last heartbeat, time.time() (Unix epoch), s
     samples: int  # force frames published for the patch
     incomplete: int  # of which incomplete
     error: str | None = None

@@ -112,7 +112,7 @@ class BusDecode:
 
     def received(self) -> int:
         stats = self.host.dataplane.stats
-        return stats.frames_in + stats.unknown_frames
+        return stats.frames_in + stats.unknown_frames + stats.bus_frames
 
     def error(self) -> BaseException | None:
         notifier = self.host.network.notifier

@@ -82,4 +82,6 @@ def test_run(tmp_path: Path, sig: signal.Signals) -> None:
     assert f"stopped by {sig.name}" in stdout and "(0 complete, " in stdout  # patch absent
     record = json.loads(out.read_text())
     assert record["stopped_by"] == sig.name and record["patches"]["1"]["state"] == "absent"
+    # a time says its clock and unit: never heard, so none
+    assert record["patches"]["1"]["last_heartbeat_unix_s"] is None
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp file

@@ -52,6 +52,7 @@ class Run:
     path: Path
     config: HostConfig
     frames: list[ForceFrame]
+    stats: dict[str, int]
 
 
 def _samples() -> np.ndarray:
@@ -96,7 +97,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
         notifier.stop(timeout=1.0)
         listen.shutdown()
         bus.shutdown()
-    return Run(folder / "example.log", config, frames)
+    return Run(folder / "example.log", config, frames, host.stats())
 
 
 def _sniff_lines(run: Run, *extra: str) -> list[str]:
@@ -187,3 +188,10 @@ def test_view_snapshot_shows_only_what_each_force_node_sent(
         np.testing.assert_array_equal(sample.valid, on_bus)
         np.testing.assert_array_equal(sample.force_N,
                                       np.where(on_bus[:, None], mN / 1000.0, 0.0))
+
+
+def test_a_clean_run_counts_no_unknown_frame(run: Run) -> None:
+    """The patches' heartbeats, the start-up's SDO scan and set-up, SYNC and NMT are the
+    bus's own traffic (bus_frames), not unknown."""
+    assert run.stats["unknown_frames"] == 0
+    assert run.stats["bus_frames"] > 2 * CYCLES  # SYNCs at least
