@@ -26,7 +26,7 @@ from skin.errors import SkinError
 
 SUBCOMMANDS = (
     "sim", "model", "train", "eval", "bench", "plan", "eds", "run", "demo", "sniff", "replay",
-    "tare", "decode", "view", "dataset", "calibrate",
+    "tare", "decode", "view", "dataset", "calibrate", "compare",
 )
 
 
