@@ -49,7 +49,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 from canbus.pdo_codec import TpdoLayout
-from canbus.tools.pdo_names import Dictionary, EdsChoice, NodeView, PdoEntry
+from canbus.tools.pdo_dictionary import Dictionary
+from canbus.tools.pdo_names import EdsChoice, NodeView, PdoEntry
 
 CONFIG, SDO, DEFAULT = "config", "sdo", "default"
 NO_SYNC_WINDOW_S = float("inf")

@@ -45,8 +45,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canbus.tools.attribution import KnownNode
+from canbus.tools.pdo_assembly import PdoAssembly, RawSample
 from canbus.tools.pdo_names import EdsChoice
-from canbus.tools.pdo_samples import PdoAssembly, PdoSampleReader, RawSample
+from canbus.tools.pdo_samples import PdoSampleReader
 from canbus.tools.sample_tracker import PatchStatus, SampleTracker
 from decoder.reasons import Reason
 

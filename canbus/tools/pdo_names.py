@@ -11,26 +11,24 @@ with the reserved codes named (short, saturated, open); a force node's forces (0
 INTEGER16 mN) are newtons with 0x8000 as "no value"; taxel status bytes and the valid
 taxel mask (0x2005) are spelled out.
 
-:class:`Dictionary` chooses the EDS per node-ID: 1..64 the patch, 65..127 the force node
-(the host's default is patch node-ID + 64), unless told otherwise; an identity read by
-SDO (0x1018:02 product code) switches a node to the shipped EDS of that product.
+:class:`~canbus.tools.pdo_dictionary.Dictionary` chooses the EDS per node-ID: 1..64 the
+patch, 65..127 the force node (the host's default is patch node-ID + 64), unless told
+otherwise; an identity read by SDO (0x1018:02 product code) switches a node to the shipped
+EDS of that product.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import canopen
 import numpy as np
 
-from canbus import codes
 from canbus.mappings import force_fd_entries, patch_fd_entries
-from canbus.od import load_od
 from canbus.pdo_codec import (
     COB_ID_INVALID,
     PdoCodec,
@@ -39,28 +37,28 @@ from canbus.pdo_codec import (
     read_defaults,
     read_layouts,
 )
-from decoder.reasons import reason_name
+from canbus.tools.pdo_values import (
+    CIA301_UNITS,
+    UNSIGNED32,
+    NamedValue,
+    force_value,
+    reason_value,
+    resistance_value,
+    scaled_value,
+    status_value,
+    valid_taxels_value,
+    var_size,
+)
 from skin.errors import ConfigError
 
 PATCH_PRODUCT, FORCES_PRODUCT = 1, 2
 SHIPPED_BY_PRODUCT = {PATCH_PRODUCT: "skin-patch", FORCES_PRODUCT: "skin-forces"}
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
-NO_FORCE = -0x8000
 _PDO_LAST = 0x1BFF  # RPDO/TPDO communication and mapping parameters: 0x1400..0x1BFF
 _PATCH_UNITS = {0x2001: "Ω", 0x2002: "Ω"}
 _PATCH_CONSTANT_UNITS = ("Pa", "Ω·m", "m", "m²", "", "N", "m")  # 0x2003 sub 1..7
 _PILLARS, _AXES = "zxy", "xyz"
 EdsChoice = str | os.PathLike[str]
-
-
-@dataclass(frozen=True, slots=True)
-class NamedValue:
-    """One mapped variable of a PDO: a short name, its value in ``unit`` and as text."""
-
-    name: str
-    value: float | None
-    unit: str
-    text: str
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,7 +115,7 @@ class NodeView:
         if var is None:
             return False
         try:
-            value = var.decode_raw(raw[: _size(var) or len(raw)])
+            value = var.decode_raw(raw[: var_size(var) or len(raw)])
         except (ValueError, TypeError, IndexError, UnicodeDecodeError):
             return False
         if index == 0x1017 and subindex == 0 and isinstance(value, int):
@@ -268,27 +266,27 @@ class NodeView:
         if product == PATCH_PRODUCT and index == 0x2000 and subindex:
             taxel, pillar = divmod(subindex - 1, 3)
             name, lsb = f"R{taxel}{_PILLARS[pillar]}", self.lsb_ohm
-            return lambda value: _resistance(name, int(value), lsb)
+            return lambda value: resistance_value(name, int(value), lsb)
         if product == FORCES_PRODUCT and index == 0x2000 and subindex:
             taxel, axis = divmod(subindex - 1, 3)
-            return functools.partial(_force, f"F{taxel}{_AXES[axis]}")
+            return functools.partial(force_value, f"F{taxel}{_AXES[axis]}")
         if product == PATCH_PRODUCT and index == 0x2004 and subindex:
-            return lambda value: _status(f"S{subindex - 1}", int(value))
+            return lambda value: status_value(f"S{subindex - 1}", int(value))
         if product == FORCES_PRODUCT and index == 0x2004 and subindex:
-            return lambda value: _reason(f"S{subindex - 1}", int(value))
+            return lambda value: reason_value(f"S{subindex - 1}", int(value))
         if product == FORCES_PRODUCT and index == 0x2005:
-            return _valid_taxels
+            return valid_taxels_value
         if index == 0x1001:
             return lambda value: NamedValue("ER", value, "", f"ER=0x{int(value):02X}")
         var = self._variable(index, subindex)
         name = var.name if var is not None else f"0x{index:04X}:{subindex:02X}"
         factor = var.factor if var is not None else 1.0
-        unit = (var.unit if var is not None else "") or _CIA301_UNITS.get(index, "")
+        unit = (var.unit if var is not None else "") or CIA301_UNITS.get(index, "")
         if product == PATCH_PRODUCT and index in _PATCH_UNITS:
             unit = _PATCH_UNITS[index]
         if product == PATCH_PRODUCT and index == 0x2003 and 1 <= subindex <= 7:
             unit = _PATCH_CONSTANT_UNITS[subindex - 1]
-        return functools.partial(_scaled, name, factor, unit)
+        return functools.partial(scaled_value, name, factor, unit)
 
     def object_name(self, index: int, subindex: int) -> str:
         """``0x1018:01 Identity object.Vendor-ID`` (the name if the EDS has the object)."""
@@ -302,14 +300,14 @@ class NodeView:
         if var is None:
             return raw.hex(" ")
         try:
-            value = var.decode_raw(raw[: _size(var) or len(raw)])
+            value = var.decode_raw(raw[: var_size(var) or len(raw)])
         except (ValueError, TypeError, IndexError, UnicodeDecodeError):
             return raw.hex(" ")
         if isinstance(value, str):
             return repr(value)
         if isinstance(value, bytes | bytearray):
             return bytes(value).hex(" ")
-        if var.data_type == _UNSIGNED32 and index < 0x2000:
+        if var.data_type == UNSIGNED32 and index < 0x2000:
             return f"0x{int(value):08X}"
         return self.named(index, subindex, float(value)).text.split("=", 1)[1]
 
@@ -363,141 +361,11 @@ class NodeView:
         return changed
 
 
-class Dictionary:
-    """Node-ID -> :class:`NodeView`, built on first use; ``assignments`` pin nodes' EDS
-    (None: a node with no EDS here, no view).
+def __getattr__(name: str) -> object:
+    """``Dictionary`` and ``parse_assignment`` live in :mod:`canbus.tools.pdo_dictionary`
+    (which builds on this module); they are named here too."""
+    if name in ("Dictionary", "parse_assignment"):
+        from canbus.tools import pdo_dictionary
 
-    Each EDS is parsed once (``canopen.import_od`` takes ~10 ms) and shared by the views
-    of every node that uses it, so a burst of new nodes does not stall the receive thread.
-    ``version`` grows whenever a view appears or a view's PDO table changes.
-    """
-
-    def __init__(self, assignments: Mapping[int, EdsChoice | None] | None = None) -> None:
-        self.assignments: dict[int, EdsChoice | None] = dict(assignments or {})
-        self._views: dict[int, NodeView | None] = {}
-        self._ods: dict[str, tuple[canopen.ObjectDictionary, int]] = {}
-        self.version = 0
-
-    def views(self) -> list[NodeView]:
-        """Every node's view built so far."""
-        return [view for view in list(self._views.values()) if view is not None]
-
-    def view(self, node_id: int) -> NodeView | None:
-        """The node's view, or None for a node-ID outside 1..127."""
-        if node_id in self._views:
-            return self._views[node_id]
-        view = None
-        eds = self.assignments.get(node_id, shipped_default(node_id))
-        if 1 <= node_id <= 127 and eds is not None:  # None: a node without an EDS here
-            view = self._new_view(node_id, eds)
-        self._views[node_id] = view
-        self.version += 1
-        return view
-
-    def _new_view(self, node_id: int, eds: EdsChoice) -> NodeView:
-        key = os.fspath(eds)
-        if key not in self._ods:
-            self._ods[key] = (_parsed(key, _stamp(key), node_id), node_id)
-        od, od_node_id = self._ods[key]
-        return NodeView(node_id, od, od_node_id)
-
-
-    def observe(self, node_id: int, index: int, subindex: int, raw: bytes) -> None:
-        """Feed an SDO value to the node's view (and follow an identity it reveals)."""
-        view = self.view(node_id)
-        if view is None:
-            return
-        if (index, subindex) == (0x1018, 2) and node_id not in self.assignments:
-            product = int.from_bytes(raw[:4], "little")
-            if product in SHIPPED_BY_PRODUCT and product != view.product:
-                self._views[node_id] = self._new_view(node_id, SHIPPED_BY_PRODUCT[product])
-                self.version += 1
-                return
-        if view.observe(index, subindex, raw):
-            self.version += 1
-
-
-def _stamp(key: str) -> float:
-    """A file's modification time (0 for a shipped name): a changed file is parsed again."""
-    try:
-        return os.stat(key).st_mtime
-    except OSError:
-        return 0.0
-
-
-@functools.lru_cache(maxsize=16)
-def _parsed(key: str, stamp: float, node_id: int) -> canopen.ObjectDictionary:
-    """An EDS parsed once per process (the views only read it)."""
-    return load_od(key, node_id)
-
-
-def parse_assignment(text: str) -> dict[int, str]:
-    """``NODE=FILE`` or ``FIRST-LAST=FILE`` (FILE: a path or a shipped EDS name)."""
-    nodes, sep, eds = text.partition("=")
-    if not sep or not eds:
-        raise ConfigError("--eds", f"expected NODE=FILE or FIRST-LAST=FILE, got {text!r}")
-    first, _, last = nodes.partition("-")
-    try:
-        low, high = int(first, 0), int(last or first, 0)
-    except ValueError as err:
-        raise ConfigError("--eds", f"{nodes!r} is not a node-ID or range") from err
-    if not 1 <= low <= high <= 127:
-        raise ConfigError("--eds", f"node-IDs must be in 1..127, got {nodes!r}")
-    load_od(eds, low)  # fail now, with the file's own error, not in the receive thread
-    return dict.fromkeys(range(low, high + 1), eds)
-
-
-_UNSIGNED32 = 0x0007
-_CIA301_UNITS = {0x1006: "µs", 0x1007: "µs", 0x1017: "ms"}
-
-
-def _size(var: canopen.objectdictionary.ODVariable) -> int | None:
-    struct = canopen.objectdictionary.ODVariable.STRUCT_TYPES.get(int(var.data_type or 0))
-    return None if struct is None else int(struct.size)
-
-
-def _resistance(name: str, code: int, lsb_ohm: float) -> NamedValue:
-    if code == codes.OPEN:
-        return NamedValue(name, math.inf, "Ω", f"{name}=open")
-    if code == codes.SATURATED:
-        return NamedValue(name, math.inf, "Ω", f"{name}=saturated")
-    if code == codes.SHORT:
-        return NamedValue(name, 0.0, "Ω", f"{name}=short")
-    ohm = code * lsb_ohm
-    return NamedValue(name, ohm, "Ω", f"{name}={ohm:.2f} Ω")
-
-
-def _force(name: str, value: float) -> NamedValue:
-    if int(value) == NO_FORCE:
-        return NamedValue(name, None, "N", f"{name}=none")
-    return NamedValue(name, value / 1000.0, "N", f"{name}={value / 1000.0:+.3f} N")
-
-
-def _valid_taxels(value: float) -> NamedValue:
-    bits = int(value)
-    valid = bin(bits & 0x1FF).count("1")
-    complete = "" if bits & 0x8000 else " incomplete"
-    return NamedValue("valid", value, "", f"valid={valid}/9{complete}")
-
-
-def _scaled(name: str, factor: float, unit: str, value: float) -> NamedValue:
-    scaled = value * factor
-    number = f"{int(scaled)}" if float(scaled).is_integer() else f"{scaled:g}"
-    return NamedValue(name, scaled, unit, f"{name}={number}{' ' + unit if unit else ''}")
-
-
-def _status(name: str, status: int) -> NamedValue:
-    faults = [f"{p} {codes.FAULT_NAMES[(status >> (2 * k)) & 3]}"
-              for k, p in enumerate(_PILLARS) if (status >> (2 * k)) & 3]
-    return NamedValue(name, float(status), "", f"{name}={'ok' if not faults else ','.join(faults)}")
-
-
-def _reason(name: str, code: int) -> NamedValue:
-    """A force node's 0x2004: the decoder's reason code for the taxel (0 OK)."""
-    text = "ok" if code == 0 else reason_name(code)
-    return NamedValue(name, float(code), "", f"{name}={text}")
-
-
-def describe_taxel_fault(taxel: int, status: int) -> str:
-    """The manufacturer bytes of a patch EMCY (taxel, status byte) in words."""
-    return f"taxel {taxel}: {_status('', status).text.removeprefix('=')}"
+        return getattr(pdo_dictionary, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

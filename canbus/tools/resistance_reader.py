@@ -21,7 +21,8 @@ from numpy.typing import NDArray
 
 from canbus.codes import code_to_resistance
 from canbus.tools.attribution import KnownNode
-from canbus.tools.pdo_samples import PdoAssembly, PdoSampleReader, RawSample
+from canbus.tools.pdo_assembly import PdoAssembly, RawSample
+from canbus.tools.pdo_samples import PdoSampleReader
 
 RESISTANCES, LSB = 0x2000, 0x2001
 DEFAULT_LSB_OHM = 0.05

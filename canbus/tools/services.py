@@ -22,7 +22,9 @@ from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoAbortedError
 
 from canbus.tools.attribution import Attribution
-from canbus.tools.pdo_names import PATCH_PRODUCT, Dictionary, NodeView, describe_taxel_fault
+from canbus.tools.pdo_dictionary import Dictionary
+from canbus.tools.pdo_names import PATCH_PRODUCT, NodeView
+from canbus.tools.pdo_values import describe_taxel_fault
 
 
 class Service(StrEnum):

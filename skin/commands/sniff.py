@@ -56,7 +56,7 @@ class Capture:
 def _sniff(args: argparse.Namespace) -> int:
 
     from canbus.tools.attribution import Attribution
-    from canbus.tools.pdo_names import Dictionary, parse_assignment
+    from canbus.tools.pdo_dictionary import Dictionary, parse_assignment
     from canbus.tools.recorder import check_channel_name, enlarge_receive_buffer, recording_format
     from canbus.tools.services import ServiceDecoder
     from canbus.tools.sniffer import FrameFilter, Sniffer
