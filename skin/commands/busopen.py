@@ -59,7 +59,6 @@ def choose_bus(args: argparse.Namespace, *, command: str,
                config: HostConfig | None = None) -> str:
     """Fill ``args`` with the bus to open (module docstring); ``interface:channel (from
     where)``. :class:`~skin.errors.BusError` when nothing names an interface."""
-    from skin.commands.busargs import DEFAULT_CHANNELS
     from skin.errors import BusError
 
     configured = python_can_config()
@@ -77,14 +76,24 @@ def choose_bus(args: argparse.Namespace, *, command: str,
                        "processes), a host config with a [bus] table (--config), or "
                        "python-can's configuration ($CAN_INTERFACE, ~/.canrc)")
     if getattr(args, "channel", None) is None:
-        if configured.get("channel") is not None and \
-                configured.get("interface") in (None, args.interface):
-            args.channel = configured["channel"]
-        elif args.interface in DEFAULT_CHANNELS:
-            args.channel = DEFAULT_CHANNELS[args.interface]
+        channel = default_channel_for(args.interface, configured)
+        if channel is not None:
+            args.channel = channel
     channel = getattr(args, "channel", None)
     return f"{args.interface}:{channel if channel is not None else '(driver default)'} " \
            f"(from {source})"
+
+
+def default_channel_for(interface: str, configured: dict[str, Any] | None = None) -> Any:
+    """The channel of ``interface`` when none is given: python-can's configuration's, if it
+    names one for that interface (or for none), else canskin's default (None: the driver's)."""
+    from skin.commands.busargs import DEFAULT_CHANNELS
+
+    configured = python_can_config() if configured is None else configured
+    if configured.get("channel") is not None and \
+            configured.get("interface") in (None, interface):
+        return configured["channel"]
+    return DEFAULT_CHANNELS.get(interface)
 
 
 def _from_config(args: argparse.Namespace, config: HostConfig) -> None:

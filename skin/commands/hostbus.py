@@ -48,12 +48,12 @@ def resolve(config: HostConfig, args: argparse.Namespace) -> HostConfig:
         raise BusError(f"no bus: {config.source} has no [bus] table and no -i IFACE was "
                        "given (nor python-can's configuration); say which bus, e.g. "
                        "-i socketcan -c can0")
-    if bus.channel is None and bus.interface in ("virtual", "udp_multicast", "timed"):
-        from skin.commands.busargs import default_channel
+    if bus.channel is None and bus.interface is not None:
+        from skin.commands.busopen import default_channel_for
 
-        namespace = argparse.Namespace(interface=bus.interface)
-        default_channel(namespace)
-        bus = replace(bus, channel=namespace.channel)
+        channel = default_channel_for(bus.interface)  # python-can's, else canskin's
+        if channel is not None:
+            bus = replace(bus, channel=channel)
     if bus.interface in ("virtual", "timed"):
         logger.warning("bus %s: %s reaches only this process; use udp_multicast to meet "
                        "patches in another process", bus.name, bus.interface)

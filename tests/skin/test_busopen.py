@@ -99,3 +99,19 @@ def test_sniff_and_tare_say_which_bus_and_that_virtual_is_theirs_alone(
     assert captured.out == "force node 65: tared (bus virtual:said-tare (from -i))\n"
     assert "skin tare: virtual is a bus inside this process: it sends to and hears " \
            "nothing of another process" in captured.err
+
+
+def test_skin_run_takes_the_same_channel_default(monkeypatch: pytest.MonkeyPatch,
+                                                 tmp_path: Path) -> None:
+    from canbus.master.hostconfig import load_host_config
+    from skin.commands.hostbus import resolve
+
+    path = tmp_path / "h.toml"
+    path.write_text("[[patches]]\nnode_id = 1\n", encoding="utf-8")
+    monkeypatch.setenv("CAN_CHANNEL", "239.74.1.10")
+    config = resolve(load_host_config(path), argparse.Namespace(interface="udp_multicast"))
+    assert (config.buses[0].interface, config.buses[0].channel) == ("udp_multicast",
+                                                                     "239.74.1.10")
+    monkeypatch.delenv("CAN_CHANNEL")
+    config = resolve(load_host_config(path), argparse.Namespace(interface="udp_multicast"))
+    assert config.buses[0].channel == "239.74.163.2"
