@@ -99,7 +99,8 @@ def _sniff(args: argparse.Namespace) -> int:
             capture = _capture(bus, sniffer, shown, printer, stats, view, args)
     finally:
         sys.setswitchinterval(switch)
-    _report(sniffer.snapshot(), capture, stats, view, args)
+    _report(sniffer.snapshot(), capture, stats, view, args,
+            sniffer.decoder.attribution.silent_nodes())
     if capture.error is not None:
         raise BusError(f"receiving stopped: {capture.error}") from capture.error
     return 0
@@ -156,13 +157,17 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
 
 
 def _report(snap: Snapshot, capture: Capture, stats: ViewStats, view: str,
-            args: argparse.Namespace) -> None:
+            args: argparse.Namespace, silent: list[int]) -> None:
     from skin.atomic import atomic_write
 
     out = sys.stderr if view == "lines" else sys.stdout  # lines mode: stdout is the frames
     print(f"bus {args.described}", file=out)
     for line in summary_lines(snap, capture.seconds, stats):
         print(line, file=out)
+    if silent and snap.anomalies.unattributed_frames:
+        print(f"node{'s' if len(silent) > 1 else ''} {', '.join(map(str, silent))}: heartbeat "
+              "seen, no PDO known to be theirs (remapped where this bus did not show it, or "
+              "not sending)", file=out)
     if capture.saved is not None:
         where = str(capture.saved) if len(capture.files) == 1 else \
             f"{capture.files[0]} .. {capture.files[-1]} ({len(capture.files)} files)"
@@ -173,7 +178,7 @@ def _report(snap: Snapshot, capture: Capture, stats: ViewStats, view: str,
             "recording": None if capture.saved is None else
             {"path": str(capture.saved), "frames": capture.recorded,
              "files": [str(p) for p in capture.files]},
-            "stopped_by": capture.stopped_by,
+            "stopped_by": capture.stopped_by, "silent_nodes": silent,
             "view": {"mode": view, "redraws": stats.redraws,
                      "redraws_skipped": stats.redraws_skipped, "lines": stats.lines,
                      "lines_dropped": stats.lines_dropped}}
