@@ -1,19 +1,18 @@
 """The wire: CANopen patches, the host manager, the data plane and the bus tools.
 
 Layout: ``canbus.device`` (a patch as a CANopen node, and a server of many),
-``canbus.master`` (the host manager, its config, the data plane, the force nodes),
-``canbus.tools`` (sniffer, recorder, replay, pcap, EDS checker) and, beside them, the
-wire-level modules they share: ``codes``, ``pdo_codec``, ``txmessage``, ``busload``,
-``od``. The names below are imported on first use, so ``import canbus`` stays cheap.
+``canbus.master`` (the live host manager, its config, the data plane, the force nodes),
+``canbus.offline`` (recordings decoded by the host without a bus), ``canbus.tools``
+(sniffer, recorder, replay, pcap, EDS checker), ``canbus.timed`` (the timed bus) and,
+beside them, the wire-level modules they share: ``codes``, ``pdo_codec``, ``txmessage``,
+``busload``, ``od``. The names below are imported on first use, so ``import canbus``
+stays cheap and puts nothing in ``sys.modules`` but itself and what it imports.
 """
 
 from __future__ import annotations
 
 import importlib
-import sys
 from typing import TYPE_CHECKING, Any
-
-from canbus._moved import install as _install_moved
 
 if TYPE_CHECKING:
     from canbus.busload import plan
@@ -49,6 +48,3 @@ def __getattr__(name: str) -> Any:
     if name in _PUBLIC:
         return getattr(importlib.import_module(_PUBLIC[name]), name)
     raise AttributeError(f"module 'canbus' has no attribute {name!r}")
-
-
-_install_moved(sys.modules[__name__])

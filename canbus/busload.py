@@ -35,7 +35,7 @@ SYNC_COB_ID = 0x080
 HEARTBEAT_BASE = 0x700
 FORCE_NODE_OFFSET = 64
 """A patch's force node is at node-ID patch + 64 (the host's default)."""
-TPDO_BASES = (0x180, 0x280, 0x380, 0x480, 0x200, 0x300, 0x400)
+TPDO_BASES = (0x180, 0x280, 0x380, 0x480, 0x200, 0x300, 0x400, 0x500)
 """COB-ID bases of TPDO 1..7 (1..4 predefined, 5..7 on the unused predefined RPDO 1..3 ids)."""
 CYCLIC = ("sync", "patch_pdo", "force_pdo")
 """Frame kinds sent once per SYNC cycle; heartbeats run on their own period."""
@@ -115,13 +115,17 @@ def patch_payloads(mode: str, *, fd: bool) -> list[int]:
 sample_payloads = patch_payloads
 
 
-def force_payloads(*, fd: bool) -> list[int]:
+def force_payloads(*, fd: bool, contact: bool = True) -> list[int]:
     """Payload bytes of a force node's PDOs for one sample, in either patch mode.
 
-    27 INTEGER16 forces and 0x2005 (UNSIGNED16): classic 4 per PDO, 7 x 8 bytes; CAN FD one
-    PDO with the SYNC counter too: 57 bytes.
+    27 INTEGER16 forces and 0x2005 (UNSIGNED16): classic 4 per PDO, 7 x 8 bytes, and the
+    contact PDO (TPDO 8: net Fz, CoP x, y, state, taxels in contact) of 8 bytes; CAN FD one
+    PDO with the SYNC counter too, 57 bytes, and the contact's net Fz, CoP and state: 64.
+    ``contact`` False: a host whose contact summary is off (no TPDO 8).
     """
-    return [2 * 28 + 1] if fd else [8] * 7
+    if fd:
+        return [2 * 28 + 1 + (7 if contact else 0)]
+    return [8] * (8 if contact else 7)
 
 
 @dataclass(frozen=True)
@@ -233,7 +237,7 @@ def _node_frames(kind: str, node: int, payloads: list[int], rate_hz: float,
 
 def _bus(name: str, patches: tuple[int, ...], force_nodes: tuple[int, ...], sync: bool, *,
          mode: str, rate_hz: float, bitrate: int, data_bitrate: int | None, target_pct: float,
-         heartbeat_ms: int, force_heartbeat_ms: int) -> BusPlan:
+         heartbeat_ms: int, force_heartbeat_ms: int, contact: bool) -> BusPlan:
     fd = data_bitrate is not None
     frames: list[PlannedFrame] = []
     if sync:
@@ -242,7 +246,7 @@ def _bus(name: str, patches: tuple[int, ...], force_nodes: tuple[int, ...], sync
         frames += _node_frames("patch_pdo", node, patch_payloads(mode, fd=fd), rate_hz,
                                heartbeat_ms, bitrate, data_bitrate)
     for node in force_nodes:
-        frames += _node_frames("force_pdo", node, force_payloads(fd=fd), rate_hz,
+        frames += _node_frames("force_pdo", node, force_payloads(fd=fd, contact=contact), rate_hz,
                                force_heartbeat_ms, bitrate, data_bitrate)
     per_s: dict[str, float] = {}
     for f in frames:
@@ -267,13 +271,14 @@ def _bus(name: str, patches: tuple[int, ...], force_nodes: tuple[int, ...], sync
 def plan(patches: int, rate_hz: float, mode: str, bitrate: int, *,
          data_bitrate: int | None = None, target_pct: float = 70.0,
          forces: Forces = "same-bus", buses: int = 1, heartbeat_ms: int = 100,
-         force_heartbeat_ms: int = 1000) -> Plan:
+         force_heartbeat_ms: int = 1000, contact: bool = True) -> Plan:
     """The load of every bus: patches 1..N spread over ``buses`` buses in node order.
 
     ``data_bitrate`` set means CAN FD: one PDO per sample with bit rate switch. ``forces``:
     ``same-bus`` puts each patch's force PDOs (force node patch + 64) on the patch's bus,
     ``other-bus`` all of them on one more bus (named ``forces``; no SYNC there: force PDOs
     are event-driven), ``none`` leaves them out. A heartbeat period of 0 disables it.
+    ``contact``: the force nodes publish the contact summary (TPDO 8; the host's default).
     """
     if mode not in ("z", "xyz"):
         raise ValueError(f"mode is z or xyz, got {mode!r}")
@@ -289,7 +294,8 @@ def plan(patches: int, rate_hz: float, mode: str, bitrate: int, *,
         return _bus(name, tuple(group), tuple(n + FORCE_NODE_OFFSET for n in force_nodes),
                     sync, mode=mode, rate_hz=rate_hz, bitrate=bitrate,
                     data_bitrate=data_bitrate, target_pct=target_pct,
-                    heartbeat_ms=heartbeat_ms, force_heartbeat_ms=force_heartbeat_ms)
+                    heartbeat_ms=heartbeat_ms, force_heartbeat_ms=force_heartbeat_ms,
+                    contact=contact)
 
     groups = spread(range(1, patches + 1), buses)
     plans = [bus(f"bus {k}", group, group if forces == "same-bus" else (), True)
@@ -303,7 +309,8 @@ def plan(patches: int, rate_hz: float, mode: str, bitrate: int, *,
         data_bitrate=data_bitrate, forces=forces, heartbeat_ms=heartbeat_ms,
         force_heartbeat_ms=force_heartbeat_ms,
         frames_per_sample=len(patch_payloads(mode, fd=fd)),
-        force_frames_per_sample=0 if forces == "none" else len(force_payloads(fd=fd)),
+        force_frames_per_sample=0 if forces == "none" else len(
+            force_payloads(fd=fd, contact=contact)),
         frames_per_s=sum(sum(p.frames_per_s.values()) for p in plans),
         buses=tuple(plans), worst_bus=worst.name,
         load_best_pct=worst.load_best_pct, load_worst_pct=worst.load_worst_pct,

@@ -2,7 +2,8 @@
 
 CiA 1301 lets a PDO hold up to 64 bytes. On a CAN FD bus the host maps a patch's answer
 into TPDO 1 (its codes, then 0x2006, the counter of the SYNC it answers) and its force
-node's sample into TPDO 1 (27 forces, 0x2005, 0x2006); TPDO 2..7 are invalid. A master
+node's sample into TPDO 1 (27 forces, 0x2005, 0x2006, the contact's net Fz, CoP and state);
+TPDO 2..8 are invalid. A master
 learns a patch's mapping from the host's SDO writes; a force node is the host's own,
 mapped in place, so a tool reading the bus adopts :func:`force_fd_entries` when it sees a
 force node's TPDO 1 arrive as a CAN FD frame longer than its classic mapping.
@@ -12,7 +13,9 @@ from __future__ import annotations
 
 from canbus.pdo_codec import MappedEntry
 
-RESISTANCES, FORCES, VALID, ANSWERED = 0x2000, 0x2000, 0x2005, 0x2006
+RESISTANCES, FORCES, VALID, ANSWERED, CONTACT = 0x2000, 0x2000, 0x2005, 0x2006, 0x2008
+CONTACT_FD = ((3, 16), (7, 16), (8, 16), (11, 8))
+"""The contact sub-indices a CAN FD force sample carries: net Fz, CoP x, y, state."""
 
 
 def patch_fd_entries(mode: str) -> tuple[MappedEntry, ...]:
@@ -27,6 +30,9 @@ def patch_fd_entries(mode: str) -> tuple[MappedEntry, ...]:
 
 
 def force_fd_entries() -> tuple[MappedEntry, ...]:
-    """A force node's whole sample: 27 forces, 0x2005, 0x2006 (57 bytes)."""
+    """A force node's whole sample: 27 forces, 0x2005, 0x2006 (57 bytes), then its contact's
+    net Fz, CoP x, y and state (64 bytes, the frame a 57-byte sample takes anyway; a node
+    without a contact summary says so there: state ``unknown``, no values)."""
     return (*(MappedEntry(FORCES, k, 16) for k in range(1, 28)), MappedEntry(VALID, 0, 16),
-            MappedEntry(ANSWERED, 0, 8))
+            MappedEntry(ANSWERED, 0, 8),
+            *(MappedEntry(CONTACT, sub, bits) for sub, bits in CONTACT_FD))

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import canopen
 
+from canbus.busopen import reason
+from canbus.edsfile import check_loadable
 from skin.errors import ConfigError
 
 SHIPPED = ("skin-patch", "skin-forces")
@@ -37,8 +39,19 @@ def eds_file(name_or_path: str | os.PathLike[str]) -> Iterator[Path]:
 
 
 def load_od(name_or_path: str | os.PathLike[str], node_id: int) -> canopen.ObjectDictionary:
-    """The object dictionary of an EDS, with ``$NODEID`` resolved to ``node_id``."""
+    """The object dictionary of an EDS, with ``$NODEID`` resolved to ``node_id``.
+
+    A file (not a shipped EDS) is checked first (:func:`canbus.edsfile.check_loadable`):
+    anything canopen would fail on, or silently drop, is a ConfigError naming the file,
+    the section and the key; whatever canopen still raises is turned into one too.
+    """
     if not 1 <= node_id <= 127:
         raise ConfigError("node_id", f"must be in 1..127, got {node_id}")
     with eds_file(name_or_path) as path:
-        return canopen.import_od(str(path), node_id)
+        if os.fspath(name_or_path).removesuffix(".eds") not in SHIPPED:
+            check_loadable(path)
+        try:
+            return canopen.import_od(str(path), node_id)
+        except Exception as err:  # canopen's parser raises whatever it meets
+            raise ConfigError("", f"canopen cannot load it: {reason(err)}",
+                              source=os.fspath(path)) from err

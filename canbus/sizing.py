@@ -53,14 +53,16 @@ def _smallest(patches: int, make: Callable[[int], Plan],
 def size(patches: int, rate_hz: float, mode: str, bitrate: int, *,
          data_bitrate: int | None = None, target_pct: float = 70.0,
          forces: Forces = "same-bus", heartbeat_ms: int = 100,
-         force_heartbeat_ms: int = 1000) -> Sizing:
-    """The buses needed (module docstring); ``data_bitrate`` set means CAN FD."""
+         force_heartbeat_ms: int = 1000, contact: bool = True) -> Sizing:
+    """The buses needed (module docstring); ``data_bitrate`` set means CAN FD; ``contact``
+    False: force nodes without the contact PDO (as :func:`canbus.busload.plan`)."""
 
     def patch_buses(buses: int) -> Plan:
         return plan(patches, rate_hz, mode, bitrate, data_bitrate=data_bitrate,
                     target_pct=target_pct, buses=buses,
                     forces="none" if forces == "other-bus" else forces,
-                    heartbeat_ms=heartbeat_ms, force_heartbeat_ms=force_heartbeat_ms)
+                    heartbeat_ms=heartbeat_ms, force_heartbeat_ms=force_heartbeat_ms,
+                    contact=contact)
 
     buses, chosen = _smallest(patches, patch_buses, lambda p: not p.over_target)
     loads = [b.load_worst_pct for b in chosen.buses]
@@ -71,7 +73,8 @@ def size(patches: int, rate_hz: float, mode: str, bitrate: int, *,
             group = math.ceil(patches / count)
             return plan(group, rate_hz, mode, bitrate, data_bitrate=data_bitrate,
                         target_pct=target_pct, forces="other-bus",
-                        heartbeat_ms=heartbeat_ms, force_heartbeat_ms=force_heartbeat_ms)
+                        heartbeat_ms=heartbeat_ms, force_heartbeat_ms=force_heartbeat_ms,
+                        contact=contact)
 
         force_buses, forced = _smallest(patches, force_plan,
                                         lambda p: not p.buses[-1].over_target)

@@ -27,12 +27,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from decoder.benchmark import decode_speed
 from decoder.metrics import FLOOR_FRACTION, evaluate
 from decoder.protocol import BaseDecoder, Decoder
 from decoder.registry import available_decoders, create_decoder, decoder_class
+from decoder.speed import decode_speed
 from skin.constants import TAXELS_PER_PATCH, SensorConstants
-from skin.errors import ConfigError, DecodeError
+from skin.errors import ConfigError, DecodeError, ModelFileError
 
 F64 = NDArray[np.float64]
 DEFAULT_FOLDS = 5
@@ -50,7 +50,7 @@ def default_candidates() -> tuple[str, ...]:
     out = ["analytic"]
     for name in available_decoders():
         cls = decoder_class(name)
-        if name != "analytic" and issubclass(cls, BaseDecoder) and cls._state:
+        if name != "analytic" and issubclass(cls, BaseDecoder) and cls.needs_fitting:
             out.append(name)
     return tuple(out)
 
@@ -313,3 +313,32 @@ def report(cal: Calibration, tare_ohm: F64 | None, rest_samples: int, rest_N: fl
         "domain": cal.domain,
         "candidates": [c.summary() for c in cal.candidates],
     }
+
+
+def check_calibration_meta(own: Any, where: str) -> dict[str, Any]:
+    """A model file's ``meta.calibration`` (written by ``skin calibrate``) with every field
+    ``skin calibrate --check`` reads typed and ranged; ModelFileError naming the field."""
+    from skin.inputs import fields
+
+    if not isinstance(own, dict) or "heldout_floored_pct" not in own:
+        raise ModelFileError(f"{where}: has no calibration report (it was not written by "
+                             "skin calibrate)")
+    field = "meta.calibration"
+    try:
+        fields.number(own["heldout_floored_pct"], f"{field}.heldout_floored_pct", 0.0, 1e6)
+        fields.number(own.get("flagged_pct", 0.0), f"{field}.flagged_pct", 0.0, 100.0)
+        if own.get("mode") not in ("z", "xyz"):
+            raise ConfigError(f"{field}.mode", f"must be z or xyz, got {own.get('mode')!r}")
+        if own.get("node_id") is not None:
+            fields.integer(own["node_id"], f"{field}.node_id", 1, 127)
+        tare = fields.table(own.get("tare", {}), f"{field}.tare")
+        fields.number(tare.get("rest_N", 0.01), f"{field}.tare.rest_N", 0.0, 1e4)
+        rest = tare.get("rest_ohm")
+        pillars = 1 if own["mode"] == "z" else 3
+        if rest is not None and not (isinstance(rest, np.ndarray) and rest.shape in (
+                (pillars,), (TAXELS_PER_PATCH, pillars)) and np.all(rest > 0)):
+            raise ConfigError(f"{field}.tare.rest_ohm", f"must be positive resistances of "
+                              f"shape (9, {pillars})")
+    except ConfigError as err:
+        raise ModelFileError(f"{where}: {err}") from err
+    return own

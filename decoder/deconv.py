@@ -21,14 +21,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from decoder.domain import Box, Domain, check_margin, domain_reasons, per_taxel
-from decoder.physics import features, solve, taxel_reasons, to_force
+from decoder.physics import features, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
     BaseDecoder,
     Progress,
     expect_array,
-    fold_force,
-    fold_resistance,
 )
 from decoder.unmix import apply_unmix, fit_unmix, unmix_rows
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
@@ -56,19 +54,13 @@ class DeconvDecoder(BaseDecoder):
 
     def fit(self, resistance_ohm: ArrayLike, force_N: ArrayLike, *,
             progress: Progress | None = None) -> Self:
-        r, _ = fold_resistance(resistance_ohm)
-        force = fold_force(force_N, r.shape[0])
-        pillars = r.shape[-1]
-        effective, reason = solve(self.inverse(pillars), r, self.constants)
-        keep = np.all(reason == 0, axis=1)
-        if not np.any(keep):
-            raise DecodeError("no calibration sample has all nine taxels valid")
-        self.unmix_info_ = fit_unmix(*unmix_rows(effective[keep], force[keep], pillars),
-                                     self.alpha)
+        data = self.training_samples(resistance_ohm, force_N)
+        effective, pillars = data.effective_N, data.pillars
+        self.unmix_info_ = fit_unmix(*unmix_rows(effective, data.force_N, pillars), self.alpha)
         self.unmix_ = self.unmix_info_.matrix
         self.pillars_ = pillars
-        x = features(effective[keep], pillars)
-        y = features(self._unmix(x if pillars == 1 else effective[keep]), pillars)
+        x = features(effective, pillars)
+        y = features(self._unmix(x if pillars == 1 else effective), pillars)
         self.domain_ = Domain(Box.fit(x, self.range_margin), Box.fit(y, self.range_margin))
         return self
 

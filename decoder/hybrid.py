@@ -52,13 +52,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from decoder.domain import Box, Domain, Ellipsoid, check_margin, domain_reasons, per_taxel
 from decoder.lm import LMOptions
-from decoder.physics import features, solve, taxel_reasons, to_force
+from decoder.physics import features, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
     Progress,
     expect_array,
-    fold_force,
-    fold_resistance,
 )
 from decoder.regressor import FoldedMLP, MLPDecoderBase, fit_mlp, sample_rows
 from decoder.unmix import apply_unmix, fit_unmix, unmix_rows
@@ -107,14 +105,8 @@ class HybridDecoder(MLPDecoderBase):
 
     def fit(self, resistance_ohm: ArrayLike, force_N: ArrayLike, *,
             progress: Progress | None = None) -> Self:
-        r, _ = fold_resistance(resistance_ohm)
-        force = fold_force(force_N, r.shape[0])
-        pillars = r.shape[-1]
-        effective, reason = solve(self.inverse(pillars), r, self.constants)
-        keep = np.all(reason == 0, axis=1)
-        if not np.any(keep):
-            raise DecodeError("no training sample has all nine taxels valid")
-        effective, force = effective[keep], force[keep]
+        data = self.training_samples(resistance_ohm, force_N)
+        effective, force, pillars = data.effective_N, data.force_N, data.pillars
         for stale in ("use_residual_", "residual_threshold_"):  # of an earlier fit
             self.__dict__.pop(stale, None)
         self.unmix_info_ = fit_unmix(*unmix_rows(effective, force, pillars), self.alpha)

@@ -49,13 +49,11 @@ from decoder.domain import (
     domain_reasons,
     per_taxel,
 )
-from decoder.physics import features, solve, taxel_reasons, to_force
+from decoder.physics import features, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
     Progress,
     expect_array,
-    fold_force,
-    fold_resistance,
 )
 from decoder.regressor import MLPDecoderBase, sample_rows
 from decoder.unmix import apply_unmix, fit_unmix, unmix_rows
@@ -89,17 +87,14 @@ class LMMLPDecoder(MLPDecoderBase):
 
     def fit(self, resistance_ohm: ArrayLike, force_N: ArrayLike, *,
             progress: Progress | None = None) -> Self:
-        r, _ = fold_resistance(resistance_ohm)
-        force = fold_force(force_N, r.shape[0])
-        pillars = r.shape[-1]
-        effective, reason = solve(self.inverse(pillars), r, self.constants)
-        keep = np.all(reason == 0, axis=1)
-        x = r[keep].reshape(-1, T * pillars)
-        y = features(force[keep], pillars)
+        data = self.training_samples(resistance_ohm, force_N)
+        pillars = data.pillars
+        x = data.resistance_ohm.reshape(-1, T * pillars)
+        y = features(data.force_N, pillars)
         val = self._fit_scaled(x, y, pillars, progress)
-        self.unmix_ = fit_unmix(*unmix_rows(effective[keep], force[keep], pillars),
+        self.unmix_ = fit_unmix(*unmix_rows(data.effective_N, data.force_N, pillars),
                                 UNMIX_ALPHA).matrix
-        physics = features(apply_unmix(self.unmix_, effective[keep]), pillars)
+        physics = features(apply_unmix(self.unmix_, data.effective_N), pillars)
         predicted = self._net(x)
         outputs = Box.fit(np.concatenate((y, predicted)), self.range_margin)
         departure = predicted - physics

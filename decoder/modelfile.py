@@ -30,6 +30,7 @@ import numpy as np
 
 from skin.atomic import atomic_write
 from skin.errors import ModelFileError
+from skin.inputs.fields import short
 
 SCHEMA = "canskin.decoder"
 VERSION = 3
@@ -128,6 +129,9 @@ def _decode(value: Any, field: str, depth: int) -> Any:
             return decode_array(value, field)
         if depth >= MAX_DEPTH:
             raise ModelFileError(f"{field}: nested deeper than {MAX_DEPTH} levels")
+        for key in value:
+            if not isinstance(key, str):
+                raise ModelFileError(f"{field}: key {short(key)} is not a string")
         return {k: _decode(v, f"{field}.{k}", depth + 1) for k, v in value.items()}
     raise ModelFileError(f"{field}: unsupported value of type {type(value).__name__}")
 
@@ -150,13 +154,16 @@ def unpack_model(payload: bytes) -> ModelContent:
         raise ModelFileError(f"file: not a valid msgpack document ({err})") from err
     if not isinstance(doc, dict):
         raise ModelFileError("file: top level must be a map")
+    for key in doc:
+        if not isinstance(key, str):
+            raise ModelFileError(f"file: key {short(key)} is not a string")
     if doc.get("schema") != SCHEMA:
-        raise ModelFileError(f"schema: expected {SCHEMA!r}, got {doc.get('schema')!r}")
+        raise ModelFileError(f"schema: expected {SCHEMA!r}, got {short(doc.get('schema'))}")
     version = doc.get("version")
     if isinstance(version, bool) or version not in READABLE_VERSIONS:
         *older, newest = (str(v) for v in READABLE_VERSIONS)
         raise ModelFileError(f"version: this canskin reads versions {', '.join(older)} and "
-                             f"{newest}, got {version!r}")
+                             f"{newest}, got {short(version)}")
     keys = TOP_KEYS[version]
     missing = sorted(keys - set(doc))
     extra = sorted(set(doc) - keys)
@@ -174,9 +181,17 @@ def unpack_model(payload: bytes) -> ModelContent:
 
 
 def read_model(path: str | os.PathLike[str]) -> ModelContent:
-    """Read and validate a model file; ModelFileError names the first bad field."""
-    with open(path, "rb") as handle:
-        payload = handle.read(MAX_FILE_BYTES + 1)
+    """Read and validate a model file; ModelFileError names the file and the first bad
+    field."""
+    try:
+        with open(path, "rb") as handle:
+            payload = handle.read(MAX_FILE_BYTES + 1)
+    except FileNotFoundError as err:
+        raise ModelFileError(f"{os.fspath(path)}: no such file") from err
+    except IsADirectoryError as err:
+        raise ModelFileError(f"{os.fspath(path)}: is a folder, not a model file") from err
+    except OSError as err:
+        raise ModelFileError(f"{os.fspath(path)}: cannot read: {err.strerror}") from err
     try:
         return unpack_model(payload)
     except ModelFileError as err:

@@ -11,10 +11,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from decoder.modelfile import VERSION, read_model, write_model
-from decoder.physics import Inverse, make_inverse
+from decoder.physics import Inverse, make_inverse, solve
 from decoder.reasons import reason_name
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
-from skin.errors import DecodeError, ModelFileError, NotFittedError
+from skin.errors import ConfigError, DecodeError, ModelFileError, NotFittedError
 
 F64 = NDArray[np.float64]
 Progress = Callable[[int, float, float], None]
@@ -44,6 +44,9 @@ class Decoder(Protocol):
     """Resistances (samples, 9, P) or (samples, patches, 9, P) in ohm -> forces."""
 
     name: ClassVar[str]
+    needs_fitting: ClassVar[bool]
+    """It decodes only once fitted, or loaded from a model file (a learned decoder); a
+    decoder that decodes as built (``analytic``) says False."""
 
     def fit(self, resistance_ohm: ArrayLike, force_N: ArrayLike, *,
             progress: Progress | None = None) -> Self: ...
@@ -83,6 +86,17 @@ def fold_force(force_N: ArrayLike, samples: int) -> F64:
     if not np.all(np.isfinite(f)):
         raise DecodeError("force_N contains NaN or infinity")
     return f
+
+
+@dataclass(frozen=True)
+class TrainingSamples:
+    """What a learned decoder's ``fit`` starts from: the patch-samples whose nine taxels all
+    decode by the exact inverse, folded (``BaseDecoder.training_samples``)."""
+
+    resistance_ohm: F64  # (n, 9, P)
+    effective_N: F64  # (n, 9, 3): the exact inverse's forces of those readings
+    force_N: F64  # (n, 9, 3): the forces they were measured under
+    pillars: int
 
 
 def unfold(decoded: Decoded, lead: tuple[int, ...]) -> Decoded:
@@ -130,9 +144,15 @@ class BaseDecoder:
     """
 
     name: ClassVar[str] = ""
+    needs_fitting: ClassVar[bool] = False
     _params: ClassVar[tuple[str, ...]] = ("constants", "r0_ohm")
     _state: ClassVar[tuple[str, ...]] = ()
     _loaded_meta: dict[str, Any]
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "needs_fitting" not in cls.__dict__:  # a decoder with learned state needs fitting
+            cls.needs_fitting = bool(cls._state)
 
     def __init__(self, *, constants: SensorConstants = DEFAULT_CONSTANTS,
                  r0_ohm: ArrayLike | None = None) -> None:
@@ -144,6 +164,18 @@ class BaseDecoder:
             self.r0_ohm.flags.writeable = False  # the cached inverses depend on it
         self._inverses: dict[int, Inverse] = {}
         self._inverse_key: tuple[SensorConstants, F64 | None] = (constants, self.r0_ohm)
+
+    def training_samples(self, resistance_ohm: ArrayLike, force_N: ArrayLike) -> TrainingSamples:
+        """The opening of every learned decoder's ``fit``: resistances and forces folded, the
+        exact inverse applied, and only the samples whose nine taxels all decode kept."""
+        r, _ = fold_resistance(resistance_ohm)
+        force = fold_force(force_N, r.shape[0])
+        pillars = r.shape[-1]
+        effective, reason = solve(self.inverse(pillars), r, self.constants)
+        keep = np.all(reason == 0, axis=1)
+        if not np.any(keep):
+            raise DecodeError("no training sample has all nine taxels valid")
+        return TrainingSamples(r[keep], effective[keep], force[keep], pillars)
 
     def r0_for(self, pillars: int) -> F64:
         """R0 broadcastable against (n, 9, P)."""
@@ -249,12 +281,14 @@ class BaseDecoder:
                                  f"got {sorted(state)}")
         kwargs = dict(params)
         try:
-            if not isinstance(kwargs["constants"], dict):
-                raise TypeError("must be a map")
-            kwargs["constants"] = SensorConstants.from_dict(kwargs["constants"])
+            kwargs["constants"] = SensorConstants.from_dict(kwargs["constants"],
+                                                            "params.constants")
+        except ConfigError as err:
+            raise ModelFileError(f"{where}: {err}") from err
+        try:
             model = cls(**kwargs)
-        except (TypeError, ValueError) as err:
-            raise ModelFileError(f"{where}: params: {err}") from err
+        except (TypeError, ValueError, ArithmeticError) as err:
+            raise ModelFileError(f"{where}: params.{cls._culprit(kwargs)}: {err}") from err
         for key, value in state.items():
             setattr(model, key, value)
         try:
@@ -263,6 +297,18 @@ class BaseDecoder:
             raise ModelFileError(f"{where}: {err}") from err
         model._loaded_meta = dict(meta or {})
         return model
+
+    @classmethod
+    def _culprit(cls, kwargs: dict[str, Any]) -> str:
+        """The parameter that makes ``cls(**kwargs)`` fail: the first one that fails alone."""
+        for key, value in kwargs.items():
+            if key == "constants":
+                continue
+            try:
+                cls(constants=kwargs["constants"], **{key: value})
+            except (TypeError, ValueError, ArithmeticError):
+                return key
+        return "(their combination)"
 
     def _check_state(self) -> None:
         """Validate loaded state; subclasses raise ModelFileError("state.<field>: ...")."""

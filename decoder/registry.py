@@ -5,13 +5,19 @@ strings imported on first use, and any installed distribution can add one::
 
     [project.entry-points."canskin.decoders"]
     my-decoder = "my_package.module:MyDecoder"
+
+The entry points are read once, on first use, and each class is imported once; ``refresh()``
+reads them again.
 """
 
 from __future__ import annotations
 
+import functools
 import importlib
 import os
+from collections.abc import Mapping
 from importlib.metadata import entry_points
+from types import MappingProxyType
 from typing import Any
 
 from decoder.modelfile import read_model
@@ -29,11 +35,20 @@ BUILTIN_DECODERS: dict[str, str] = {
 }
 
 
-def _registry() -> dict[str, str]:
+@functools.cache
+def _registry() -> Mapping[str, str]:
+    """Names -> "module:Class", the entry points read once (:func:`refresh` reads them again)."""
     names = dict(BUILTIN_DECODERS)
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         names.setdefault(ep.name, ep.value)
-    return names
+    return MappingProxyType(names)
+
+
+def refresh() -> None:
+    """Forget the decoders resolved so far and read the entry points again (after a
+    distribution that registers decoders was installed into this process)."""
+    _registry.cache_clear()
+    _import_class.cache_clear()
 
 
 def available_decoders() -> tuple[str, ...]:
@@ -44,14 +59,24 @@ def available_decoders() -> tuple[str, ...]:
 
 
 def decoder_class(name: str) -> type[Decoder]:
-    """Import and return the class registered under ``name``."""
+    """The class registered under ``name``, imported on first use."""
     names = _registry()
     if name not in names:
         raise ConfigError("decoder", f"unknown decoder {name!r}; known: {', '.join(names)}")
-    module_name, _, attr = names[name].partition(":")
-    module = importlib.import_module(module_name)
-    cls: type[Decoder] = getattr(module, attr)
+    return _import_class(names[name])
+
+
+@functools.cache
+def _import_class(target: str) -> type[Decoder]:
+    module_name, _, attr = target.partition(":")
+    cls: type[Decoder] = getattr(importlib.import_module(module_name), attr)
     return cls
+
+
+def needs_fitting(cls: type[Decoder]) -> bool:
+    """Whether ``cls`` decodes only once fitted (or loaded from a model file): the class's
+    ``needs_fitting``; a plug-in that does not say is taken to need it."""
+    return bool(getattr(cls, "needs_fitting", True))
 
 
 def create_decoder(name: str, **params: Any) -> Decoder:

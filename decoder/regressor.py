@@ -28,6 +28,7 @@ from decoder.mlp import F64, Layout, mapminmax, mapminmax_gain, minmax_range, ng
 from decoder.protocol import BaseDecoder, Progress, expect_array
 from skin.constants import TAXELS_PER_PATCH, SensorConstants
 from skin.errors import DecodeError, ModelFileError
+from skin.inputs.budget import require_memory
 
 GOAL_UNITS = ("N", "scaled")
 """Where the goal MSE is measured: on the targets in their own units (newtons; MATLAB's
@@ -85,6 +86,13 @@ class MLPFit:
     val_rows: NDArray[np.intp]
 
 
+def lm_bytes(layout: Layout, samples: int) -> int:
+    """Memory one Levenberg-Marquardt epoch needs: JᵀJ and its temporaries (about five
+    params x params matrices) and the hidden layer's Jacobian rows (twice)."""
+    hidden_inputs = layout.n_hidden * (layout.n_in + 1)
+    return 8 * (5 * layout.n_params ** 2 + 2 * samples * hidden_inputs)
+
+
 def fit_mlp(
     x: F64, y: F64, *, hidden: int | str, options: LMOptions, val_fraction: float, seed: int,
     progress: Progress | None = None, goal_units: str = "N",
@@ -96,6 +104,9 @@ def fit_mlp(
     else:
         width = int(hidden)
     layout = Layout(x.shape[1], width, y.shape[1])
+    require_memory(lm_bytes(layout, x.shape[0]), f"Levenberg-Marquardt training of "
+                   f"{width} hidden nodes ({layout.n_params} weights) on {x.shape[0]} samples",
+                   "hidden")
     theta = nguyen_widrow(layout, rng)
     problem = make_problem(x, y, val_fraction=val_fraction, rng=rng, goal_units=goal_units)
 

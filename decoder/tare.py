@@ -1,11 +1,12 @@
 """A patch's rest resistances from calibration data, and the frame a calibrated model reads.
 
 The tare is the mean reading of each pillar over the samples whose reference force is
-zero (every taxel's |F| at most ``rest_N``), rounded to REAL32 as a patch's 0x2002
-holds it. A calibrated model is fitted on readings normalised to its decoder's nominal
-R0, ``x = R · r0 / rest``: exactly what the host feeds a decoder once the patch (0x2002)
-or the config (``r0_ohm``) reports ``rest``, since the host scales every reading by
-``r0 / R0 reported``. A host tare at rest (``skin tare``) reaches the same frame.
+zero (every taxel's |F| at most ``rest_N``), rounded to the milliohm as a patch's 0x2002
+holds it (UNSIGNED32 in mOhm, ``canbus.patch_constants``). A calibrated model is fitted
+on readings normalised to its decoder's nominal R0, ``x = R · r0 / rest``: exactly what
+the host feeds a decoder once the patch (0x2002) or the config (``r0_ohm``) reports
+``rest``, since the host scales every reading by ``r0 / R0 reported``. A host tare at
+rest (``skin tare``) reaches the same frame.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ DEFAULT_REST_N = 0.01
 
 @dataclass(frozen=True)
 class Tare:
-    """The rest of one patch: ``rest_ohm`` (9, P), REAL32-rounded, from ``samples`` rows."""
+    """The rest of one patch: ``rest_ohm`` (9, P), in whole mOhm, from ``samples`` rows."""
 
     rest_ohm: F64
     samples: int
@@ -34,11 +35,15 @@ class Tare:
     rest_N: float
 
 
-def real32(values: ArrayLike) -> F64:
-    """Each value as a REAL32 read back as its shortest decimal, as a host reads 0x2002."""
+R0_OHM_PER_COUNT = 1e-3
+"""0x2002 counts milliohms (``canbus.patch_constants.R0_SCALE``)."""
+
+
+def as_reported(values: ArrayLike) -> F64:
+    """Each value as a patch's 0x2002 holds it and a host reads it back: whole mOhm."""
     a = np.asarray(values, dtype=np.float64)
-    out = np.array([float(str(np.float32(v))) for v in a.ravel().tolist()], dtype=np.float64)
-    return out.reshape(a.shape)
+    out: F64 = np.rint(a / R0_OHM_PER_COUNT) / round(1 / R0_OHM_PER_COUNT)
+    return out
 
 
 def rest_rows(force_N: ArrayLike, rest_N: float = DEFAULT_REST_N) -> NDArray[np.bool_]:
@@ -62,7 +67,7 @@ def tare_at_rest(resistance_ohm: ArrayLike, force_N: ArrayLike,
     if count < MIN_REST_SAMPLES:
         return None
     at_rest = r[rows]
-    return Tare(real32(at_rest.mean(axis=0)), count, at_rest.std(axis=0), rest_N)
+    return Tare(as_reported(at_rest.mean(axis=0)), count, at_rest.std(axis=0), rest_N)
 
 
 def nominal_r0(constants: SensorConstants, pillars: int) -> F64:
@@ -75,9 +80,9 @@ def nominal_r0(constants: SensorConstants, pillars: int) -> F64:
 def normalise(resistance_ohm: ArrayLike, rest_ohm: ArrayLike, r0_ohm: ArrayLike) -> F64:
     """Readings in the frame of a decoder whose zero-force resistance is ``r0_ohm``: what
     the host gives it for a patch that reports ``rest_ohm`` (``r0 / rest`` per pillar; a
-    rest within REAL32 precision of r0 is r0, as the host's baseline takes it)."""
+    rest within a milliohm's rounding of r0 is r0, as the host's baseline takes it)."""
     r0 = np.asarray(r0_ohm, dtype=np.float64)
     rest = np.asarray(rest_ohm, dtype=np.float64)
-    scale = r0 / np.where(np.isclose(rest, r0, rtol=1e-6, atol=0.0), r0, rest)
+    scale = r0 / np.where(np.abs(rest - r0) <= R0_OHM_PER_COUNT / 2, r0, rest)
     out: F64 = np.asarray(resistance_ohm, dtype=np.float64) * scale
     return out

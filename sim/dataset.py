@@ -9,6 +9,7 @@ from sim.simulator import Simulator
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.dataset import Dataset
 from skin.errors import ConfigError
+from skin.inputs.budget import require_memory
 
 _CHUNK = 4096  # time steps per batch: bounds the temporaries, not the result
 
@@ -23,6 +24,9 @@ def generate_dataset(
         raise ConfigError("seed", f"must be a non-negative integer, got {seed!r}")
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
+    per_sample = len(scene.patches) * 9 * (scene.pillars + 3) * 8
+    # the batches, then the arrays they are joined into
+    require_memory(2 * n * per_sample, f"{n} samples of scene {scene.name!r}", "n")
     sim = Simulator(scene, seed=int(seed), constants=constants)
     frames = [sim.run(min(_CHUNK, n - k)) for k in range(0, n, _CHUNK)]
     resistance = np.concatenate([f.resistance_ohm for f in frames])

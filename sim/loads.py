@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 from sim.contact import sphere_fz, taxel_xy
 from sim.params import non_negative, positive
 from sim.rng import stream
+from sim.stickslip import StickSlip, StickSlipParams
 
 F64 = NDArray[np.float64]
 
@@ -28,6 +29,9 @@ class UniformRandomParams:
     fz_max_N: float = 5.0
     fz_min_N: float = 0.0
     shear_max_N: float = 0.0
+
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "fz_max_N": (0.0, 1e3), "fz_min_N": (0.0, 1e3), "shear_max_N": (0.0, 1e3)}
 
     def check(self, where: str) -> None:
         non_negative(self.fz_min_N, f"{where}.fz_min_N")
@@ -42,6 +46,9 @@ class IndenterParams:
     fz_max_N: float = 4.0
     radius_m: float = 0.04
     depth_max_m: float = 0.003
+
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "fz_max_N": (0.0, 1e3), "radius_m": (1e-6, 1.0), "depth_max_m": (1e-9, 0.1)}
 
     def check(self, where: str) -> None:
         for name in ("fz_max_N", "radius_m", "depth_max_m"):
@@ -60,6 +67,11 @@ class SlideParams:
     offset_m: float = 0.0
     friction: float = 0.3
 
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "fz_max_N": (0.0, 1e3), "radius_m": (1e-6, 1.0), "depth_max_m": (1e-9, 0.1),
+        "speed_m_per_s": (0.0, 100.0), "angle_deg": (-360.0, 360.0), "offset_m": (-1.0, 1.0),
+        "friction": (0.0, 10.0)}
+
     def check(self, where: str) -> None:
         for name in ("fz_max_N", "radius_m", "depth_max_m", "speed_m_per_s"):
             positive(getattr(self, name), f"{where}.{name}")
@@ -74,6 +86,10 @@ class GraspParams:
     shear_max_N: float = 0.5
     period_s: float = 2.0
     width_m: float = 0.02
+
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "fz_max_N": (0.0, 1e3), "shear_max_N": (0.0, 1e3), "period_s": (1e-3, 1e6),
+        "width_m": (1e-6, 1.0)}
 
     def check(self, where: str) -> None:
         for name in ("fz_max_N", "period_s", "width_m"):
@@ -95,11 +111,16 @@ LOAD_PARAMS: dict[str, type] = {
     "slide": SlideParams,
     "grasp": GraspParams,
     "idle": IdleParams,
+    "stick_slip": StickSlipParams,
 }
 
 
 class Load(Protocol):
     def forces(self, k0: int, n: int) -> F64: ...
+
+    def slipping(self, k0: int, n: int) -> NDArray[np.bool_]:
+        """(n, patches): the truth of slip, the load sliding over the patch."""
+        ...
 
     def peak_forces(self) -> list[tuple[str, float, F64]]:
         """(field, its value, the largest force vector it can put on one taxel)."""
@@ -118,6 +139,9 @@ class UniformRandom:
             s = p.shear_max_N
             out[..., :2] = self.rng.uniform(-s, s, size=(n, self.patches, 9, 2))
         return out
+
+    def slipping(self, k0: int, n: int) -> NDArray[np.bool_]:
+        return np.zeros((n, self.patches), dtype=bool)
 
     def peak_forces(self) -> list[tuple[str, float, F64]]:
         p = self.p
@@ -145,6 +169,9 @@ class Indenter:
         )
         return out
 
+    def slipping(self, k0: int, n: int) -> NDArray[np.bool_]:
+        return np.zeros((n, self.patches), dtype=bool)
+
     def peak_forces(self) -> list[tuple[str, float, F64]]:
         return [("fz_max_N", self.p.fz_max_N, np.array([0.0, 0.0, self.p.fz_max_N]))]
 
@@ -168,6 +195,11 @@ class Slide:
         )
         one = np.stack((p.friction * dx * fz, p.friction * dy * fz, fz), axis=-1)
         return np.repeat(one[:, None], self.patches, axis=1)
+
+    def slipping(self, k0: int, n: int) -> NDArray[np.bool_]:
+        """The sphere slides whenever it touches the patch."""
+        touching = self.forces(k0, n)[:, 0, :, 2].sum(axis=1) > 0
+        return np.repeat(touching[:, None], self.patches, axis=1)
 
     def peak_forces(self) -> list[tuple[str, float, F64]]:
         p, (dx, dy) = self.p, self.direction
@@ -208,6 +240,9 @@ class Grasp:
         angle = (2.0 * np.pi * draws[..., 4])[..., None]
         return np.stack((shear * np.cos(angle), shear * np.sin(angle), fz), axis=-1)
 
+    def slipping(self, k0: int, n: int) -> NDArray[np.bool_]:
+        return np.zeros((n, self.patches), dtype=bool)
+
     def peak_forces(self) -> list[tuple[str, float, F64]]:
         p = self.p
         peaks = [("fz_max_N", p.fz_max_N, np.array([0.0, 0.0, p.fz_max_N]))]
@@ -223,6 +258,9 @@ class Idle:
 
     def forces(self, k0: int, n: int) -> F64:
         return np.zeros((n, self.patches, 9, 3))
+
+    def slipping(self, k0: int, n: int) -> NDArray[np.bool_]:
+        return np.zeros((n, self.patches), dtype=bool)
 
     def peak_forces(self) -> list[tuple[str, float, F64]]:
         return []
@@ -243,4 +281,6 @@ def make_load(
         return Grasp(params, patches, rate_hz, pitch_m, seed, name)
     if isinstance(params, IdleParams):
         return Idle(patches)
+    if isinstance(params, StickSlipParams):
+        return StickSlip(params, patches, rate_hz, pitch_m, seed, name)
     raise TypeError(f"no load for {kind!r} parameters {params!r}")

@@ -1,13 +1,19 @@
-"""Typed parameter tables: TOML table -> frozen dataclass, every error naming its field."""
+"""Typed parameter tables: TOML table -> frozen dataclass, every error naming its field.
+
+Each parameter dataclass may declare ``RANGES``: ``{field: (low, high)}``, the closed
+interval of a number field, checked by :func:`build` before the class's own ``check``
+(docs/cli.md lists them): a value far outside what the physics means (a coupling of
+1e300) is refused naming its own field, never found later as an overflow elsewhere.
+"""
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping
 from typing import Any, Protocol, TypeVar
 
 from skin.errors import ConfigError
+from skin.inputs import fields
 
 
 class Params(Protocol):
@@ -19,22 +25,23 @@ class Params(Protocol):
 P = TypeVar("P", bound=Params)
 
 
-def _coerce(value: object, annotation: str, field: str) -> object:
+def _coerce(value: object, annotation: str, field: str,
+            limits: tuple[float, float] | None) -> object:
     optional = annotation.endswith("| None")
     base = annotation.removesuffix("| None").strip()
+    low, high = limits if limits is not None else (None, None)
     if value is None and optional:
         return None
-    if base == "float" and isinstance(value, int | float) and not isinstance(value, bool):
-        if not math.isfinite(value):
-            raise ConfigError(field, f"must be a finite number, got {value!r}")
-        return float(value)
-    if base == "int" and isinstance(value, int) and not isinstance(value, bool):
-        return value
-    if base == "str" and isinstance(value, str):
-        return value
-    if base == "bool" and isinstance(value, bool):
-        return value
-    raise ConfigError(field, f"must be {base}, got {type(value).__name__} {value!r}")
+    if base == "float":
+        return fields.number(value, field, low, high)
+    if base == "int":
+        return fields.integer(value, field, None if low is None else int(low),
+                              None if high is None else int(high))
+    if base == "str":
+        return fields.text(value, field)
+    if base == "bool":
+        return fields.boolean(value, field)
+    raise ConfigError(field, f"must be {base}, got {fields.shown(value)}")
 
 
 def check_keys(table: Mapping[str, object], known: set[str] | list[str], where: str) -> None:
@@ -49,7 +56,9 @@ def build(cls: type[P], table: Mapping[str, Any], where: str) -> P:
     """Build the parameter dataclass ``cls`` from ``table``; defaults fill the rest."""
     names = {f.name: str(f.type) for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     check_keys(table, set(names), where)
-    kwargs = {key: _coerce(value, names[key], f"{where}.{key}") for key, value in table.items()}
+    ranges: dict[str, tuple[float, float]] = getattr(cls, "RANGES", {})
+    kwargs = {key: _coerce(value, names[key], f"{where}.{key}", ranges.get(key))
+              for key, value in table.items()}
     params = cls(**kwargs)
     params.check(where)
     return params

@@ -1,7 +1,9 @@
 """Scenes: TOML files of patches, loads and effects, parsed into frozen dataclasses.
 
-Unknown keys, kinds and effects are errors that name the dotted field, e.g.
-``loads[0].kind: unknown load 'foo'; known: ...``.
+The file is read by :func:`skin.inputs.tomlfile.read_toml` (UTF-8, nesting, no NaN or
+infinity anywhere); every field is typed and ranged (``RANGES`` of each parameter class).
+Unknown keys, kinds and effects are errors that name the file and the dotted field, e.g.
+``my.toml: loads[0].kind: unknown load 'foo'; known: ...``.
 """
 
 from __future__ import annotations
@@ -10,11 +12,10 @@ import dataclasses
 import importlib.resources
 import math
 import os
-import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,8 +26,11 @@ from sim.effects.faults import FaultsParams
 from sim.loads import LOAD_PARAMS
 from sim.params import build, check_keys, one_of, positive
 from skin.errors import ConfigError
+from skin.inputs import fields
+from skin.inputs.tomlfile import parse_toml, read_toml
 
 MODES = ("z", "xyz")
+POSITION_LIMIT_M = 1000.0
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,9 @@ class _Header:
     rate_hz: float = 100.0
     seed: int = 0
 
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "rate_hz": (1e-3, 1e4), "seed": (0, 2**63 - 1)}
+
     def check(self, where: str) -> None:
         if not self.name:
             raise ConfigError(f"{where}.name", "missing or empty")
@@ -71,6 +78,8 @@ class Scene:
     description: str = ""
     loads: tuple[LoadSpec, ...] = ()
     effects: Mapping[str, Any] = field(default_factory=dict)
+    source: str = field(default="", compare=False)
+    """The file the scene was read from, for messages ("" when built in code)."""
 
     @property
     def pillars(self) -> int:
@@ -114,14 +123,14 @@ def _table_list(data: Mapping[str, Any], key: str) -> list[dict[str, Any]]:
 
 def _patch(table: dict[str, Any], where: str) -> PatchSpec:
     check_keys(table, {"node_id", "position_m"}, where)
-    node = table.get("node_id")
-    if not isinstance(node, int) or isinstance(node, bool) or not 1 <= node <= 127:
-        raise ConfigError(f"{where}.node_id", f"must be an integer in 1..127, got {node!r}")
+    node = fields.integer(table.get("node_id"), f"{where}.node_id", 1, 127)
     pos = table.get("position_m", [0.0, 0.0])
-    if not (isinstance(pos, list) and len(pos) == 2
-            and all(isinstance(v, int | float) and not isinstance(v, bool) for v in pos)):
-        raise ConfigError(f"{where}.position_m", f"must be [x, y] in metres, got {pos!r}")
-    return PatchSpec(node, (float(pos[0]), float(pos[1])))
+    if not (isinstance(pos, list) and len(pos) == 2):
+        raise ConfigError(f"{where}.position_m", f"must be [x, y] in metres, got "
+                          f"{fields.shown(pos)}")
+    x, y = (fields.number(v, f"{where}.position_m[{k}]", -POSITION_LIMIT_M, POSITION_LIMIT_M)
+            for k, v in enumerate(pos))
+    return PatchSpec(node, (x, y))
 
 
 def _load(table: dict[str, Any], where: str, nodes: tuple[int, ...]) -> LoadSpec:
@@ -134,6 +143,7 @@ def _load(table: dict[str, Any], where: str, nodes: tuple[int, ...]) -> LoadSpec
     if not isinstance(patches, list) or not patches:
         raise ConfigError(f"{where}.patches", "must be a non-empty list of node ids")
     for i, node in enumerate(patches):
+        fields.integer(node, f"{where}.patches[{i}]", 1, 127)
         if node not in nodes:
             raise ConfigError(f"{where}.patches[{i}]", f"no patch with node_id {node!r}")
     if len(set(patches)) != len(patches):
@@ -168,11 +178,14 @@ def _effects(table: Any, mode: str, nodes: tuple[int, ...]) -> dict[str, Any]:
 
 def scene_from_dict(data: Mapping[str, Any]) -> Scene:
     """Validate a parsed TOML document (or Scene.to_dict()) into a Scene."""
+    if not isinstance(data, Mapping):
+        raise ConfigError("scene file", f"must be a table, got {fields.shown(data)}")
     check_keys(data, {"scene", "patches", "loads", "effects"}, "scene file")
     header_table = data.get("scene")
     if not isinstance(header_table, dict):
         raise ConfigError("scene", "missing [scene] table")
     header = build(_Header, header_table, "scene")
+    fields.text(header.name, "scene.name", 256)
     patches = tuple(_patch(t, f"patches[{i}]") for i, t in enumerate(_table_list(data, "patches")))
     if not patches:
         raise ConfigError("patches", "a scene needs at least one [[patches]]")
@@ -198,18 +211,18 @@ def load_scene(name_or_path: str | os.PathLike[str]) -> Scene:
         path = Path(name_or_path)
         if not path.is_file():
             raise ConfigError("scene", f"no scene file {text!r}")
-        source, content = str(path), path.read_text(encoding="utf-8")
+        source, data = str(path), read_toml(path, "scene")
     else:
         shipped = importlib.resources.files("sim.scenes") / f"{text}.toml"
         if not shipped.is_file():
             known = ", ".join(shipped_scenes())
             raise ConfigError("scene", f"unknown scene {text!r}; shipped: {known}; or a .toml path")
-        source, content = f"scene {text!r}", shipped.read_text(encoding="utf-8")
+        source = f"scene {text!r}"
+        data = parse_toml(shipped.read_bytes(), source, "scene")
     try:
-        data = tomllib.loads(content)
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(source, f"malformed TOML: {err}") from err
-    return scene_from_dict(data)
+        return replace(scene_from_dict(data), source=source)
+    except ConfigError as err:
+        raise err.in_file(source) from err
 
 
 def on_patches(scene: Scene, patches: int, spacing_m: float = 0.05) -> Scene:
@@ -230,4 +243,4 @@ def on_patches(scene: Scene, patches: int, spacing_m: float = 0.05) -> Scene:
     faults = data["effects"].get("faults")
     if faults is not None:
         faults["pillars"] = [p for p in faults["pillars"] if p["node_id"] <= patches]
-    return scene_from_dict(data)
+    return replace(scene_from_dict(data), source=scene.source)

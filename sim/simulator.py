@@ -27,6 +27,7 @@ class Frame:
     time_s: F64  # (n,)
     resistance_ohm: F64  # (n, patches, 9, P); +inf = open circuit, 0 = short
     force_N: F64  # (n, patches, 9, 3) true (Fx, Fy, Fz), before crosstalk
+    slip: NDArray[np.bool_]  # (n, patches) true: a load slides over the patch
 
 
 class Simulator:
@@ -70,17 +71,25 @@ class Simulator:
         )
 
     def _check_strain(self, i: int, load: Load) -> None:
-        """Fail before running if a load's largest force (after crosstalk) over-strains a pillar."""
+        """Fail before running if a load's largest force (after crosstalk) over-strains a
+        pillar: naming the load's field, or the crosstalk's coupling when the force alone
+        is fine and only the coupling's gain takes it past the limit."""
         gain = float(self.scene.crosstalk_matrix().sum(axis=1).max())
         for name, value, force in load.peak_forces():
             try:
                 displacement_from_force(force * gain, self.constants)
             except StrainLimitError as err:
+                field, shown = f"loads[{i}].{name}", f"{value:g}"
+                if gain > 1.0 and _strains(force, self.constants) is None:
+                    crosstalk = self.scene.effects["elastic_crosstalk"]
+                    field = "effects.elastic_crosstalk.coupling"
+                    shown = (f"{crosstalk.coupling:g} (with diagonal_coupling "
+                             f"{crosstalk.diagonal_coupling:g}: x{gain:.3g} on loads[{i}])")
                 raise ConfigError(
-                    f"loads[{i}].{name}",
-                    f"{value:g} strains a pillar past {100 * self.constants.max_strain:.0f} % "
+                    field,
+                    f"{shown} strains a pillar past {100 * self.constants.max_strain:.0f} % "
                     f"(force ({', '.join(f'{f:.3g}' for f in force * gain)}) N on a taxel "
-                    f"after crosstalk): {err}",
+                    f"after crosstalk): {err}", source=self.scene.source or None,
                 ) from err
 
     def run(self, n: int) -> Frame:
@@ -90,8 +99,10 @@ class Simulator:
         time_s = (self._k + np.arange(n)) / self.scene.rate_hz
         patches = len(self.node_ids)
         force = np.zeros((n, patches, 9, 3))
+        slip = np.zeros((n, patches), dtype=bool)
         for idx, load in self._loads:
             force[:, idx] += load.forces(self._k, n)
+            slip[:, idx] |= load.slipping(self._k, n)
         out = np.empty((n, patches, 9, self.pillars))
         if self._idle.size:
             out[:, self._idle] = self._baseline
@@ -101,7 +112,7 @@ class Simulator:
                 r = self._pipeline.resistance(active, time_s)
             except StrainLimitError as err:
                 problem = f"the combined loads over-strain a pillar: {err}"
-                raise ConfigError("loads", problem) from err
+                raise ConfigError("loads", problem, source=self.scene.source or None) from err
             if self._idle.size == 0:
                 out[...] = r[..., : self.pillars]
             else:
@@ -111,8 +122,17 @@ class Simulator:
         if self._faults is not None:
             self._faults.apply(out, time_s)
         self._k += n
-        return Frame(time_s=time_s, resistance_ohm=out, force_N=force)
+        return Frame(time_s=time_s, resistance_ohm=out, force_N=force, slip=slip)
 
     def step(self) -> Frame:
         """One time step; the same as run(1)."""
         return self.run(1)
+
+
+def _strains(force: F64, constants: SensorConstants) -> StrainLimitError | None:
+    """The strain error ``force`` alone gives, or None."""
+    try:
+        displacement_from_force(force, constants)
+    except StrainLimitError as err:
+        return err
+    return None

@@ -1,32 +1,55 @@
-"""Write a file so that it is either complete or absent: temp file, fsync, rename."""
+"""Write a file so that it is either complete or absent: temp file, fsync, rename.
+
+The target is checked first (:func:`skin.inputs.outputs.check_output`: a regular file or
+nothing, in a folder that exists) and every error names it, never the temporary file.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
+
+from skin.errors import SkinError
+from skin.inputs.outputs import create_beside, discard, put_in_place, write_error
 
 
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike[str]) -> Iterator[BinaryIO]:
     """Yield a binary file in the target's folder; rename it into place only on success."""
-    target = Path(path)
-    folder = target.parent if str(target.parent) else Path(".")
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
-    umask = os.umask(0)
-    os.umask(umask)
+    fd, tmp_name = create_beside(path)
     try:
-        # mkstemp makes the file owner-only; give it the mode open() would.
-        os.chmod(tmp_name, 0o666 & ~umask)
         with os.fdopen(fd, "wb") as handle:
             yield handle
             handle.flush()
             os.fsync(handle.fileno())
-        os.replace(tmp_name, target)
+    except OSError as err:
+        discard(tmp_name)
+        if isinstance(err, SkinError):
+            raise
+        raise write_error(path, err) from err
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp_name)
+        discard(tmp_name)
         raise
+    put_in_place(tmp_name, path)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """A temporary path beside ``path`` with its suffix (for writers that take a path and
+    pick the format by its suffix), renamed onto ``path`` only if the block succeeds."""
+    fd, tmp_name = create_beside(path, suffix=f".tmp{Path(path).suffix}")
+    os.close(fd)
+    try:
+        yield Path(tmp_name)
+    except OSError as err:
+        discard(tmp_name)
+        if isinstance(err, SkinError):
+            raise
+        raise write_error(path, err) from err
+    except BaseException:
+        discard(tmp_name)
+        raise
+    put_in_place(tmp_name, path)

@@ -5,7 +5,7 @@ Each subcommand module has ``add_subparser(subparsers)`` and sets
 heavy packages (sim, decoder, canbus) only inside their ``func``.
 
 Logging (``-v``, ``-q``, ``--log-level``, before or after the subcommand) is configured
-here, once (``skin.commands.logs``). Exit status: 0 when a command did its work or a
+here, once (``skin.commands.common.logs``). Exit status: 0 when a command did its work or a
 long-running one was stopped (Ctrl-C, SIGTERM, SIGHUP: it prints its summary and writes
 its ``--json``); 1 on an error (one line on stderr; ``--debug`` shows the traceback);
 2 on a usage error (argparse); 130 when a stop interrupts a command whose work has an
@@ -18,20 +18,22 @@ import argparse
 import importlib
 import sys
 from collections.abc import Iterator, Sequence
+from typing import Any
 
 from skin import __version__
-from skin.commands.logs import add_logging_arguments, configured_logging
-from skin.commands.signals import stop_signal_name, stop_signals_interrupt
+from skin.commands.common.argtypes import OneLineParser
+from skin.commands.common.logs import add_logging_arguments, configured_logging
+from skin.commands.common.signals import stop_signal_name, stop_signals_interrupt
 from skin.errors import SkinError
 
 SUBCOMMANDS = (
     "sim", "model", "train", "eval", "bench", "plan", "eds", "run", "demo", "sniff", "replay",
-    "tare", "decode", "view", "dataset", "calibrate", "compare",
+    "tare", "decode", "view", "dataset", "calibrate", "lss", "compare",
 )
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="skin",
         description="Robot-skin middleware over CAN: simulate, decode, run and sniff patches.",
     )
@@ -53,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _commands(
-    subparsers: argparse._SubParsersAction[argparse.ArgumentParser],
+    subparsers: argparse._SubParsersAction[Any],
 ) -> Iterator[argparse.ArgumentParser]:
     """Every (sub-)subcommand's parser: ``sim``, ``sim dataset``, ``sim run``, ..."""
     for command in dict.fromkeys(subparsers.choices.values()):  # aliases share a parser
@@ -75,9 +77,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (SkinError, OSError) as err:
         if args.debug:
             raise
-        print(f"skin: error: {err}", file=sys.stderr)
+        print(f"skin: error: {one_line(err)}", file=sys.stderr)
+        return 1
+    except MemoryError:
+        if args.debug:
+            raise
+        print("skin: error: out of memory (a request larger than this machine can hold)",
+              file=sys.stderr)
+        return 1
+    except Exception as err:  # a library's error nothing above turned into a sentence
+        if args.debug:
+            raise
+        print(f"skin: error: {type(err).__name__}: {one_line(err)} (unexpected; --debug "
+              "shows where)", file=sys.stderr)
         return 1
     return int(code or 0)
+
+
+def one_line(err: BaseException) -> str:
+    """The error's message on one line."""
+    return " ".join(str(err).split()) or type(err).__name__
 
 
 if __name__ == "__main__":

@@ -17,7 +17,9 @@ Defaults, and why:
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,17 +49,13 @@ class SensorConstants:
     taxel_pitch_m: float = 15.0e-3
 
     def __post_init__(self) -> None:
-        from skin.errors import ConfigError
+        from skin.inputs.fields import integer, number
 
-        for name in ("youngs_modulus_pa", "resistivity_ohm_m", "length_m", "area_m2",
-                     "resistance_lsb_ohm", "full_scale_force_N", "taxel_pitch_m"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ConfigError(name, f"must be a positive finite number, got {value!r}")
-        if not 0 < self.max_strain < 1:
-            raise ConfigError("max_strain", f"must be in (0, 1), got {self.max_strain!r}")
-        if not 8 <= self.adc_bits <= 32:
-            raise ConfigError("adc_bits", f"must be in [8, 32], got {self.adc_bits!r}")
+        for name, (low, high) in CONSTANT_RANGES.items():
+            number(getattr(self, name), name, high=high, above=low)
+        if not self.max_strain < 1:
+            raise _error("max_strain", f"must be in (0, 1), got {self.max_strain!r}")
+        integer(self.adc_bits, "adc_bits", 8, 32)
 
     @property
     def axial_stiffness_N(self) -> float:
@@ -83,14 +81,38 @@ class SensorConstants:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict[str, float]) -> SensorConstants:
+    def from_dict(cls, data: Mapping[str, Any], where: str = "sensor") -> SensorConstants:
+        """The constants of a parsed table (a model file's, a dataset's, a config's); a
+        ConfigError names ``where.<constant>``."""
         from skin.errors import ConfigError
 
+        if not isinstance(data, Mapping):
+            raise ConfigError(where, f"must be a table of sensor constants, got "
+                              f"{type(data).__name__}")
         known = set(cls.__dataclass_fields__)
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ConfigError(f"sensor.{unknown[0]}", "unknown sensor constant")
-        return cls(**data)  # type: ignore[arg-type]
+        for key in data:
+            if key not in known:
+                raise ConfigError(f"{where}.{key}", "unknown sensor constant; known: "
+                                  f"{', '.join(sorted(known))}")
+        try:
+            return cls(**data)
+        except ConfigError as err:
+            raise ConfigError(f"{where}.{err.field}", err.problem) from err
+
+
+CONSTANT_RANGES: dict[str, tuple[float, float]] = {
+    "youngs_modulus_pa": (0.0, 1e12), "resistivity_ohm_m": (0.0, 1e9),
+    "length_m": (0.0, 1.0), "area_m2": (0.0, 1.0), "max_strain": (0.0, 1.0),
+    "resistance_lsb_ohm": (0.0, 1e6), "full_scale_force_N": (0.0, 1e4),
+    "taxel_pitch_m": (0.0, 1.0),
+}
+"""(above, at most) of every float constant: each must be more than the first."""
+
+
+def _error(field: str, problem: str) -> Exception:
+    from skin.errors import ConfigError
+
+    return ConfigError(field, problem)
 
 
 DEFAULT_CONSTANTS = SensorConstants()

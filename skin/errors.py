@@ -12,12 +12,21 @@ class SkinError(Exception):
 
 
 class ConfigError(SkinError, ValueError):
-    """A scene, config or command-line value is wrong; the message names the field."""
+    """A scene, config or command-line value is wrong; the message names the field, and
+    the file it is in when there is one (``scene.toml: loads[0].kind: ...``)."""
 
-    def __init__(self, field: str, problem: str) -> None:
+    def __init__(self, field: str, problem: str, *, source: str | None = None) -> None:
         self.field = field
         self.problem = problem
-        super().__init__(f"{field}: {problem}")
+        self.source = source
+        where = ": ".join(part for part in (source, field) if part)
+        super().__init__(f"{where}: {problem}" if where else problem)
+
+    def in_file(self, source: str) -> ConfigError:
+        """The same error naming the file it came from (kept if it names one already)."""
+        if self.source is not None:
+            return self
+        return ConfigError(self.field, self.problem, source=source)
 
 
 class StrainLimitError(SkinError, ValueError):
@@ -42,6 +51,11 @@ class ModelFileError(SkinError, ValueError):
 
 class DatasetError(SkinError, ValueError):
     """A dataset file is missing keys, has wrong shapes, or is unreadable."""
+
+
+class OutputError(SkinError, OSError):
+    """A result cannot be written where the user asked: names the user's path, never a
+    temporary file's."""
 
 
 class BusError(SkinError, RuntimeError):

@@ -24,7 +24,6 @@ import csv
 import io
 import math
 import os
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
@@ -34,12 +33,17 @@ from numpy.typing import NDArray
 
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH
 from skin.errors import ReferenceFileError
+from skin.inputs.budget import memory_budget, size_text
+from skin.inputs.npz import read_npz
+from skin.inputs.outputs import create_beside, discard, put_in_place, write_error
 
 F64 = NDArray[np.float64]
 FORCE_COLUMNS = ("fx_N", "fy_N", "fz_N")
 TAXEL_COLUMNS = ("time_s", "sync", "node_id", "taxel", *FORCE_COLUMNS)
 """The columns :class:`ReferenceWriter` writes (the taxel form, with both keys)."""
 KNOWN_COLUMNS = frozenset({"time_s", "sync", "node_id", "taxel", "x_m", "y_m", *FORCE_COLUMNS})
+CSV_MEMORY_FACTOR = 20
+"""Bytes of memory one byte of CSV takes once split into Python strings (about)."""
 SYNC_MAX = 255
 """SYNC counter bytes a reference may name (CiA 301 sends 1..240; 0 means none)."""
 
@@ -114,12 +118,20 @@ def read_reference(path: str | os.PathLike[str], *,
 
 def _read_csv(source: str) -> tuple[dict[str, list[str]], NDArray[np.int64]]:
     try:
+        size = os.stat(source).st_size
+        if size * CSV_MEMORY_FACTOR > memory_budget():
+            raise ReferenceFileError(source, None, f"{size_text(size)} of CSV would need "
+                                     f"about {size_text(size * CSV_MEMORY_FACTOR)} of memory, "
+                                     f"more than the budget of {size_text(memory_budget())}")
         with open(source, encoding="utf-8", newline="") as handle:
             text = handle.read()
     except FileNotFoundError as err:
         raise ReferenceFileError(source, None, "no such file") from err
     except UnicodeDecodeError as err:
-        raise ReferenceFileError(source, None, f"not UTF-8 text ({err.reason})") from err
+        raise ReferenceFileError(source, None, f"not UTF-8 text ({err.reason} at byte "
+                                 f"{err.start})") from err
+    except IsADirectoryError as err:
+        raise ReferenceFileError(source, None, "is a folder, not a file") from err
     except OSError as err:
         raise ReferenceFileError(source, None, f"cannot read: {err.strerror}") from err
     if not text:
@@ -157,17 +169,8 @@ def _check_header(source: str, header: list[str]) -> None:
 
 
 def _read_npz(source: str) -> tuple[dict[str, Any], NDArray[np.int64]]:
-    try:
-        with np.load(source, allow_pickle=False) as npz:
-            names = list(npz.files)
-            _check_header(source, names)
-            arrays = {name: npz[name] for name in names}
-    except FileNotFoundError as err:
-        raise ReferenceFileError(source, None, "no such file") from err
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as err:
-        if isinstance(err, ReferenceFileError):
-            raise
-        raise ReferenceFileError(source, None, f"not a readable .npz ({err})") from err
+    arrays = read_npz(source, lambda problem: ReferenceFileError(source, None, problem))
+    _check_header(source, list(arrays))
     lengths = {a.shape for a in arrays.values()}
     if any(a.ndim != 1 for a in arrays.values()) or len(lengths) > 1:
         raise ReferenceFileError(source, None, "every array must be 1-D and of one length, got "
@@ -196,7 +199,7 @@ def _column(source: str, columns: dict[str, Any], lines: NDArray[np.int64], name
                                          f"got {value!r}")
     assert out is not None
     if kind is int:
-        whole = out == np.rint(out)
+        whole = (out == np.rint(out)) & (np.abs(out) <= 2**53)
         if not np.all(whole):
             k = int(np.flatnonzero(~whole)[0])
             raise ReferenceFileError(source, int(lines[k]), f"{name}: must be a whole number, "
@@ -301,11 +304,21 @@ class ReferenceWriter:
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = os.fspath(path)
-        # The writer owns the stream until close(): it is written sample by sample.
-        self._handle: TextIO | None = open(  # noqa: SIM115
-            self.path, "w", encoding="utf-8", newline="")
-        self._handle.write(",".join(TAXEL_COLUMNS) + "\n")
-        self._handle.flush()
+        # Written beside the target and renamed over it once it holds its header line; the
+        # writer owns the stream until close(): it is written sample by sample.
+        fd, tmp = create_beside(path)
+        try:
+            os.write(fd, (",".join(TAXEL_COLUMNS) + "\n").encode())
+        except OSError as err:
+            os.close(fd)
+            discard(tmp)
+            raise write_error(path, err) from err
+        try:
+            put_in_place(tmp, path)
+        except BaseException:
+            os.close(fd)
+            raise
+        self._handle: TextIO | None = os.fdopen(fd, "a", encoding="utf-8", newline="")
         self.samples = 0
 
     def write(self, time_s: float, sync: int, node_id: int, force_N: F64) -> None:
@@ -317,8 +330,11 @@ class ReferenceWriter:
         time_s, sync, node_id = float(time_s), int(sync), int(node_id)
         lines = [f"{time_s!r},{sync},{node_id},{t},{fx!r},{fy!r},{fz!r}\n"
                  for t, (fx, fy, fz) in enumerate(np.asarray(force_N, np.float64).tolist())]
-        handle.write("".join(lines))
-        handle.flush()
+        try:
+            handle.write("".join(lines))
+            handle.flush()
+        except OSError as err:
+            raise write_error(self.path, err) from err
         self.samples += 1
 
     def close(self) -> None:

@@ -14,6 +14,8 @@ import canopen
 import numpy as np
 from numpy.typing import NDArray
 
+from canbus.device.error_history import ErrorHistory
+
 DEVICE_HARDWARE = 0x5000
 ERROR_RESET = 0x0000
 REGISTER_FAULT = 0x81
@@ -31,10 +33,15 @@ class FaultReporter:
         return REGISTER_FAULT if self.status.any() else 0
 
     def update(self, status: NDArray[np.uint8], network: canopen.Network | None,
-               cob_id: int) -> None:
-        """Adopt ``status``; send EMCY for every taxel that changed if ``network`` is given."""
+               cob_id: int, history: ErrorHistory | None = None) -> None:
+        """Adopt ``status``; send EMCY for every taxel that changed if ``network`` is given;
+        keep each new fault in ``history`` (0x1003)."""
         changed = np.flatnonzero(status != self.status)
         self.status = status.copy()
+        if history is not None:
+            for taxel in changed.tolist():
+                if status[taxel]:
+                    history.push(DEVICE_HARDWARE, taxel | (int(status[taxel]) << 8))
         if network is None or cob_id & 0x8000_0000:
             return
         for taxel in changed.tolist():

@@ -50,6 +50,11 @@ class NmtSlave:
         else:
             logger.info("node %d ignored NMT command 0x%02X", self.node_id, command)
 
+    def enter(self, state: int) -> None:
+        """Change state as the device itself decides (an error behaviour, CiA 301 0x1029)."""
+        if self.network is not None:
+            self._set(state)
+
     def _set(self, state: int) -> None:
         if state != self.state:
             self.state = state

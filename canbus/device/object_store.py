@@ -70,24 +70,30 @@ class ObjectStore(LocalNode):
             raise SdoAbortedError(0x0609_0011)
         return obj[subindex]
 
+    def check_value(self, index: int, subindex: int, data: bytes) -> Any:
+        """The value ``data`` writes, if its size and limits are the object's (else the
+        abort): the checks of any write, before the services' own rules."""
+        obj = self._find_object(index, subindex)
+        if obj.data_type not in NUMBER_TYPES:
+            return data
+        if 8 * len(data) > len(obj):
+            raise SdoAbortedError(0x0607_0012)
+        if 8 * len(data) < len(obj):
+            raise SdoAbortedError(0x0607_0013)
+        value = obj.decode_raw(data)
+        assert isinstance(value, int | float)
+        if obj.max is not None and value > obj.max:
+            raise SdoAbortedError(0x0609_0031)
+        if obj.min is not None and value < obj.min:
+            raise SdoAbortedError(0x0609_0032)
+        return value
+
     def set_data(self, index: int, subindex: int, data: bytes,
                  check_writable: bool = False) -> None:
         obj = self._find_object(index, subindex)
         if check_writable and not obj.writable:
             raise SdoAbortedError(0x0601_0002)
-        if obj.data_type in NUMBER_TYPES:
-            if 8 * len(data) > len(obj):
-                raise SdoAbortedError(0x0607_0012)
-            if 8 * len(data) < len(obj):
-                raise SdoAbortedError(0x0607_0013)
-            value = obj.decode_raw(data)
-            assert isinstance(value, int | float)
-            if obj.max is not None and value > obj.max:
-                raise SdoAbortedError(0x0609_0031)
-            if obj.min is not None and value < obj.min:
-                raise SdoAbortedError(0x0609_0032)
-        else:
-            value = data
+        value = self.check_value(index, subindex, data)
         for validate in self.validators:
             validate(index, subindex, value)
         self.data_store.setdefault(index, {})[subindex] = bytes(data)

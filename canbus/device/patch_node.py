@@ -10,7 +10,6 @@ drives many nodes from one source on one bus.
 
 from __future__ import annotations
 
-import math
 import threading
 import weakref
 from collections.abc import Callable, Iterator, Sequence
@@ -24,8 +23,11 @@ from numpy.typing import ArrayLike, NDArray
 from canbus import codes
 from canbus.device.emcy import REGISTER_FAULT, FaultReporter
 from canbus.device.local_device import TPDO_COUNT, LocalDevice
+from canbus.device.lss_slave import LssSlave
 from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL
+from canbus.device.nv_store import NvStore
 from canbus.device.tpdo import EVENT_DRIVEN
+from canbus.patch_constants import LSB_SCALE, R0_SCALE, constant_counts
 from canbus.pdo_codec import TPDO_COMM, TPDO_MAP, PdoCodec
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.errors import ConfigError
@@ -35,8 +37,6 @@ ANSWERED = 0x2006
 INVALID_VALUE, ABOVE_LIMIT, BELOW_LIMIT = 0x0609_0030, 0x0609_0031, 0x0609_0032
 """The counter byte of the SYNC the TPDOs answer (0: none): mapped into a CAN FD answer, it
 tells the master which cycle the answer belongs to."""
-_CONSTANT_FIELDS = ("youngs_modulus_pa", "resistivity_ohm_m", "length_m", "area_m2",
-                    "max_strain", "full_scale_force_N", "taxel_pitch_m")
 Frame = tuple[int, bytes]
 Due = Callable[["PatchNode", Sequence[bytes]], list[int]]
 
@@ -48,10 +48,12 @@ def z_only_mapping() -> list[list[int]]:
 
 
 class PatchNode(LocalDevice):
-    """A 3x3 patch (node-ID 1..127) in mode ``"xyz"`` (27 values) or ``"z"`` (9 values)."""
+    """A 3x3 patch (node-ID 1..127, or 0xFF: waiting for LSS) in mode ``"xyz"`` (27 values)
+    or ``"z"`` (9 values), with its serial number (0x1018 sub 4) and non-volatile store."""
 
     def __init__(self, node_id: int, *, mode: str = "xyz",
-                 constants: SensorConstants = DEFAULT_CONSTANTS, serial: int = 0) -> None:
+                 constants: SensorConstants = DEFAULT_CONSTANTS, serial: int = 0,
+                 nv: NvStore | None = None) -> None:
         if mode not in ("z", "xyz"):
             raise ConfigError("mode", f"must be 'z' or 'xyz', got {mode!r}")
         self.mode = mode
@@ -61,20 +63,21 @@ class PatchNode(LocalDevice):
         self.codes = np.full((9, 3), codes.OPEN, dtype=np.uint16)
         self.faults = FaultReporter()
         self.answered = 0  # 0x2006
-        super().__init__(node_id, "skin-patch")
+        super().__init__(node_id, "skin-patch", serial=serial, nv=nv)
+        self.lss = LssSlave(self)
+
+    def _on_store_built(self) -> None:
         self.store.validators.append(self._check_rest)
 
     def _check_rest(self, index: int, subindex: int, value: Any) -> None:
-        """A master may write the patch's rest resistances (0x2002, a calibration's tare):
-        each must be a finite resistance the ADC can read."""
+        """A master may write the patch's rest resistances (0x2002 in mOhm, a calibration's
+        tare): each must be a resistance the ADC can read (above 0, below its full scale)."""
         if index != NOMINAL or not subindex:
             return
-        ohm = float(value)
-        if not math.isfinite(ohm):
-            raise SdoAbortedError(INVALID_VALUE)
-        if ohm <= 0.0:
+        if int(value) <= 0:
             raise SdoAbortedError(BELOW_LIMIT)
-        if ohm >= codes.SATURATED * float(self.store.value(LSB)):
+        lsb_ohm = LSB_SCALE.to_si(int(self.store.value(LSB)))
+        if R0_SCALE.to_si(int(value)) >= codes.SATURATED * lsb_ohm:
             raise SdoAbortedError(ABOVE_LIMIT)
 
     def update(self, resistance_ohm: ArrayLike) -> None:
@@ -92,7 +95,7 @@ class PatchNode(LocalDevice):
                 return  # nothing to report, nothing to adopt
             emcy_live = self.nmt.state in (OPERATIONAL, PRE_OPERATIONAL)
             self.faults.update(status, self.network if emcy_live else None,
-                               int(self.store.value(0x1014)))
+                               int(self.store.value(0x1014)), self.history)
 
     def values(self) -> NDArray[np.float64]:
         """The current values of the variables the TPDOs map, in codec column order."""
@@ -125,14 +128,13 @@ class PatchNode(LocalDevice):
         return None
 
     def _apply_defaults(self) -> None:
-        """Power-on values that the EDS cannot know: constants, serial, z-only mapping."""
+        """Power-on values that the EDS cannot know: constants, z-only mapping."""
         c = self.constants
-        self.store.store(0x1018, 4, self.serial)
-        self.store.store(LSB, 0, c.resistance_lsb_ohm)
+        self.store.store(LSB, 0, LSB_SCALE.to_count(c.resistance_lsb_ohm))
         for k, r0 in enumerate(np.tile(c.nominal_resistance_ohm, 9).tolist(), start=1):
-            self.store.store(NOMINAL, k, r0)
-        for s, name in enumerate(_CONSTANT_FIELDS, start=1):
-            self.store.store(CONSTANTS, s, float(getattr(c, name)))
+            self.store.store(NOMINAL, k, R0_SCALE.to_count(r0))
+        for s, count in enumerate(constant_counts(c), start=1):
+            self.store.store(CONSTANTS, s, count)
         if self.mode == "z":
             for n, entries in enumerate(z_only_mapping()):
                 self.store.store(TPDO_MAP + n, 0, len(entries))

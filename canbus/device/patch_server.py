@@ -25,13 +25,12 @@ them): another host's force PDOs never wake it (in the kernel on udp_multicast).
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import can
@@ -40,7 +39,10 @@ import numpy as np
 
 from canbus import codes
 from canbus.busload import spread
+from canbus.device.local_device import UNCONFIGURED
+from canbus.device.lss_slave import LSS_MASTER
 from canbus.device.nmt_slave import OPERATIONAL
+from canbus.device.nv_store import Identity, NvStore
 from canbus.device.patch_node import (
     AnswerPlan,
     PatchNode,
@@ -48,15 +50,22 @@ from canbus.device.patch_node import (
     locked,
     pack_payloads,
 )
+from canbus.device.server_bus import (
+    SYNC_COB_ID,
+    ServerBus,
+    SyncCallback,
+    answer_order,
+    follow_sync,
+    patch_identity,
+)
 from canbus.device.source import ResistanceSource
-from canbus.rxfilter import OwnFrameGate, ReceiveFilter, receive_filter
+from canbus.rxfilter import OwnFrameGate, receive_filter
 from canbus.txmessage import TxMessage
+from canbus.worker import Worker
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 
 logger = logging.getLogger(__name__)
 
-SYNC_COB_ID = 0x080
-SyncCallback = Callable[[int, bytearray, float], None]
 
 
 class _Prepared(NamedTuple):
@@ -68,31 +77,6 @@ class _Prepared(NamedTuple):
     messages: list[can.Message]
 
 
-@dataclass(eq=False)
-class _Bus:
-    """One bus of the server: its network, its nodes in node-ID order, its SYNC count."""
-
-    network: canopen.Network
-    nodes: list[PatchNode]
-    syncs: int = 0
-    frames_sent: int = 0
-    last_sync: float = -math.inf
-    """``time.monotonic()`` of its last SYNC."""
-    answered_at: float = -math.inf
-    """``time.monotonic()`` of the end of its last answer."""
-    answer_s: deque[float] = field(default_factory=lambda: deque(maxlen=1 << 17))
-    """Per answered SYNC: from the SYNC's receive stamp to the return of the last send."""
-    late: int = 0
-    """Answers that ended after the next SYNC was due (one SYNC interval after theirs):
-    more traffic than this process sends in a cycle."""
-    last_received: float = 0.0
-    """The receive stamp of its last SYNC."""
-    send_lock: threading.Lock = field(default_factory=threading.Lock)
-    own: ReceiveFilter | None = None
-    gate: OwnFrameGate | None = None
-    on_sync: SyncCallback | None = None
-
-
 class PatchServer:
     """The source's patches as :class:`PatchNode` s on ``network`` (or spread in node order
     over several networks, as ``skin plan --buses`` spreads them); a context manager."""
@@ -100,7 +84,9 @@ class PatchServer:
     def __init__(self, network: canopen.Network | Sequence[canopen.Network],
                  source: ResistanceSource, *, mode: str | None = None,
                  constants: SensorConstants = DEFAULT_CONSTANTS,
-                 event_rate_hz: float = 0.0, accept_only_consumed: bool = False) -> None:
+                 event_rate_hz: float = 0.0, accept_only_consumed: bool = False,
+                 serials: Sequence[int] | None = None, unconfigured: bool = False,
+                 nv: Callable[[Identity], NvStore] | None = None) -> None:
         networks = [network] if isinstance(network, canopen.Network) else list(network)
         if not networks:
             raise ValueError("no network to serve the patches on")
@@ -113,57 +99,62 @@ class PatchServer:
         self.network = networks[0]
         self.source = source
         mode = mode or ("z" if source.pillars == 1 else "xyz")
-        self.nodes = [PatchNode(n, mode=mode, constants=constants, serial=n)
-                      for n in source.node_ids]
+        serials = list(source.node_ids) if serials is None else list(serials)
+        if len(serials) != len(source.node_ids):
+            raise ValueError(f"{len(serials)} serial numbers for {len(source.node_ids)} patches")
+        self.nodes = [PatchNode(UNCONFIGURED if unconfigured else n, mode=mode,
+                                constants=constants, serial=serial,
+                                nv=None if nv is None else nv(patch_identity(serial)))
+                      for n, serial in zip(source.node_ids, serials, strict=True)]
         self._codes = np.stack([node.codes for node in self.nodes])
         for node, node_codes in zip(self.nodes, self._codes, strict=True):
             node.codes = node_codes  # a view: one copy updates every node's codes
         self._lsb = constants.resistance_lsb_ohm
         self._no_fault = np.zeros((len(self.nodes), 9), dtype=np.uint8)
         self._faulty = False  # some node's status is not all zero
-        by_id = {node.node_id: node for node in self.nodes}
-        self.buses = [_Bus(net, [by_id[n] for n in group])
-                      for net, group in zip(networks, spread(sorted(by_id), len(networks)),
-                                            strict=True)]
+        # The source's patches in its order (the nodes' node-IDs may change by LSS).
+        self.buses = [ServerBus(net, [self.nodes[k] for k in group])
+                      for net, group in zip(networks, spread(list(range(len(self.nodes))),
+                                                             len(networks)), strict=True)]
+        for bus in self.buses:
+            bus.nodes.sort(key=answer_order)
         self.sync_count = 0
         self.samples = 0
-        self._prepared: dict[int, _Prepared] = {}
+        self._prepared: dict[PatchNode, _Prepared] = {}
         self._lock = threading.Lock()
         self._quiet = threading.Condition()
         self._event_rate_hz = event_rate_hz
         self._accept_only_consumed = accept_only_consumed
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._sampler = Worker(self._sample_loop, "patch-samples")
 
     @property
     def frames_sent(self) -> int:
         return sum(bus.frames_sent for bus in self.buses)
 
     def start(self) -> None:
-        self._stop.clear()
         self._tick()  # nodes hold a real sample before anyone can read them
         for bus in self.buses:
             for node in bus.nodes:
+                node.on_node_id_changed = self._node_id_changed
+                node.on_cob_ids_changed = functools.partial(self._cob_ids_changed, bus)
                 node.attach(bus.network)
             self._claim(bus)
             bus.on_sync = self._sync_handler(bus)
-            bus.network.subscribe(SYNC_COB_ID, bus.on_sync)
+            follow_sync(bus)
         if self._event_rate_hz > 0:
-            self._thread = threading.Thread(target=self._sample_loop, daemon=True,
-                                            name="patch-samples")
-            self._thread.start()
+            self._sampler.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
+        self._sampler.stop()
         for bus in self.buses:
             if bus.on_sync is not None:
-                bus.network.unsubscribe(SYNC_COB_ID, bus.on_sync)
+                for cob_id in bus.sync_subscribed:
+                    bus.network.unsubscribe(cob_id, bus.on_sync)
+                bus.sync_subscribed = set()
                 bus.on_sync = None
             for node in bus.nodes:
                 node.detach()
+                node.on_node_id_changed = node.on_cob_ids_changed = None
             self._release(bus)
 
     def __enter__(self) -> PatchServer:
@@ -175,7 +166,7 @@ class PatchServer:
 
     def on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         """One SYNC on the first bus: its nodes' synchronous TPDOs."""
-        self._answer(self.buses[0], data[0] if data else 0, timestamp)
+        self._answer(self.buses[0], data[0] if data else 0, timestamp, can_id)
 
     @property
     def late_answers(self) -> int:
@@ -196,27 +187,49 @@ class PatchServer:
         TPDO on every SYNC (the default mapping), in the order it would send them."""
         prepared = self._prepared
         return [msg for node in self.buses[bus].nodes
-                if node.nmt.state == OPERATIONAL and node.node_id in prepared
-                and prepared[node.node_id].plan.every_sync
-                for msg in prepared[node.node_id].messages]
+                if node.nmt.state == OPERATIONAL and node in prepared
+                and prepared[node].plan.every_sync
+                for msg in prepared[node].messages]
 
-    def _sync_handler(self, bus: _Bus) -> SyncCallback:
+    def _sync_handler(self, bus: ServerBus) -> SyncCallback:
         def on_sync(can_id: int, data: bytearray, timestamp: float) -> None:
-            self._answer(bus, data[0] if data else 0, timestamp)
+            self._answer(bus, data[0] if data else 0, timestamp, can_id)
         return on_sync
+
+    # --- node-IDs and SYNC COB-IDs that change (LSS, 0x1005) ----------------------------
+
+    def _node_id_changed(self, node: object) -> None:
+        """A node took a new node-ID: answers keep node-ID order. (On the network's thread,
+        the node's lock held: no lock of the server's here, the sample thread takes them
+        the other way round; the new list replaces the old one whole.)"""
+        for bus in self.buses:
+            if node in bus.nodes:
+                bus.nodes = sorted(bus.nodes, key=answer_order)
+
+    def _cob_ids_changed(self, bus: ServerBus) -> None:
+        """A node's node-ID, SYNC or other COB-IDs changed: SYNCs to follow, own COB-IDs
+        and the acceptance list anew."""
+        if bus.on_sync is None:
+            return
+        follow_sync(bus)
+        if bus.own is not None and self._accept_only_consumed:
+            bus.own.accept_only(self.consumed_cob_ids(self.buses.index(bus)))
+        self._claim(bus)
+
 
     # --- samples ----------------------------------------------------------------------
 
     def _sample_loop(self) -> None:
         period = 1.0 / self._event_rate_hz
         deadline = time.monotonic()
-        while not self._stop.is_set():
+        stopping = self._sampler.stopping
+        while not stopping.is_set():
             deadline += period
             late = time.monotonic() - deadline
             if late > period:  # a stall (a busy machine): carry on from now, do not catch up
                 deadline += late
-            self._stop.wait(max(0.0, deadline - time.monotonic()))
-            if self._stop.is_set():
+            stopping.wait(max(0.0, deadline - time.monotonic()))
+            if stopping.is_set():
                 break
             self._wait_quiet(deadline, period)
             self._tick()
@@ -267,7 +280,7 @@ class PatchServer:
         for node, plan, node_payloads in zip(nodes, plans, payloads, strict=True):
             messages: list[can.Message] = [TxMessage.frame(plan.cob_ids[p], node_payloads[p])
                                            for p in plan.order]
-            prepared[node.node_id] = _Prepared(plan, node_payloads, messages)
+            prepared[node] = _Prepared(plan, node_payloads, messages)
         last, self._prepared = self._prepared, prepared
         return bool(last) and any(last[n].plan is not p.plan for n, p in prepared.items())
 
@@ -295,23 +308,27 @@ class PatchServer:
 
     # --- answers ----------------------------------------------------------------------
 
-    def _answer(self, bus: _Bus, sync_byte: int, received: float) -> None:
+    def _answer(self, bus: ServerBus, sync_byte: int, received: float,
+                cob_id: int = SYNC_COB_ID) -> None:
         bus.last_sync = time.monotonic()
         with self._lock:
             self.sync_count += 1
             bus.syncs += 1
             counter = bus.syncs
-            if self._thread is None:  # every SYNC reads the next sample
-                remapped = self._take(self._read())
+            reads = not self._sampler.running  # no sample clock: every SYNC reads a sample
+            remapped = reads and self._take(self._read())
             prepared = self._prepared
-        if self._thread is None and remapped:
+        if remapped:
             self._claim(bus)
         messages: list[can.Message] = []
+        sync_of = bus.sync_of
         for node in bus.nodes:
+            if sync_of.get(node) != cob_id:
+                continue  # not configured, or consumes another SYNC
             node.answered = sync_byte
             if node.nmt.state != OPERATIONAL:
                 continue
-            ready = prepared.get(node.node_id)
+            ready = prepared.get(node)
             if ready is None or ready.plan.codec is not node.tpdo.codec:
                 ready = self._prepare(node)  # remapped since the sample
             plan = ready.plan
@@ -339,7 +356,7 @@ class PatchServer:
         for bus in self.buses:
             messages: list[can.Message] = []
             for node in bus.nodes:
-                ready = prepared.get(node.node_id)
+                ready = prepared.get(node)
                 if ready is None or not ready.plan.event or node.nmt.state != OPERATIONAL:
                     continue
                 if ready.plan.codec is not node.tpdo.codec:
@@ -351,29 +368,34 @@ class PatchServer:
             if messages:
                 self._send(bus, messages)
 
-    def _send(self, bus: _Bus, messages: list[can.Message]) -> None:
+    def _send(self, bus: ServerBus, messages: list[can.Message]) -> None:
         network_bus = bus.network.bus
         assert network_bus is not None, "the network is not connected"
         send = network_bus.send
-        sent = 0
+        sent, failed = 0, False
         with bus.send_lock:
             for msg in messages:
                 try:
                     send(msg)
                 except can.CanError as err:
                     logger.warning("TPDO 0x%03X not sent: %s", msg.arbitration_id, err)
+                    failed = True
                 else:
                     sent += 1
             bus.frames_sent += sent
+        if failed:  # CiA 301 0x1029: the error behaviour of each node that could not send
+            for node in bus.nodes:
+                node.communication_error()
 
     # --- own frames -------------------------------------------------------------------
 
     def consumed_cob_ids(self, bus: int = 0) -> set[int]:
-        """What the nodes of bus ``bus`` receive: NMT, SYNC and their SDO requests."""
-        return {0x000, SYNC_COB_ID} | {int(node.store.sdo.rx_cobid)
-                                       for node in self.buses[bus].nodes}
+        """What the nodes of bus ``bus`` receive: NMT, SYNC, LSS and their SDO requests."""
+        nodes = self.buses[bus].nodes
+        return {0x000, SYNC_COB_ID, LSS_MASTER} | {node.sync_cob_id() for node in nodes} | \
+            {int(node.store.sdo.rx_cobid) for node in nodes if node.configured}
 
-    def _claim(self, bus: _Bus) -> None:
+    def _claim(self, bus: ServerBus) -> None:
         """Claim the COB-IDs the bus's nodes send, where the bus echoes them (and accept
         only what they consume, if asked)."""
         network_bus = bus.network.bus
@@ -394,7 +416,7 @@ class PatchServer:
                 bus.gate = OwnFrameGate(listener, bus.own)
                 notifier.listeners[k] = bus.gate
 
-    def _release(self, bus: _Bus) -> None:
+    def _release(self, bus: ServerBus) -> None:
         if bus.own is None:
             return
         bus.own.release(bus)

@@ -12,7 +12,12 @@ canopen's transfer code and adds, following CiA 301:
 * frames whose length is not 8 are not SDO requests and are ignored (logged);
 * a segment request with no transfer in progress aborts with 0x05040001;
 * an expedited download without size indication writes the object's own size;
-* an announced size that does not match aborts with 0x06070010;
+* an announced size that does not match what arrives aborts with 0x06070010;
+* a segmented download is checked at its initiate: a missing object or sub-index, a
+  read-only object (0x06010002), and an announced size larger (0x06070012) or smaller
+  (0x06070013) than a number object holds abort before any segment;
+* a block upload or download initiate aborts with 0x05040001 (block transfer is not
+  supported; canopen's server would answer a block upload with an expedited upload);
 * every abort names the index and subindex of the request being answered.
 """
 
@@ -22,6 +27,7 @@ import logging
 import struct
 from typing import Any
 
+from canopen.objectdictionary import NUMBER_TYPES
 from canopen.sdo.constants import (
     EXPEDITED,
     NO_MORE_DATA,
@@ -42,6 +48,8 @@ logger = logging.getLogger(__name__)
 ABORT_TOGGLE = 0x0503_0000
 ABORT_COMMAND = 0x0504_0001
 ABORT_LENGTH = 0x0607_0010
+ABORT_TOO_LONG, ABORT_TOO_SHORT = 0x0607_0012, 0x0607_0013
+ABORT_READ_ONLY = 0x0601_0002
 ABORT_GENERAL = 0x0800_0000
 _INITIATE = (REQUEST_UPLOAD, REQUEST_DOWNLOAD, REQUEST_BLOCK_UPLOAD, REQUEST_BLOCK_DOWNLOAD)
 
@@ -75,7 +83,10 @@ class StrictSdoServer(SdoServer):
             self.abort(ABORT_GENERAL)
 
     def _dispatch(self, ccs: int, command: int, data: bytes) -> None:
-        if ccs in (REQUEST_UPLOAD, REQUEST_BLOCK_UPLOAD):
+        if ccs in (REQUEST_BLOCK_UPLOAD, REQUEST_BLOCK_DOWNLOAD):
+            self._end()
+            raise SdoAbortedError(ABORT_COMMAND)
+        if ccs == REQUEST_UPLOAD:
             self._end()
             self.init_upload(data)
             if self._buffer is not None:
@@ -112,11 +123,24 @@ class StrictSdoServer(SdoServer):
             if size <= 4:
                 command |= SIZE_SPECIFIED | ((4 - size) << 2)
                 request = bytes([command]) + request[1:]
+        if not command & EXPEDITED:
+            self._check_segmented(command, request)
         super().init_download(request)
         if not command & EXPEDITED:
             self._transfer = "download"
             self._announced = (struct.unpack_from("<L", request, 4)[0]
                                if command & SIZE_SPECIFIED else None)
+
+    def _check_segmented(self, command: int, request: bytes) -> None:
+        obj = self._node._find_object(self._index, self._subindex)
+        if not obj.writable:
+            raise SdoAbortedError(ABORT_READ_ONLY)
+        if command & SIZE_SPECIFIED and obj.data_type in NUMBER_TYPES:
+            announced = struct.unpack_from("<L", request, 4)[0]
+            if 8 * announced > len(obj):
+                raise SdoAbortedError(ABORT_TOO_LONG)
+            if 8 * announced < len(obj):
+                raise SdoAbortedError(ABORT_TOO_SHORT)
 
     def _end(self) -> None:
         self._transfer = None

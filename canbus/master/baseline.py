@@ -41,8 +41,8 @@ class Baseline:
         self.r0_ref = np.broadcast_to(np.asarray(r0_ref, dtype=np.float64),
                                       np.shape(baseline)).copy()
         start = np.asarray(baseline, dtype=np.float64).copy()
-        # A reported R0 that is the reference to REAL32 precision is the reference.
-        same = np.isclose(start, self.r0_ref, rtol=1e-6, atol=0.0)
+        # A reported R0 that is the reference to within its mOhm rounding is the reference.
+        same = np.abs(start - self.r0_ref) <= 0.5e-3  # half a count of 0x2002
         self.baseline = np.where(same, self.r0_ref, start)
         if not np.all(np.isfinite(self.baseline) & (self.baseline > 0)):
             raise ValueError("baseline resistances must be positive and finite")

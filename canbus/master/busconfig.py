@@ -16,13 +16,16 @@ override the one bus of a config; a config with several buses takes none.
 
 from __future__ import annotations
 
+import ipaddress
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import can
 
+from canbus.busopen import configured_interface, open_can_bus
 from skin.errors import BusError, ConfigError
+from skin.inputs import fields
 
 DEFAULT_BUS = "default"
 _KEYS = ("name", "interface", "channel", "bitrate", "fd", "data_bitrate", "options")
@@ -98,21 +101,33 @@ def _bus(table: Mapping[str, Any], where: str, name: str | None) -> BusConfig:
         channel = table["channel"]
         if not isinstance(channel, str | int) or isinstance(channel, bool):
             raise ConfigError(f"{where}.channel", f"must be a string or an integer, got "
-                              f"{type(channel).__name__}")
+                              f"{fields.shown(channel)}")
+        if isinstance(channel, str):
+            fields.text(channel, f"{where}.channel", 256)
+        else:
+            fields.integer(channel, f"{where}.channel", 0, 0xFFFF)
         kwargs["channel"] = channel
     if "options" in table:
         if not isinstance(table["options"], dict):
             raise ConfigError(f"{where}.options", "must be a table of can.Bus keyword arguments")
         kwargs["options"] = dict(table["options"])
+        for key, value in kwargs["options"].items():
+            if not key.isidentifier():
+                raise ConfigError(f"{where}.options.{key}", "is not a keyword argument name")
+            if not isinstance(value, str | int | float | bool):
+                raise ConfigError(f"{where}.options.{key}", "must be a string, a number or "
+                                  f"a boolean, got {fields.shown(value)}")
     bus = BusConfig(**kwargs)
     check_bus(bus, where)
     return bus
 
 
 def _of(value: Any, kind: type, where: str) -> Any:
-    if isinstance(value, kind) and not (kind is not bool and isinstance(value, bool)):
-        return value
-    raise ConfigError(where, f"must be {kind.__name__}, got {type(value).__name__} {value!r}")
+    if kind is bool:
+        return fields.boolean(value, where)
+    if kind is int:
+        return fields.integer(value, where)
+    return fields.text(value, where, 256)
 
 
 def check_bus(bus: BusConfig, where: str) -> None:
@@ -122,11 +137,25 @@ def check_bus(bus: BusConfig, where: str) -> None:
         value = getattr(bus, key)
         if value is not None and not (isinstance(value, int) and 0 < value <= 20_000_000):
             raise ConfigError(f"{where}.{key}", f"must be a positive bit rate, got {value!r}")
+    if bus.interface is not None and bus.interface not in can.VALID_INTERFACES:
+        raise ConfigError(f"{where}.interface", f"unknown python-can interface "
+                          f"{bus.interface!r}; known: {', '.join(sorted(can.VALID_INTERFACES))}")
+    if bus.interface == "udp_multicast" and bus.channel is not None and \
+            not _multicast(bus.channel):
+        raise ConfigError(f"{where}.channel", f"{bus.channel!r} is not a multicast group "
+                          "address (udp_multicast: e.g. 239.74.163.2)")
     if bus.data_bitrate is not None and not bus.fd:
         raise ConfigError(f"{where}.data_bitrate", "is the CAN FD data phase: set fd = true")
     if "fd" in bus.options or any(k in bus.options for k in ("bitrate", "data_bitrate")):
         raise ConfigError(f"{where}.options", "bitrate, data_bitrate and fd have keys of "
                           "their own")
+
+
+def _multicast(channel: object) -> bool:
+    try:
+        return ipaddress.ip_address(str(channel)).is_multicast
+    except ValueError:
+        return False
 
 
 def check_buses(buses: tuple[BusConfig, ...]) -> None:
@@ -158,13 +187,9 @@ def with_flags(bus: BusConfig, flags: Mapping[str, Any]) -> BusConfig:
 
 def open_bus(bus: BusConfig) -> can.BusABC:
     """Open ``bus`` with python-can; a :class:`~skin.errors.BusError` naming it if that fails."""
-    if bus.interface is None and not can.util.load_config().get("interface"):
+    if bus.interface is None and not configured_interface():
         raise BusError(f"bus {bus.name!r}: no interface: give one (-i IFACE, or interface = "
                        "... in the config's bus table, or python-can's configuration)")
     what = f"the bus {bus.described}" if bus.name == DEFAULT_BUS else \
         f"bus {bus.name!r} ({bus.described})"
-    try:
-        return can.Bus(**bus.kwargs())
-    except (can.CanError, OSError, ValueError, TypeError, ImportError, NotImplementedError) \
-            as err:
-        raise BusError(f"cannot open {what}: {type(err).__name__}: {err}") from err
+    return open_can_bus(bus.kwargs(), what)

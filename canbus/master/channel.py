@@ -16,6 +16,7 @@ from canbus.master.forcenode import ForceNode
 from canbus.pdo_codec import PdoCodec
 from decoder.protocol import Decoder
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH
+from skin.contact_state import ContactSummary
 from skin.errors import ConfigError
 
 RESISTANCES, ANSWERED = 0x2000, 0x2006
@@ -35,6 +36,7 @@ class ForceFrame:
     reason: NDArray[np.uint8]  # (9,) decoder.reasons codes; MISSING, FAULTY from the data plane
     complete: bool  # every TPDO of one answer of the patch arrived, in order, in the window
     published: bool  # the force TPDOs went onto the bus
+    contact: ContactSummary | None = None  # net force, CoP, contact, slip (docs/contact.md)
 
 
 @dataclass

@@ -10,12 +10,10 @@ is named by its node-ID in the API), COB-IDs only per bus: two buses are two net
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import Protocol
 
 from skin.errors import ConfigError
-
-if TYPE_CHECKING:
-    from canbus.master.hostconfig import HostConfig, PatchConfig
 
 NMT, SYNC, TIME = 0x000, 0x080, 0x100
 _TPDO_BASES = (0x180, 0x280, 0x380, 0x480, 0x200, 0x300, 0x400)
@@ -26,9 +24,46 @@ _RESTRICTED = ((0x000, 0x07F), (0x080, 0x080), (0x100, 0x180), (0x581, 0x5FF), (
                (0x6E0, 0x6FF), (0x701, 0x77F), (0x780, 0x7FF))
 
 
+class PatchNodes(Protocol):
+    """What the COB-ID rules read of a patch's config (``hostconfig.PatchConfig``)."""
+
+    @property
+    def node_id(self) -> int: ...
+    @property
+    def force_node(self) -> int: ...
+    @property
+    def force_cob_ids(self) -> tuple[int, ...] | None: ...
+    @property
+    def bus(self) -> str: ...
+    @property
+    def force_bus(self) -> str: ...
+
+
+class _Named(Protocol):
+    @property
+    def name(self) -> str: ...
+
+
+class HostNodes(Protocol):
+    """What the COB-ID check reads of a host's config (``hostconfig.HostConfig``)."""
+
+    @property
+    def patches(self) -> Sequence[PatchNodes]: ...
+    @property
+    def other_nodes(self) -> Sequence[int]: ...
+    @property
+    def buses(self) -> Sequence[_Named]: ...
+
+
 def predefined_tpdo_cob_ids(node_id: int) -> tuple[int, ...]:
     """TPDO 1..7 of the patch and force EDS: 0x180..0x480 and 0x200..0x400 + node-ID."""
     return tuple(base + node_id for base in _TPDO_BASES)
+
+
+def force_tpdo_cob_ids(node_id: int) -> tuple[int, ...]:
+    """TPDO 1..8 of the force EDS: the patch's 7, and the contact's at 0x500 + node-ID
+    (RPDO 4's identifier, free on a node without RPDOs)."""
+    return (*predefined_tpdo_cob_ids(node_id), 0x500 + node_id)
 
 
 def node_cob_ids(node_id: int) -> dict[int, str]:
@@ -42,12 +77,18 @@ def node_cob_ids(node_id: int) -> dict[int, str]:
     return ids
 
 
-def force_cob_ids(patch: PatchConfig) -> frozenset[int]:
+def force_cob_ids(patch: PatchNodes) -> frozenset[int]:
     """Every COB-ID the force node of ``patch`` transmits on: its TPDOs as configured,
     EMCY, SDO responses and heartbeat."""
-    node = patch.force_node
-    tpdos = patch.force_cob_ids or predefined_tpdo_cob_ids(node)
-    return frozenset({0x080 + node, 0x580 + node, 0x700 + node, *tpdos})
+    return frozenset({0x080 + patch.force_node, 0x580 + patch.force_node,
+                      0x700 + patch.force_node, *_force_tpdos(patch)})
+
+
+def _force_tpdos(patch: PatchNodes) -> tuple[int, ...]:
+    """The force node's TPDO 1..8 COB-IDs as configured (7 given: TPDO 8 its own)."""
+    default = force_tpdo_cob_ids(patch.force_node)
+    given = patch.force_cob_ids or ()
+    return (*given, *default[len(given):])
 
 
 def restricted(cob_id: int) -> bool:
@@ -55,7 +96,7 @@ def restricted(cob_id: int) -> bool:
     return any(lo <= cob_id <= hi for lo, hi in _RESTRICTED)
 
 
-def check_cob_ids(config: HostConfig) -> None:
+def check_cob_ids(config: HostNodes) -> None:
     """Refuse a config in which two nodes share a node-ID, or two transmitters on one bus
     could share a COB-ID."""
     nodes: dict[int, str] = {}
@@ -74,7 +115,7 @@ def _claim_node(nodes: dict[int, str], node_id: int, where: str) -> None:
     nodes[node_id] = where
 
 
-def _check_bus(config: HostConfig, bus: str) -> None:
+def _check_bus(config: HostNodes, bus: str) -> None:
     owner: dict[int, str] = {NMT: "NMT", SYNC: "SYNC", TIME: "TIME"}
     on = f" on bus {bus!r}" if len(config.buses) > 1 else ""
 
@@ -98,15 +139,14 @@ def _check_bus(config: HostConfig, bus: str) -> None:
             continue
         where = f"patches[{i}]"
         services = node_cob_ids(patch.force_node)
-        default_tpdos = predefined_tpdo_cob_ids(patch.force_node)
+        default_tpdos = force_tpdo_cob_ids(patch.force_node)
         for cob_id in set(services) - set(default_tpdos):
             claim(cob_id, f"{where}.force_node {services[cob_id]}", f"{where}.force_node")
-        if patch.force_cob_ids is None:
-            for cob_id, service in _tpdos(default_tpdos).items():
-                claim(cob_id, f"{where}.force_node {service}", f"{where}.force_node")
-        else:
-            for k, cob_id in enumerate(patch.force_cob_ids):
-                claim(cob_id, f"{where}.force_node TPDO {k + 1}", f"{where}.force_cob_ids[{k}]")
+        given = len(patch.force_cob_ids or ())
+        tpdos = list(enumerate(_force_tpdos(patch)))
+        for k, cob_id in tpdos[given:] + tpdos[:given]:  # a clash is named where it was given
+            field = f"{where}.force_cob_ids[{k}]" if k < given else f"{where}.force_node"
+            claim(cob_id, f"{where}.force_node TPDO {k + 1}", field)
 
 
 def _tpdos(cob_ids: tuple[int, ...]) -> dict[int, str]:

@@ -11,10 +11,14 @@ loaded or not decoded, 0x06090030 for any other value). A component that is inva
 or does not fit INTEGER16 is sent as 0x8000 (-32768, "no value"), never clipped, and its
 taxel's valid bit is cleared.
 
-The default mapping is 4 forces per TPDO, TPDO 7 = the last 3 forces + 0x2005, all
-event-driven (type 254): :meth:`ForceNode.frames` returns the frames of one sample, sent
-as soon as it is decoded. On a CAN FD bus :func:`map_fd` puts a whole sample in TPDO 1
-(27 forces, 0x2005, 0x2006: 57 bytes, one 64-byte frame, CiA 1301). The node answers
+0x2008 the patch's contact summary and 0x2009 the thresholds it is judged by
+(:mod:`canbus.contact_record`; the node's :class:`~canbus.master.contact.PatchContact`).
+
+The default mapping is 4 forces per TPDO, TPDO 7 = the last 3 forces + 0x2005, TPDO 8 the
+contact (net Fz, CoP x, y, state, taxels in contact), all event-driven (type 254):
+:meth:`ForceNode.frames` returns the frames of one sample, sent as soon as it is decoded.
+On a CAN FD bus :func:`map_fd` puts a whole sample in TPDO 1 (27 forces, 0x2005, 0x2006,
+and the contact's net Fz, CoP and state: 64 bytes, one frame, CiA 1301). The node answers
 SDO, sends its boot-up and heartbeat and obeys NMT like a patch node; it transmits only
 while OPERATIONAL (:attr:`transmitting`).
 """
@@ -32,9 +36,12 @@ import numpy as np
 from canopen.sdo.exceptions import SdoAbortedError
 from numpy.typing import ArrayLike, NDArray
 
-from canbus.device.local_device import TPDO_COUNT, LocalDevice
+from canbus import contact_record
+from canbus.device.local_device import LocalDevice
 from canbus.device.nmt_slave import OPERATIONAL, START
+from canbus.device.nv_store import NvStore
 from canbus.mappings import force_fd_entries
+from canbus.master.contact import PatchContact
 from canbus.od import load_od
 from canbus.pdo_codec import (
     COB_ID_INVALID,
@@ -45,9 +52,14 @@ from canbus.pdo_codec import (
     read_defaults,
     read_layouts,
 )
+from skin.contact_state import ContactBatch
 from skin.errors import BusError, ConfigError, SkinError
 
 FORCES, SOURCE, STATUS, VALID, ANSWERED, TARE = 0x2000, 0x2001, 0x2004, 0x2005, 0x2006, 0x2007
+CONTACT, CONTACT_PARAMS = contact_record.CONTACT, contact_record.CONTACT_PARAMS
+TPDO_COUNT = 8
+"""The force node's TPDOs: 1..7 the forces, 8 the contact."""
+CONTACT_TPDO = 8
 TARE_COMMAND = 1
 """Written to 0x2007 by any master: re-zero the source patch at its last sample."""
 DEVICE_STATE = 0x0800_0022
@@ -92,10 +104,11 @@ def valid_bits(valid: ArrayLike, complete: ArrayLike) -> NDArray[np.uint16]:
 def batch_frames(nodes: Sequence[ForceNode], force_N: NDArray[np.float64],
                  valid: NDArray[np.bool_], complete: NDArray[np.bool_],
                  reason: NDArray[np.uint8] | None = None,
-                 answered: ArrayLike = 0) -> list[list[Frame]]:
+                 answered: ArrayLike = 0, contact: ContactBatch | None = None,
+                 ) -> list[list[Frame]]:
     """:meth:`ForceNode.frames` of ``n`` nodes at once: ``(n, 9, 3)``, ``(n, 9)``, ``(n,)``;
     ``answered``: the counter byte of the SYNC each sample answers (0x2006), ``(n,)`` or
-    one for all.
+    one for all; ``contact``: the samples' contact summaries (0x2008; None: no summary).
 
     Nodes whose TPDOs are mapped alike are packed by one ``PdoCodec.pack`` call.
     """
@@ -104,16 +117,17 @@ def batch_frames(nodes: Sequence[ForceNode], force_N: NDArray[np.float64],
     bits = valid_bits(bus_valid, complete)
     status = (np.where(bus_valid, 0, UNSPECIFIED).astype(np.uint8) if reason is None
               else np.asarray(reason, dtype=np.uint8))
-    error_register = np.zeros((n, 1), dtype=np.int64)
-    counters = np.broadcast_to(np.asarray(answered, dtype=np.int64), (n,))
-    table = np.concatenate([mN.reshape(n, 27), status, bits[:, None], error_register,
-                            counters[:, None]], axis=1, dtype=np.int64)
     flat_mN, bits_list = mN.reshape(n, 27), bits.tolist()
+    counters = np.broadcast_to(np.asarray(answered, dtype=np.int64), (n,))
     groups: dict[_Layout, list[tuple[int, PdoCodec]]] = {}
     counter_list = counters.tolist()
     for i, node in enumerate(nodes):
-        codec = node._adopt(flat_mN[i], status[i], bits_list[i], counter_list[i])
+        codec = node._adopt(flat_mN[i], status[i], bits_list[i], counter_list[i], contact, i)
         groups.setdefault(_layout(codec), []).append((i, codec))
+    subs = sorted({s for key in groups for s in key.contact_subs})
+    table = np.concatenate([flat_mN, status, bits[:, None], np.zeros((n, 1), dtype=np.int64),
+                            counters[:, None], _contact_columns(contact, subs, nodes)],
+                           axis=1, dtype=np.int64)
     out: list[list[Frame]] = [[] for _ in range(n)]
     for key, members in groups.items():
         rows = table if len(members) == n else table[[i for i, _ in members]]
@@ -126,19 +140,38 @@ def batch_frames(nodes: Sequence[ForceNode], force_N: NDArray[np.float64],
     return out
 
 
+def _contact_columns(contact: ContactBatch | None, subs: list[int],
+                     nodes: Sequence[ForceNode]) -> NDArray[np.int64]:
+    """``(n, 15)``: 0x2008 sub 1..15, the mapped ones (``subs``) filled in; a node without
+    a contact judge holds no summary."""
+    n = len(nodes)
+    if contact is None or not subs:
+        out = np.zeros((n, contact_record.SUBS), dtype=np.int64)
+        if subs:
+            out[:, [s - 1 for s in subs]] = contact_record.no_summary(subs, n)
+        return out
+    out = contact_record.columns(contact, subs)
+    if not all(node.contact is not None for node in nodes):
+        none = [i for i, node in enumerate(nodes) if node.contact is None]
+        out[np.ix_(none, [s - 1 for s in subs])] = contact_record.no_summary(subs, len(none))
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class _Layout:
     """A mapping shape: nodes with the same one (identity) are packed together."""
 
     sizes: tuple[int, ...]
-    gather: NDArray[np.intp]  # row columns ``[forces (27), status (9), 0x2005, 0x1001, 0x2006]``
+    gather: NDArray[np.intp]  # row columns ``[forces (27), status (9), 0x2005, 0x1001, 0x2006,
+    # 0x2008 (15)]``
     width: int  # the codec's bytes per PDO
     spans: tuple[tuple[int, int], ...]  # each PDO's bytes in its node's packed width * P
+    contact_subs: tuple[int, ...]  # the 0x2008 sub-indices it maps
 
 
 _LAYOUTS: weakref.WeakKeyDictionary[PdoCodec, _Layout] = weakref.WeakKeyDictionary()
 _SHAPES: dict[tuple[tuple[MappedEntry, ...], ...], _Layout] = {}
-_FIRST_COLUMN = {FORCES: 0, STATUS: 27, VALID: 36, 0x1001: 37, ANSWERED: 38}
+_FIRST_COLUMN = {FORCES: 0, STATUS: 27, VALID: 36, 0x1001: 37, ANSWERED: 38, CONTACT: 39}
 
 
 def _layout(codec: PdoCodec) -> _Layout:
@@ -154,30 +187,34 @@ def _layout(codec: PdoCodec) -> _Layout:
                     raise ConfigError("pdo mapping", f"0x{obj:04X}:{sub:02X} is not published")
                 gather.append(_FIRST_COLUMN[obj] + max(sub - 1, 0))
             sizes, width = tuple(int(size) for size in codec.sizes), codec.width
+            contact_subs = tuple(sorted({sub for obj, sub in codec.variables if obj == CONTACT}))
             layout = _Layout(sizes, np.array(gather, dtype=np.intp), width,
-                             tuple((width * p, width * p + size) for p, size in enumerate(sizes)))
+                             tuple((width * p, width * p + size) for p, size in enumerate(sizes)),
+                             contact_subs)
             _SHAPES[entries] = layout
         _LAYOUTS[codec] = layout
     return layout
 
 
 FD_MAPPING = force_fd_entries()
-"""A whole sample in one CAN FD TPDO: 27 forces, 0x2005, 0x2006 (57 bytes)."""
+"""A whole sample in one CAN FD TPDO: 27 forces, 0x2005, 0x2006, and the contact's net Fz,
+CoP x, y and state (64 bytes; without a contact summary its state says ``unknown``)."""
 
 
 def map_fd(node: ForceNode) -> None:
-    """Map the node's TPDO 1 to :data:`FD_MAPPING` and invalidate TPDO 2..7, with CiA 301's
+    """Map the node's TPDO 1 to :data:`FD_MAPPING` and invalidate TPDO 2..8, with CiA 301's
     sequence (invalidate, sub-index 0 = 0, entries, count, validate), as a master would by
     SDO. The node must be on a CAN FD bus (its PDOs may hold 64 bytes)."""
+    mapping = FD_MAPPING
     with node.lock:
         store = node.store
         for n in range(TPDO_COUNT):
             cob = int(store.value(TPDO_COMM + n, 1))
             store.set_data(TPDO_COMM + n, 1, (cob | COB_ID_INVALID).to_bytes(4, "little"))
         store.set_data(TPDO_MAP, 0, b"\x00")
-        for s, entry in enumerate(FD_MAPPING, start=1):
+        for s, entry in enumerate(mapping, start=1):
             store.set_data(TPDO_MAP, s, entry.to_raw().to_bytes(4, "little"))
-        store.set_data(TPDO_MAP, 0, bytes([len(FD_MAPPING)]))
+        store.set_data(TPDO_MAP, 0, bytes([len(mapping)]))
         cob = int(store.value(TPDO_COMM, 1))
         store.set_data(TPDO_COMM, 1, (cob & ~COB_ID_INVALID).to_bytes(4, "little"))
 
@@ -196,9 +233,16 @@ def force_node_cob_ids(node_id: int) -> frozenset[int]:
 
 
 class ForceNode(LocalDevice):
-    """The force node of patch ``source_patch`` at node-ID ``node_id`` (1..127)."""
+    """The force node of patch ``source_patch`` at node-ID ``node_id`` (1..127).
 
-    def __init__(self, node_id: int, source_patch: int, *, heartbeat_ms: int = 1000) -> None:
+    ``contact``: the patch's contact judge (True: one with default geometry and
+    thresholds; None or False: no contact summary, TPDO 8 invalid from power-on)."""
+
+    NOT_STORED = frozenset({TARE})
+    _last_contact: tuple[ContactBatch, int] | None
+
+    def __init__(self, node_id: int, source_patch: int, *, heartbeat_ms: int = 1000,
+                 contact: PatchContact | bool | None = True, nv: NvStore | None = None) -> None:
         if not 1 <= source_patch <= 127:
             raise ConfigError("source_patch", f"must be a node-ID in 1..127, got {source_patch}")
         if not 0 <= heartbeat_ms <= 0xFFFF:
@@ -208,8 +252,13 @@ class ForceNode(LocalDevice):
         self.on_tare: Callable[[], None] | None = None
         """Called when a master writes 1 to 0x2007 (on the SDO server's thread); an
         exception refuses the write: :class:`SkinError` with abort 0x08000022."""
+        self.contact: PatchContact | None = (PatchContact() if contact is True else
+                                             contact if isinstance(contact, PatchContact)
+                                             else None)
         self._clear_application()
-        super().__init__(node_id, "skin-forces")
+        super().__init__(node_id, "skin-forces", TPDO_COUNT, serial=node_id, nv=nv)
+
+    def _on_store_built(self) -> None:
         self.store.validators.append(self._tare)
 
     @property
@@ -250,16 +299,24 @@ class ForceNode(LocalDevice):
         f = np.asarray(force_N, dtype=np.float64).reshape(1, 9, 3)
         v = np.asarray(valid, dtype=bool).reshape(1, 9)
         r = None if reason is None else np.asarray(reason, dtype=np.uint8).reshape(1, 9)
-        return batch_frames([self], f, v, np.array([complete]), r, answered)[0]
+        contact = None
+        if self.contact is not None:
+            from canbus.master.contact import summarize_batch
+
+            contact = summarize_batch([self.contact], f, v, decoded=False)
+        return batch_frames([self], f, v, np.array([complete]), r, answered, contact)[0]
 
     def _adopt(self, forces_mN: NDArray[np.int16], status: NDArray[np.uint8],
-               valid: int, answered: int) -> PdoCodec:
+               valid: int, answered: int, contact: ContactBatch | None = None,
+               row: int = 0) -> PdoCodec:
         """Take one sample's object values; the codec to pack them with."""
         with self.lock:
             self._forces_mN = forces_mN
             self._status = status
             self._valid = valid
             self._answered = answered
+            self._last_contact = None if contact is None or self.contact is None \
+                else (contact, row)
             return self.tpdo.codec
 
     def _read_live(self, index: int, subindex: int, **_: Any) -> int | None:
@@ -271,6 +328,11 @@ class ForceNode(LocalDevice):
             return self._valid
         if index == ANSWERED:
             return self._answered
+        if index == CONTACT and 1 <= subindex <= contact_record.SUBS:
+            if self._last_contact is None:
+                return int(contact_record.no_summary([subindex], 1)[0, 0])
+            batch, row = self._last_contact
+            return int(contact_record.encode(batch, [subindex])[row, 0])
         return None
 
     def _tare(self, index: int, subindex: int, value: Any) -> None:
@@ -298,10 +360,18 @@ class ForceNode(LocalDevice):
         self._status = np.zeros(9, dtype=np.uint8)
         self._valid = 0
         self._answered = 0
+        self._last_contact = None
 
     def _apply_defaults(self) -> None:
-        """Power-on values the EDS cannot know: serial, source patch, heartbeat period."""
-        self.store.store(0x1018, 4, self.node_id)
+        """Power-on values the EDS cannot know: source patch, heartbeat period, the contact
+        thresholds (without a contact summary: TPDO 8 invalid)."""
         self.store.store(SOURCE, 0, self.source_patch)
         self.store.store(0x1017, 0, self.heartbeat_ms)
+        if self.contact is None:
+            index = TPDO_COMM + CONTACT_TPDO - 1
+            self.store.store(index, 1, int(self.store.value(index, 1)) | COB_ID_INVALID)
+        else:
+            self.contact.reset()
+            for sub, value in enumerate(contact_record.param_values(self.contact.params), 1):
+                self.store.store(CONTACT_PARAMS, sub, value)
         self.tpdo.reset()

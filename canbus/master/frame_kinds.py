@@ -10,12 +10,7 @@ latter are ``unknown_frames``: a clean run counts none.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-from canbus.master.cobids import force_cob_ids, node_cob_ids
-
-if TYPE_CHECKING:
-    from canbus.master.hostconfig import HostConfig
+from canbus.master.cobids import HostNodes, force_cob_ids, node_cob_ids
 
 NMT, SYNC, TIME, LSS = 0x000, 0x080, 0x100, (0x7E4, 0x7E5)
 SERVICE_COB_IDS = frozenset((NMT, SYNC, TIME, *LSS,
@@ -25,7 +20,7 @@ SERVICE_COB_IDS = frozenset((NMT, SYNC, TIME, *LSS,
 """Every COB-ID of a CANopen service of some node: never unknown."""
 
 
-def bus_cob_ids(config: HostConfig, bus: str) -> frozenset[int]:
+def bus_cob_ids(config: HostNodes, bus: str) -> frozenset[int]:
     """The COB-IDs of ``bus``'s own traffic beside the patches' PDOs (module docstring)."""
     ids = set(SERVICE_COB_IDS)
     for patch in config.patches:

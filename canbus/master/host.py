@@ -48,17 +48,18 @@ from numpy.typing import NDArray
 from canbus.master.active import ActiveMaster
 from canbus.master.baseline import Baseline, PatchLoadedError
 from canbus.master.buslink import BusLink
+from canbus.master.contactconfig import patch_contact, take_pitch
 from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
 from canbus.master.decoders import DecoderCache
 from canbus.master.discovery import UnknownNode
+from canbus.master.events import EmcyEvent, EventCallback, EventHooks, StateEvent
 from canbus.master.fanout import FrameCallback, FrameFanout
 from canbus.master.follower import ListenOnly
 from canbus.master.forcenode import ForceNode
 from canbus.master.frame_kinds import bus_cob_ids
 from canbus.master.hostconfig import HostConfig, load_host_config
+from canbus.master.lss_assign import Assignment, assign_at_start, force_node_store
 from canbus.master.patch_setup import PatchSetup
-from canbus.master.patch_setup import configured_info as configured_info  # re-exported
-from canbus.master.patch_setup import warn_if_unlike_config as _warn_if_unlike_config  # noqa: F401
 from canbus.master.records import STATES, PatchHealth, PatchRecord
 from canbus.master.sync_producer import SyncFollower, SyncProducer
 from canbus.master.taxel_log import TaxelLog
@@ -93,7 +94,7 @@ class HostManager:
     decode what another master runs and send nothing. ``clock`` (default: real time,
     checked by each heartbeat consumer's thread) times the heartbeats and leaves the
     checks to the caller (``link.monitor.check()``): a recording's clock when one is
-    decoded offline (``canbus.master.offline``).
+    decoded offline (``canbus.offline.decode``).
     """
 
     def __init__(self, bus: Buses, config: HostConfig, *,
@@ -109,6 +110,7 @@ class HostManager:
         self.unknown_nodes: dict[int, UnknownNode] = {}
         self.decoders = DecoderCache()
         self.fanout = FrameFanout()
+        self.events = EventHooks()
         self.taxel_log = TaxelLog()
         self._lock = threading.RLock()
         self._changed = threading.Condition(self._lock)  # notified on every state change
@@ -126,12 +128,15 @@ class HostManager:
             node = canopen.RemoteNode(patch.node_id, load_od("skin-patch", patch.node_id))
             node.sdo.RESPONSE_TIMEOUT = config.sdo_timeout_ms / 1000.0
             force = ForceNode(patch.force_node, patch.node_id,
-                              heartbeat_ms=config.force_heartbeat_ms)
+                              heartbeat_ms=config.force_heartbeat_ms,
+                              contact=patch_contact(patch, config),
+                              nv=force_node_store(config.state_dir, patch.force_node))
             record = PatchRecord(patch, self.links[patch.bus], self.links[patch.force_bus],
                                  node, force)
             self.patches[patch.node_id] = record
             node.emcy.add_callback(self._emcy_handler(record))
         self.force_ids = {p.force_node: p.node_id for p in config.patches}
+        self.lss_assignments: list[Assignment] = []
         self.policy: ActiveMaster | ListenOnly = \
             ListenOnly(self) if self.listen_only else ActiveMaster(self)
 
@@ -177,6 +182,8 @@ class HostManager:
                 follower = (SyncFollower(dataplane.on_sync)
                             if dataplane is not None and self.config.sync_following else None)
                 link.listen(dataplane, follower)
+            if not self.listen_only:  # node-IDs by serial number (LSS) before the scan
+                self.lss_assignments = assign_at_start(self.config, self.patches)
             self.policy.start()
         except BaseException:
             self.stop()
@@ -259,10 +266,20 @@ class HostManager:
     def remove_callback(self, callback: FrameCallback) -> None:
         self.fanout.remove_callback(callback)
 
+    def on_event(self, callback: EventCallback) -> None:
+        """Call ``callback(event)`` for every patch state change
+        (:class:`~canbus.master.events.StateEvent`) and EMCY
+        (:class:`~canbus.master.events.EmcyEvent`), on the thread that saw it; keep it short.
+        """
+        self.events.add(callback)
+
+    def remove_event_callback(self, callback: EventCallback) -> None:
+        self.events.remove(callback)
+
     @property
     def callback_errors(self) -> int:
-        """Exceptions raised by force and ``on_unknown`` callbacks (logged)."""
-        return self.fanout.callback_errors
+        """Exceptions raised by force, event and ``on_unknown`` callbacks (logged)."""
+        return self.fanout.callback_errors + self.events.errors
 
     @property
     def api_dropped(self) -> int:
@@ -364,11 +381,15 @@ class HostManager:
 
     def set_state(self, patch: PatchRecord, state: str, error: str | None = None) -> None:
         with self._changed:
-            if patch.state != state:
+            previous = patch.state
+            if previous != state:
                 logger.info("patch %d: %s -> %s%s", patch.node_id, patch.state, state,
                             f" ({error})" if error else "")
             patch.state, patch.error = state, error
             self._changed.notify_all()
+        if previous != state:
+            self.events.emit(StateEvent(patch.node_id, patch.link.name, state, previous, error,
+                                        time.time()))
 
     def take_offline(self, patch: PatchRecord, state: str) -> None:
         """Stop decoding the patch: from now on its samples are all-invalid (``MISSING``),
@@ -403,6 +424,7 @@ class HostManager:
             decoder=decoder, force_node=patch.force_node, masked=patch.masked,
             baseline=baseline, answer_order=patch.config.answer_order)
         patch.setup, patch.channel = setup, channel
+        take_pitch(patch.force_node.contact, setup.info.constants)
         dataplane = patch.link.dataplane
         assert dataplane is not None, "the patch's bus is listening"
         dataplane.add_channel(channel)
@@ -491,11 +513,13 @@ class HostManager:
                     del consumer.log[:-EMCY_LOG_KEPT]
             taxel = entry.data[0] if entry.data else TAXELS_PER_PATCH
             _log_emcy(patch.node_id, entry)
-            if taxel >= TAXELS_PER_PATCH or entry.code not in (DEVICE_HARDWARE, ERROR_RESET):
-                return
-            which = np.zeros(TAXELS_PER_PATCH, dtype=bool)
-            which[taxel] = True
-            self.set_mask(patch, which, entry.code == DEVICE_HARDWARE)
+            if taxel < TAXELS_PER_PATCH and entry.code in (DEVICE_HARDWARE, ERROR_RESET):
+                which = np.zeros(TAXELS_PER_PATCH, dtype=bool)
+                which[taxel] = True
+                self.set_mask(patch, which, entry.code == DEVICE_HARDWARE)
+            # after the mask: the samples completed before the EMCY went out first
+            self.events.emit(EmcyEvent(patch.node_id, patch.link.name, entry.code,
+                                       entry.register, bytes(entry.data), time.time()))
         return on_emcy
 
 

@@ -14,27 +14,31 @@ from __future__ import annotations
 
 import math
 import os
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from canbus.master.busconfig import BusConfig, buses_from_dict
 from canbus.master.cobids import check_cob_ids, restricted
-from canbus.master.cobids import force_cob_ids as force_cob_ids  # re-exported
-from canbus.master.cobids import node_cob_ids as node_cob_ids  # re-exported
-from canbus.master.cobids import predefined_tpdo_cob_ids as predefined_tpdo_cob_ids
+from canbus.master.contactconfig import check_orientation, contact_from_table
 from decoder.protocol import Decoder
-from decoder.registry import decoder_class, load_decoder
-from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
-from skin.errors import ConfigError, ModelFileError, NotFittedError
+from decoder.registry import decoder_class, load_decoder, needs_fitting
+from skin.constants import TAXELS_PER_PATCH, SensorConstants
+from skin.contact import ContactParams
+from skin.errors import ConfigError, ModelFileError
+from skin.inputs import fields
+from skin.inputs.tomlfile import read_toml
+
+if TYPE_CHECKING:
+    from canbus.zenoh.config import ZenohSettings
 
 MODES = ("z", "xyz")
+POSITION_LIMIT_M = 1000.0
+R0_LIMIT_OHM = 1e9
 ANSWER_ORDERS = ("cob-id", "tpdo")
 TPDO_COUNT = 7
+FORCE_TPDO_COUNT = 8  # the force node's: TPDO 8 is the contact
 FORCE_NODE_OFFSET = 64
 
 
@@ -47,13 +51,16 @@ class PatchConfig:
     model: Path | None = None  # a model file (msgpack) of that decoder
     mode: str = "xyz"  # the TPDO mapping the host writes: "z" (9 values) or "xyz" (27)
     force_node: int = 0  # 0 in the constructor means node_id + 64
-    force_cob_ids: tuple[int, ...] | None = None  # the force node's 7 TPDO COB-IDs
+    force_cob_ids: tuple[int, ...] | None = None  # the force node's TPDO 1..7 (or 1..8) COB-IDs
     constants: SensorConstants | None = None  # what the patch reports (0x2001, 0x2003)
     r0_ohm: tuple[float, ...] | None = None  # its R0 (0x2002): 27 values, or 3 (z, x, y)
     answer_order: str = "cob-id"  # how the patch orders the TPDOs of one answer ("tpdo")
     position_m: tuple[float, float] | None = None  # where the patch sits on the skin (views)
+    orientation_deg: float = 0.0  # its frame turned about the skin's normal (contact.md)
+    contact: ContactParams | None = None  # its own contact thresholds (None: the host's)
     bus: str = ""  # the bus the patch is on ("": the host's first bus)
     force_bus: str = ""  # the bus its force node publishes on ("": the patch's)
+    serial: int | None = None  # LSS: the patch with this serial number gets node_id
     prototype: Decoder | None = field(default=None, compare=False, repr=False)
     """The model file's decoder, read once when the config was checked."""
 
@@ -90,8 +97,13 @@ class HostConfig:
     queue_size: int = 1024
     listen_only: bool = False  # follow another master's patches; transmit nothing
     sync: str = "produce"  # "external": follow the SYNC another master produces
+    lss: str = ""  # "auto": patches waiting for LSS get the next free node-IDs
+    lss_store: bool = False  # LSS store configuration after each assignment
+    state_dir: str = ""  # the force nodes' non-volatile stores ("": in memory)
     drift: DriftConfig | None = None
+    contact: ContactParams | None = field(default_factory=ContactParams)  # None: no summary
     buses: tuple[BusConfig, ...] = (BusConfig(),)
+    zenoh: ZenohSettings | None = None  # [zenoh]: publish on Zenoh (canbus.zenoh.config)
     source: str = field(default="<config>", compare=False)
     checked: bool = field(default=False, compare=False, repr=False)
 
@@ -129,25 +141,22 @@ class HostConfig:
 
 
 def load_host_config(path: str | os.PathLike[str]) -> HostConfig:
-    """Read and check a host config file; model paths are relative to the file's folder."""
+    """Read and check a host config file; model paths are relative to the file's folder.
+    Every error names the file and the dotted field."""
     where = os.fspath(path)
+    data = read_toml(path, "config")
     try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError as err:
-        raise ConfigError("config", f"no such file {where!r}") from err
-    except OSError as err:
-        raise ConfigError("config", f"cannot read {where!r}: {err.strerror}") from err
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError("config", f"{where}: not valid TOML: {err}") from err
-    return host_config_from_dict(data, base=Path(path).parent, source=where)
+        return host_config_from_dict(data, base=Path(path).parent, source=where)
+    except ConfigError as err:
+        raise err.in_file(where) from err
 
 
 def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
                           source: str = "<config>") -> HostConfig:
     """Validate a parsed TOML document into a :class:`HostConfig`."""
-    _known(data, ("host", "drift", "patches", "bus", "buses"), "config")
+    if not isinstance(data, Mapping):
+        raise ConfigError("config", f"must be a table, got {fields.shown(data)}")
+    _known(data, ("host", "drift", "contact", "patches", "bus", "buses", "zenoh"), "config")
     host = data.get("host", {})
     if not isinstance(host, dict):
         raise ConfigError("host", "must be a table ([host])")
@@ -156,21 +165,39 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
     for key, value in host.items():
         kind = _HOST_FIELDS[key]
         if key == "other_nodes":
+            fields.array(value, "host.other_nodes", 127)
             kwargs[key] = tuple(_int_list(value, "host.other_nodes"))
+        elif key in HOST_RANGES:
+            low, high = HOST_RANGES[key]
+            kwargs[key] = fields.integer(value, f"host.{key}", int(low), int(high)) \
+                if kind is int else fields.number(value, f"host.{key}", high=high, above=low)
         else:
             kwargs[key] = _typed(value, kind, f"host.{key}")
+    if kwargs.get("state_dir"):  # relative to the config file, as model paths are
+        kwargs["state_dir"] = str(base / kwargs["state_dir"])
     drift = data.get("drift")
     if drift is not None:
         if not isinstance(drift, dict):
             raise ConfigError("drift", "must be a table ([drift])")
         _known(drift, ("time_constant_s", "contact_N"), "drift")
-        kwargs["drift"] = DriftConfig(**{k: _typed(v, float, f"drift.{k}")
+        kwargs["drift"] = DriftConfig(**{k: fields.number(v, f"drift.{k}", high=DRIFT_RANGES[k],
+                                                          above=0.0)
                                          for k, v in drift.items()})
+    contact = contact_from_table(data.get("contact", {}), "contact", ContactParams())
+    kwargs["contact"] = contact
     tables = data.get("patches")
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
         raise ConfigError("patches", "missing: list the patches as [[patches]] tables")
+    if len(tables) > 127:
+        raise ConfigError("patches", f"{len(tables)} patches; a bus has node-IDs 1..127")
     buses = buses_from_dict(data)
-    patches = tuple(_patch(t, f"patches[{i}]", base, buses) for i, t in enumerate(tables))
+    patches = tuple(_patch(t, f"patches[{i}]", base, buses, contact)
+                    for i, t in enumerate(tables))
+    if "zenoh" in data:
+        from canbus.zenoh.config import zenoh_settings_from_table
+
+        kwargs["zenoh"] = zenoh_settings_from_table(data["zenoh"], base=base,
+                                                    buses=tuple(b.name for b in buses))
     return _checked(HostConfig(patches=patches, source=source, buses=buses, **kwargs))
 
 
@@ -184,18 +211,28 @@ _HOST_FIELDS: dict[str, type] = {
     "sync_period_ms": float, "sync_window_ms": float, "sync_counter": bool,
     "heartbeat_ms": int, "force_heartbeat_ms": int, "sdo_timeout_ms": int, "scan": bool,
     "scan_ms": int, "other_nodes": list, "tare_threshold_N": float, "queue_size": int,
-    "listen_only": bool, "sync": str,
+    "listen_only": bool, "sync": str, "lss": str, "lss_store": bool, "state_dir": str,
 }
+LSS_MODES = ("", "auto")
+HOST_RANGES: dict[str, tuple[float, float]] = {
+    "sync_period_ms": (0.0, 60_000.0), "sync_window_ms": (0.0, 60_000.0),
+    "heartbeat_ms": (1, 0xFFFF), "force_heartbeat_ms": (0, 0xFFFF),
+    "sdo_timeout_ms": (1, 600_000), "scan_ms": (0, 600_000), "tare_threshold_N": (0.0, 1e4),
+    "queue_size": (1, 1_000_000),
+}
+"""The number fields of [host]: integers in low..high, floats above low and up to high."""
+DRIFT_RANGES = {"time_constant_s": 1e6, "contact_N": 1e4}
 SYNC_MODES = ("produce", "external")
 _PATCH_FIELDS = ("node_id", "decoder", "model", "mode", "force_node", "force_cob_ids",
-                 "constants", "r0_ohm", "answer_order", "position_m", "bus", "force_bus")
+                 "constants", "r0_ohm", "answer_order", "position_m", "bus", "force_bus",
+                 "serial", "orientation_deg", "contact")
 # What a patch reports about itself: 0x2001 (LSB) and 0x2003 (adc_bits is not reported).
 CONSTANT_KEYS = ("resistance_lsb_ohm", "youngs_modulus_pa", "resistivity_ohm_m", "length_m",
                  "area_m2", "max_strain", "full_scale_force_N", "taxel_pitch_m")
 
 
 def _patch(table: dict[str, Any], where: str, base: Path,
-           buses: tuple[BusConfig, ...]) -> PatchConfig:
+           buses: tuple[BusConfig, ...], contact: ContactParams | None) -> PatchConfig:
     _known(table, _PATCH_FIELDS, where)
     if "node_id" not in table:
         raise ConfigError(f"{where}.node_id", "missing")
@@ -205,26 +242,35 @@ def _patch(table: dict[str, Any], where: str, base: Path,
             kwargs[key] = _typed(table[key], str, f"{where}.{key}")
     if "force_node" in table:
         kwargs["force_node"] = _typed(table["force_node"], int, f"{where}.force_node")
+    if "serial" in table:
+        kwargs["serial"] = _typed(table["serial"], int, f"{where}.serial")
     if "force_cob_ids" in table:
+        fields.array(table["force_cob_ids"], f"{where}.force_cob_ids", FORCE_TPDO_COUNT)
         kwargs["force_cob_ids"] = tuple(_int_list(table["force_cob_ids"],
                                                   f"{where}.force_cob_ids"))
     if "model" in table:
-        model = Path(_typed(table["model"], str, f"{where}.model"))
+        model = Path(fields.path(table["model"], f"{where}.model"))
         kwargs["model"] = model if model.is_absolute() else base / model
     if "constants" in table:
         kwargs["constants"] = _constants(table["constants"], f"{where}.constants")
     if "position_m" in table:
         values = table["position_m"]
         if not isinstance(values, list) or len(values) != 2:
-            raise ConfigError(f"{where}.position_m", f"must be [x, y] in metres, got {values!r}")
-        kwargs["position_m"] = tuple(_typed(v, float, f"{where}.position_m[{k}]")
+            raise ConfigError(f"{where}.position_m", f"must be [x, y] in metres, got "
+                              f"{fields.shown(values)}")
+        kwargs["position_m"] = tuple(fields.number(v, f"{where}.position_m[{k}]",
+                                                   -POSITION_LIMIT_M, POSITION_LIMIT_M)
                                      for k, v in enumerate(values))
+    if "orientation_deg" in table:
+        kwargs["orientation_deg"] = check_orientation(
+            _typed(table["orientation_deg"], float, f"{where}.orientation_deg"),
+            f"{where}.orientation_deg")
+    if "contact" in table:
+        kwargs["contact"] = contact_from_table(table["contact"], f"{where}.contact", contact)
     if "r0_ohm" in table:
-        values = table["r0_ohm"]
-        if not isinstance(values, list):
-            raise ConfigError(f"{where}.r0_ohm", f"must be a list of numbers, got "
-                              f"{type(values).__name__}")
-        kwargs["r0_ohm"] = tuple(_typed(v, float, f"{where}.r0_ohm[{k}]")
+        values = fields.array(table["r0_ohm"], f"{where}.r0_ohm", 3 * TAXELS_PER_PATCH)
+        kwargs["r0_ohm"] = tuple(fields.number(v, f"{where}.r0_ohm[{k}]", high=R0_LIMIT_OHM,
+                                               above=0.0)
                                  for k, v in enumerate(values))
     patch = PatchConfig(**kwargs)
     return _check_patch(patch, where, buses)
@@ -235,10 +281,7 @@ def _constants(table: Any, where: str) -> SensorConstants:
         raise ConfigError(where, "must be a table of sensor constants")
     _known(table, CONSTANT_KEYS, where)
     values = {key: _typed(value, float, f"{where}.{key}") for key, value in table.items()}
-    try:
-        return SensorConstants(**values)
-    except ConfigError as err:
-        raise ConfigError(f"{where}.{err.field}", err.problem) from err
+    return SensorConstants.from_dict(values, where)
 
 
 def _check_patch(patch: PatchConfig, where: str, buses: tuple[BusConfig, ...]) -> PatchConfig:
@@ -249,10 +292,14 @@ def _check_patch(patch: PatchConfig, where: str, buses: tuple[BusConfig, ...]) -
     if patch.answer_order not in ANSWER_ORDERS:
         raise ConfigError(f"{where}.answer_order", f"must be one of {', '.join(ANSWER_ORDERS)}, "
                           f"got {patch.answer_order!r}")
+    if patch.serial is not None and not 0 <= patch.serial <= 0xFFFF_FFFF:
+        raise ConfigError(f"{where}.serial", f"must be a serial number in 0..0xFFFFFFFF, got "
+                          f"{patch.serial!r}")
     if patch.force_cob_ids is not None:
-        if len(patch.force_cob_ids) != TPDO_COUNT:
+        if len(patch.force_cob_ids) not in (TPDO_COUNT, FORCE_TPDO_COUNT):
             raise ConfigError(f"{where}.force_cob_ids", f"must list {TPDO_COUNT} COB-IDs "
-                              f"(TPDO 1..{TPDO_COUNT}), got {len(patch.force_cob_ids)}")
+                              f"(TPDO 1..{TPDO_COUNT}; TPDO 8, the contact, then keeps its "
+                              f"own) or {FORCE_TPDO_COUNT}, got {len(patch.force_cob_ids)}")
         for k, cob_id in enumerate(patch.force_cob_ids):
             if not 0 < cob_id <= 0x7FF or restricted(cob_id):
                 raise ConfigError(f"{where}.force_cob_ids[{k}]",
@@ -290,7 +337,9 @@ def _check_decoder(patch: PatchConfig, where: str) -> PatchConfig:
             cls = decoder_class(name)
         except ConfigError as err:
             raise ConfigError(f"{where}.decoder", err.problem) from err
-        _check_unfitted(cls, patch.pillars, where)
+        if needs_fitting(cls):
+            raise ConfigError(f"{where}.model", f"decoder {cls.name!r} must be fitted: give the "
+                              "model file it was trained into")
         return replace(patch, decoder=name)
     if patch.prototype is not None:
         model = patch.prototype
@@ -311,16 +360,6 @@ def _check_decoder(patch: PatchConfig, where: str) -> PatchConfig:
     return replace(patch, decoder=model.name, prototype=model)
 
 
-def _check_unfitted(cls: type[Decoder], pillars: int, where: str) -> None:
-    """A decoder used without a model file must decode as built (e.g. ``analytic``)."""
-    rest = np.broadcast_to(DEFAULT_CONSTANTS.nominal_resistance_ohm[:pillars], (1, 9, pillars))
-    try:
-        cls().decode(rest)
-    except NotFittedError as err:
-        raise ConfigError(f"{where}.model", f"decoder {cls.name!r} must be fitted: give the "
-                          "model file it was trained into") from err
-
-
 def _check_host(config: HostConfig) -> None:
     if not config.patches:
         raise ConfigError("patches", "the host needs at least one [[patches]]")
@@ -331,6 +370,13 @@ def _check_host(config: HostConfig) -> None:
     if config.sync not in SYNC_MODES:
         raise ConfigError("host.sync", f"must be one of {', '.join(SYNC_MODES)}, got "
                           f"{config.sync!r}")
+    if config.lss not in LSS_MODES:
+        raise ConfigError("host.lss", f"must be \"auto\" or absent, got {config.lss!r}")
+    serials: dict[int, int] = {}
+    for i, patch in enumerate(config.patches):
+        if patch.serial is not None and serials.setdefault(patch.serial, i) != i:
+            raise ConfigError(f"patches[{i}].serial", f"0x{patch.serial:08X} is also "
+                              f"patches[{serials[patch.serial]}].serial")
     if config.sync_window_ms > config.sync_period_ms:
         raise ConfigError("host.sync_window_ms", f"{config.sync_window_ms:g} is longer than "
                           f"the SYNC period {config.sync_period_ms:g}")
@@ -362,15 +408,13 @@ def _known(table: Mapping[str, Any], known: Mapping[str, Any] | tuple[str, ...],
 
 
 def _typed(value: Any, kind: type, where: str) -> Any:
-    if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
-        if not math.isfinite(value):
-            raise ConfigError(where, f"must be a finite number, got {value!r}")
-        return float(value)
-    if kind is bool and isinstance(value, bool):
-        return value
-    if kind in (int, str) and isinstance(value, kind) and not isinstance(value, bool):
-        return value
-    raise ConfigError(where, f"must be {kind.__name__}, got {type(value).__name__} {value!r}")
+    if kind is float:
+        return fields.number(value, where)
+    if kind is bool:
+        return fields.boolean(value, where)
+    if kind is int:
+        return fields.integer(value, where)
+    return fields.text(value, where)
 
 
 def _int_list(value: Any, where: str) -> list[int]:

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import canopen
 
+from canbus.worker import Worker
+
 logger = logging.getLogger(__name__)
 
 BOOTUP = 0x00
@@ -58,8 +60,7 @@ class HeartbeatMonitor:
         self.self_checking = self_checking  # False: the owner calls check() on its clock
         self._watches: dict[int, _Watch] = {}
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._checker = Worker(self._run, "heartbeat-monitor")
 
     def watch(self, node_id: int, *, judged: bool = True) -> None:
         """Consume ``node_id``'s heartbeats; ``judged=False``: do not call it lost until
@@ -147,18 +148,12 @@ class HeartbeatMonitor:
         return lost
 
     def start(self) -> None:
-        self._stop.clear()
-        if not self.self_checking:
-            return
-        self._thread = threading.Thread(target=self._run, name="heartbeat-monitor", daemon=True)
-        self._thread.start()
+        if self.self_checking:
+            self._checker.start()
 
     def stop(self) -> None:
         """Stop checking and consuming; what was heard stays readable."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
+        self._checker.stop()
         with self._lock:
             nodes = list(self._watches)
         for node_id in nodes:
@@ -166,7 +161,7 @@ class HeartbeatMonitor:
 
     def _run(self) -> None:
         interval = self.period_s / CHECKS_PER_PERIOD
-        while not self._stop.wait(interval):
+        while not self._checker.stopping.wait(interval):
             try:
                 self.check()
             except Exception:  # a failing callback must not end the monitor

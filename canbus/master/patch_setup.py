@@ -9,8 +9,9 @@ data plane decodes exactly the layout the patch was told to send.
 
 A listen-only host (another master configures the patches) builds the same
 :class:`PatchSetup` without SDO: :func:`patch_info` is what :func:`read_patch_info` would
-read from a patch with given constants (every value through REAL32, as the patch stores
-it), and :func:`plan_setup` is the mapping :func:`setup_patch` writes for a mode.
+read from a patch with given constants (every value through the scaled UNSIGNED32 the
+patch stores, ``canbus.patch_constants``), and :func:`plan_setup` is the mapping
+:func:`setup_patch` writes for a mode.
 """
 
 from __future__ import annotations
@@ -25,7 +26,15 @@ from canopen.sdo.client import SdoClient
 from numpy.typing import ArrayLike, NDArray
 
 from canbus.mappings import patch_fd_entries
-from canbus.master.hostconfig import TPDO_COUNT, PatchConfig, predefined_tpdo_cob_ids
+from canbus.master.cobids import predefined_tpdo_cob_ids
+from canbus.master.hostconfig import TPDO_COUNT, PatchConfig
+from canbus.patch_constants import (
+    CONSTANT_SCALES,
+    LSB_SCALE,
+    R0_SCALE,
+    constant_counts,
+    reported_constants,
+)
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM, TPDO_MAP, MappedEntry, PdoCodec, TpdoLayout
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
 
@@ -35,11 +44,7 @@ RESISTANCES, LSB, NOMINAL, CONSTANTS, ANSWERED = 0x2000, 0x2001, 0x2002, 0x2003,
 HEARTBEAT_TIME = 0x1017
 SYNCHRONOUS = 1  # transmission type: every SYNC
 ENTRIES_PER_TPDO = 4  # 4 x UNSIGNED16 = 8 bytes
-CONSTANT_FIELDS = ("youngs_modulus_pa", "resistivity_ohm_m", "length_m", "area_m2",
-                   "max_strain", "full_scale_force_N", "taxel_pitch_m")
-"""0x2003 sub-indexes 1..7, in order (eds/skin-patch.eds)."""
-_U8, _U16, _U32, _F32 = struct.Struct("<B"), struct.Struct("<H"), struct.Struct("<I"), \
-    struct.Struct("<f")
+_U8, _U16, _U32 = struct.Struct("<B"), struct.Struct("<H"), struct.Struct("<I")
 
 
 @dataclass(frozen=True)
@@ -66,20 +71,16 @@ class PatchSetup:
         return 1 if self.mode == "z" else 3
 
 
-def _real32(value: float) -> float:
-    """The shortest decimal of a REAL32: 0.4f reads back as 0.4, not 0.4000000059604645."""
-    return float(str(np.float32(value)))
-
-
 def read_patch_info(sdo: SdoClient, node_id: int) -> PatchInfo:
     """Upload 0x2001, 0x2002 (27 values) and 0x2003 (E, rho, L, S, max strain, full-scale
-    force, taxel pitch: eds/skin-patch.eds)."""
+    force, taxel pitch), each an UNSIGNED32 count of the unit its name gives
+    (``canbus.patch_constants``)."""
 
-    def real(index: int, subindex: int) -> float:
-        return float(_F32.unpack(sdo.upload(index, subindex)[:4])[0])
+    def count(index: int, subindex: int) -> int:
+        return int(_U32.unpack(sdo.upload(index, subindex)[:4].ljust(4, b"\0"))[0])
 
-    return _reported(node_id, real(LSB, 0), [real(NOMINAL, k) for k in range(1, 28)],
-                     [real(CONSTANTS, s) for s in range(1, len(CONSTANT_FIELDS) + 1)])
+    return _reported(node_id, count(LSB, 0), [count(NOMINAL, k) for k in range(1, 28)],
+                     [count(CONSTANTS, s) for s in range(1, len(CONSTANT_SCALES) + 1)])
 
 
 def patch_info(node_id: int, constants: SensorConstants = DEFAULT_CONSTANTS,
@@ -89,20 +90,17 @@ def patch_info(node_id: int, constants: SensorConstants = DEFAULT_CONSTANTS,
     R0 of ``constants``, as a patch reports at power-on), without asking it."""
     r0 = constants.nominal_resistance_ohm if r0_ohm is None else r0_ohm
     table = np.broadcast_to(np.asarray(r0, dtype=np.float64), (TAXELS_PER_PATCH, 3))
-    return _reported(node_id, constants.resistance_lsb_ohm, table.reshape(-1).tolist(),
-                     [float(getattr(constants, name)) for name in CONSTANT_FIELDS])
+    return _reported(node_id, LSB_SCALE.to_count(constants.resistance_lsb_ohm),
+                     [R0_SCALE.to_count(v) for v in table.reshape(-1).tolist()],
+                     constant_counts(constants))
 
 
-def _reported(node_id: int, lsb: float, r0: list[float], fields: list[float]) -> PatchInfo:
-    """A patch's info from its values as REAL32 (0x2001, 0x2002 sub 1..27, 0x2003 sub 1..7),
-    each read back as its shortest decimal."""
-    lsb = _real32(lsb)
-    table = np.array([_real32(v) for v in r0], dtype=np.float64).reshape(TAXELS_PER_PATCH, 3)
-    e, rho, length, area, strain, full_scale, pitch = (_real32(v) for v in fields)
-    constants = SensorConstants(youngs_modulus_pa=e, resistivity_ohm_m=rho, length_m=length,
-                                area_m2=area, max_strain=strain, resistance_lsb_ohm=lsb,
-                                full_scale_force_N=full_scale, taxel_pitch_m=pitch)
-    return PatchInfo(node_id, lsb, table, constants)
+def _reported(node_id: int, lsb: int, r0: list[int], fields: list[int]) -> PatchInfo:
+    """A patch's info from its counts (0x2001, 0x2002 sub 1..27, 0x2003 sub 1..7)."""
+    table = np.array([R0_SCALE.to_si(v) for v in r0], dtype=np.float64)
+    constants = reported_constants(lsb, fields)
+    return PatchInfo(node_id, constants.resistance_lsb_ohm,
+                     table.reshape(TAXELS_PER_PATCH, 3), constants)
 
 
 def tpdo_layouts(node_id: int, mode: str, *, fd: bool = False) -> tuple[TpdoLayout, ...]:

@@ -19,6 +19,7 @@ from canbus.master.channel import (
     SampleJob,
     Subscriber,
 )
+from canbus.master.contact import contact_rows, summarize_nodes
 from canbus.master.forcenode import ForceNode, batch_frames
 from canbus.txmessage import TxMessage
 from decoder.protocol import Decoder
@@ -127,17 +128,19 @@ class Publisher:
             return
         complete = [job.complete for job in jobs]
         nodes = [job.slot.channel.force_node for job in jobs]
+        contact = summarize_nodes(nodes, force, valid)
         frames = batch_frames(nodes, force, valid, np.array(complete), reason,
-                              [job.cycle[1] for job in jobs])
+                              [job.cycle[1] for job in jobs], contact)
         # Every frame onto the bus first: the frames for the API come after.
         published = [node.transmitting and self._transmit(f, bus_of(node, self.bus))
                      for node, f in zip(nodes, frames, strict=True)]
         out = []
+        summaries = contact_rows(contact, nodes)
         for i, job in enumerate(jobs):
             cycle, counter, timestamp = job.cycle
             out.append(ForceFrame(job.slot.channel.node_id, nodes[i].node_id, cycle, counter,
                                   timestamp, force[i], valid[i], reason[i], job.complete,
-                                  published[i]))
+                                  published[i], summaries[i]))
         self._follow_baselines(out)
         stats = self.stats
         stats.samples += len(out)

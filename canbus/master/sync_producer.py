@@ -16,13 +16,13 @@ cycle for every SYNC another master sends, with the frame's timestamp and counte
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections.abc import Callable
 
 import can
 
 from canbus.txmessage import TxMessage
+from canbus.worker import Worker
 
 logger = logging.getLogger(__name__)
 
@@ -51,19 +51,13 @@ class SyncProducer:
         self.cycle = 0
         self.overruns = 0
         self.send_errors = 0
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._worker = Worker(self._run, "sync-producer")
 
     def start(self) -> None:
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="sync-producer", daemon=True)
-        self._thread.start()
+        self._worker.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
+        self._worker.stop()
 
     def send_one(self) -> None:
         """Open the next cycle and send its SYNC."""
@@ -89,7 +83,7 @@ class SyncProducer:
             if deadline - now < 0.5 * self.period_s:  # late: no cycle shorter than half a period
                 self.overruns += 1
                 deadline = now + self.period_s
-            if self._stop.wait(max(0.0, deadline - now)):
+            if self._worker.stopping.wait(max(0.0, deadline - now)):
                 return
 
 

@@ -11,7 +11,16 @@ canopen uses; it must also load with ``canopen.import_od``. Rules:
 3. every DataType is a CiA 301 basic type and every AccessType is one of
    ro, wo, rw, rwr, rww, const;
 4. every PDO mapping entry names an existing, PDO-mappable object of the mapped size;
-5. the entries a PDO maps add up to at most 64 bits.
+5. the entries a PDO maps add up to at most 64 bits;
+6. what lely's ``dcfchk`` checks (``canbus.tools.edslint``): CiA 306 keys and sections,
+   object lists by range, values that parse as integers of their type and inside the
+   limits, and no REAL default that lely and python-canopen read as different numbers.
+
+Before these rules, the file is read and its values checked as
+:mod:`canbus.edsfile` does for every EDS canskin loads (parse errors, non-numeric or
+out-of-range values, LowLimit above HighLimit, bad ``$NODEID`` expressions, counts):
+when a value is unreadable, only those problems are reported (the rules above would
+only repeat them), and counts are checked before anything loops over them.
 """
 
 from __future__ import annotations
@@ -22,6 +31,11 @@ import re
 
 import canopen
 
+from canbus.busopen import reason
+from canbus.edsfile import read_eds, reference_problems, value_problems
+from canbus.tools.edslint import lint
+from skin.errors import ConfigError
+
 LISTS = ("MandatoryObjects", "OptionalObjects", "ManufacturerObjects")
 MANDATORY = (0x1000, 0x1001, 0x1018)
 ACCESS_TYPES = ("ro", "wo", "rw", "rwr", "rww", "const")
@@ -31,27 +45,28 @@ TYPE_BITS = {0x01: 1, 0x02: 8, 0x03: 16, 0x04: 32, 0x05: 8, 0x06: 16, 0x07: 32, 
              0x1A: 56, 0x1B: 64}
 _OBJECT = re.compile(r"^([0-9A-Fa-f]{4})$")
 _SUB = re.compile(r"^([0-9A-Fa-f]{4})sub([0-9A-Fa-f]{1,2})$")
-
-
-def _read(path: str | os.PathLike[str]) -> configparser.RawConfigParser:
-    eds = configparser.RawConfigParser(inline_comment_prefixes=(";",), strict=False)
-    eds.optionxform = str  # type: ignore[assignment,method-assign]
-    with open(path, encoding="utf-8", errors="replace") as handle:
-        eds.read_file(handle)
-    return eds
+MAX_MAPPED = 0x40
+"""A PDO maps at most 64 entries (CiA 301: sub-index 0 of a mapping object, 0..0x40)."""
 
 
 def _int(text: str) -> int:
-    return int(text.replace("$NODEID", "0").replace("+", " + ").split("+")[-1].strip(), 0)
+    """The number of a value (its ``$NODEID`` term as 0); -1 when it has none."""
+    compact = text.replace(" ", "").upper().replace("$NODEID", "0")
+    try:
+        return sum(int(term, 0) for term in compact.split("+"))
+    except ValueError:
+        return -1
 
 
 def check(path: str | os.PathLike[str]) -> list[str]:
     """One line per problem found in the EDS at ``path``; empty when it is valid."""
     try:
-        eds = _read(path)
-    except (OSError, configparser.Error) as err:
-        return [f"cannot read: {err}"]
-    problems: list[str] = []
+        eds = read_eds(path)
+    except ConfigError as err:
+        return [err.problem]
+    problems = value_problems(eds)
+    if problems:
+        return problems
     objects = {int(m.group(1), 16): s for s in eds.sections() if (m := _OBJECT.match(s))}
     subs: dict[int, dict[int, str]] = {}
     for section in eds.sections():
@@ -63,11 +78,15 @@ def check(path: str | os.PathLike[str]) -> list[str]:
         problems += _check_object(eds, index, section, subs.get(index, {}))
     for index in sorted(i for i in objects if 0x1600 <= i <= 0x17FF or 0x1A00 <= i <= 0x1BFF):
         problems += _check_mapping(eds, index, subs.get(index, {}))
+    mentioned = {p.split("]")[0] for p in problems if p.startswith("[")}
+    problems += [p for p in reference_problems(eds) if p.split("]")[0] not in mentioned]
+    mentioned = {p.split("]")[0] for p in problems if p.startswith("[")}
+    problems += [p for p in lint(eds) if p.split("]")[0] not in mentioned]
     if not problems:
         try:
             canopen.import_od(os.fspath(path), 1)
-        except Exception as err:
-            problems.append(f"canopen cannot load it: {err}")
+        except Exception as err:  # canopen's parser raises whatever it meets
+            problems.append(f"canopen cannot load it: {reason(err)}")
     return problems
 
 
@@ -127,6 +146,8 @@ def _check_mapping(eds: configparser.RawConfigParser, index: int,
     if 0 not in subs:
         return [f"[{index:04X}] has no sub-index 0 (number of mapped objects)"]
     count = _int(eds.get(subs[0], "DefaultValue", fallback="0"))
+    if not 0 <= count <= MAX_MAPPED:
+        return [f"[{subs[0]}] maps {count} objects; a PDO maps 0..{MAX_MAPPED}"]
     problems, total = [], 0
     for s in range(1, count + 1):
         if s not in subs:

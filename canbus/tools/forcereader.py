@@ -34,6 +34,10 @@ UNSPECIFIED). A CAN FD force node that sends the whole
 sample in one frame (27 INTEGER16 + 0x2005 + a SYNC counter byte 0x2006, 57 bytes, at
 TPDO 1's COB-ID) needs no change here but its mapping: the one PDO completes the sample,
 and a mapped 0x2006 becomes :attr:`ForceSample.sync_counter`.
+
+The contact summary (0x2008, :mod:`canbus.contact_record`), TPDO 8 by default, becomes
+:attr:`ForceSample.contact`: whatever sub-indices the mapping carries, in SI units (None
+where none is mapped, or where its PDO did not come).
 """
 
 from __future__ import annotations
@@ -44,6 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from canbus import contact_record
+from canbus.contact_record import BusContact
 from canbus.tools.attribution import KnownNode
 from canbus.tools.pdo_assembly import PdoAssembly, RawSample
 from canbus.tools.pdo_names import EdsChoice
@@ -74,6 +80,7 @@ class ForceSample:
     complete: bool  # every PDO came, and the host's sample was complete (0x2005 bit 15)
     pdos_missing: int  # force PDOs of this sample that did not come
     sync_counter: int | None = None  # 0x2006 where mapped (CAN FD)
+    contact: BusContact | None = None  # 0x2008 where mapped (TPDO 8 by default) and it came
 
 
 @dataclass(frozen=True)
@@ -107,6 +114,7 @@ class _Columns:
         force_cols, force_at, status_cols, status_at = [], [], [], []
         self.valid: int | None = None
         self.counter: int | None = None
+        self.contact: list[tuple[int, int]] = []  # (column, 0x2008 sub-index)
         for k, v in enumerate(assembly.variables):
             if v.index == FORCES and 1 <= v.subindex <= 27:
                 force_cols.append(k)
@@ -118,6 +126,8 @@ class _Columns:
                 self.valid = k
             elif v.index == SYNC_COUNTER and v.subindex == 0:
                 self.counter = k
+            elif v.index == contact_record.CONTACT and 1 <= v.subindex <= contact_record.SUBS:
+                self.contact.append((k, v.subindex))
         self.assembly = assembly
         self.force_cols = np.array(force_cols, dtype=np.intp)
         self.force_at = np.array(force_at, dtype=np.intp)
@@ -160,9 +170,25 @@ class _Columns:
                         zip(values[:, self.counter].tolist(),
                             arrived[:, self.counter].tolist(), strict=True)]
         complete = (host_complete & np.array([r.complete for r in raws], dtype=bool)).tolist()
+        contacts = self._contacts(values, arrived)
         return [ForceSample(patch, raw.node_id, raw.timestamp, force[i], valid[i], reason[i],
-                            complete[i], self.pdos - bin(raw.arrived).count("1"), counters[i])
+                            complete[i], self.pdos - bin(raw.arrived).count("1"), counters[i],
+                            contacts[i])
                 for i, raw in enumerate(raws)]
+
+    def _contacts(self, values: NDArray[np.float64], arrived: NDArray[np.bool_]
+                  ) -> list[BusContact | None]:
+        """Each sample's contact, from the 0x2008 sub-indices that came."""
+        if not self.contact:
+            return [None] * len(values)
+        columns = [k for k, _ in self.contact]
+        subs = [sub for _, sub in self.contact]
+        out: list[BusContact | None] = []
+        for row, came in zip(values[:, columns].astype(np.int64).tolist(),
+                             arrived[:, columns].tolist(), strict=True):
+            got = {sub: value for sub, value, ok in zip(subs, row, came, strict=True) if ok}
+            out.append(contact_record.decode(got) if got else None)
+        return out
 
 
 class ForceReader(PdoSampleReader):

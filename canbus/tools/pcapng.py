@@ -35,6 +35,10 @@ class _Interface:
     seconds_per_tick: float
 
 
+MAX_BLOCK_BYTES = 1 << 20
+"""A block is read whole: bounded, so a corrupt length cannot ask for gigabytes."""
+
+
 class PcapngReader(BinaryIOMessageReader):
     """Iterates the CAN messages of a pcapng file, checking every block."""
 
@@ -64,6 +68,9 @@ class PcapngReader(BinaryIOMessageReader):
             kind, length = struct.unpack(f"{order}II", head)
             if length < 12 or length % 4:
                 raise self._fail(packet + 1, f"block of {length} bytes is not a pcapng block")
+            if length > MAX_BLOCK_BYTES:
+                raise self._fail(packet + 1, f"block of {length} bytes, more than the "
+                                 f"{MAX_BLOCK_BYTES} a CAN capture's block may have")
             body = self.file.read(length - 8)
             if len(body) < length - 8:
                 raise self._fail(packet + 1, f"block cut short ({len(body) + 8} of {length} "

@@ -9,7 +9,8 @@ Units: an EDS ``Factor``/``Unit`` (canopen reads both) applies to any node. The 
 products add theirs: a patch's resistance codes (0x2000) are ohms by its LSB (0x2001)
 with the reserved codes named (short, saturated, open); a force node's forces (0x2000,
 INTEGER16 mN) are newtons with 0x8000 as "no value"; taxel status bytes and the valid
-taxel mask (0x2005) are spelled out.
+taxel mask (0x2005) are spelled out; its contact summary (0x2008) is in N, N·m and mm with
+the state bits named, and the PDO that carries only it is labelled ``contact``.
 
 :class:`~canbus.tools.pdo_dictionary.Dictionary` chooses the EDS per node-ID: 1..64 the
 patch, 65..127 the force node (the host's default is patch node-ID + 64), unless told
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -28,7 +30,9 @@ from dataclasses import dataclass
 import canopen
 import numpy as np
 
+from canbus import contact_record
 from canbus.mappings import force_fd_entries, patch_fd_entries
+from canbus.patch_constants import LSB_SCALE, scale_of
 from canbus.pdo_codec import (
     COB_ID_INVALID,
     PdoCodec,
@@ -41,6 +45,8 @@ from canbus.tools.pdo_values import (
     CIA301_UNITS,
     UNSIGNED32,
     NamedValue,
+    contact_value,
+    counted_value,
     force_value,
     reason_value,
     resistance_value,
@@ -55,8 +61,6 @@ PATCH_PRODUCT, FORCES_PRODUCT = 1, 2
 SHIPPED_BY_PRODUCT = {PATCH_PRODUCT: "skin-patch", FORCES_PRODUCT: "skin-forces"}
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
 _PDO_LAST = 0x1BFF  # RPDO/TPDO communication and mapping parameters: 0x1400..0x1BFF
-_PATCH_UNITS = {0x2001: "Ω", 0x2002: "Ω"}
-_PATCH_CONSTANT_UNITS = ("Pa", "Ω·m", "m", "m²", "", "N", "m")  # 0x2003 sub 1..7
 _PILLARS, _AXES = "zxy", "xyz"
 EdsChoice = str | os.PathLike[str]
 
@@ -71,7 +75,11 @@ class PdoEntry:
 
     @property
     def label(self) -> str:
-        return f"{self.kind}{self.layout.number}"
+        label = f"{self.kind}{self.layout.number}"
+        contact = contact_record.CONTACT
+        if self.layout.entries and all(e.index == contact for e in self.layout.entries):
+            return f"{label} contact"
+        return label
 
 
 def shipped_default(node_id: int) -> str:
@@ -97,8 +105,8 @@ class NodeView:
         self.seen: dict[tuple[int, int], int] = {}
         self.heartbeat_ms: int | None = self._default(0x1017, 0)
         lsb = self._variable(0x2001, 0)
-        self.lsb_ohm = float(lsb.default) if self.product == PATCH_PRODUCT and lsb is not None \
-            and lsb.default is not None else 0.05
+        self.lsb_ohm = LSB_SCALE.to_si(int(lsb.default)) if self.product == PATCH_PRODUCT \
+            and lsb is not None and lsb.default is not None else 0.05
         self.pdos: dict[int, PdoEntry] = {}
         self._tpdos: tuple[TpdoLayout, ...] = ()
         self._namers: dict[tuple[int, int], Callable[[float], NamedValue]] = {}
@@ -120,8 +128,9 @@ class NodeView:
             return False
         if index == 0x1017 and subindex == 0 and isinstance(value, int):
             self.heartbeat_ms = value
-        if index == 0x2001 and self.product == PATCH_PRODUCT and isinstance(value, float):
-            self.lsb_ohm = value
+        if index == 0x2001 and self.product == PATCH_PRODUCT and isinstance(value, int) \
+                and value > 0:
+            self.lsb_ohm = LSB_SCALE.to_si(value)
             self._namers.clear()
         if not RPDO_COMM <= index <= _PDO_LAST or not isinstance(value, int):
             return False
@@ -166,7 +175,7 @@ class NodeView:
 
     def adopt_fd(self, mode: str = "xyz") -> bool:
         """Take canskin's CAN FD mapping (``canbus.mappings``): the node's whole answer or
-        sample in TPDO 1, TPDO 2..7 invalid, as if a master's SDO writes had been seen.
+        sample in TPDO 1, every other TPDO invalid, as if a master's SDO writes had been seen.
         False (nothing changed) for a node that is not a canskin patch or force node."""
         if self.product == FORCES_PRODUCT:
             entries = force_fd_entries()
@@ -174,10 +183,10 @@ class NodeView:
             entries = patch_fd_entries(mode)
         else:
             return False
-        read = self._reader()
-        for n in range(1, 7):
-            if TPDO_COMM + n in self.od:
-                self.seen[(TPDO_COMM + n, 1)] = read(TPDO_COMM + n, 1) | COB_ID_INVALID
+        read, n = self._reader(), 1
+        while TPDO_COMM + n in self.od:
+            self.seen[(TPDO_COMM + n, 1)] = read(TPDO_COMM + n, 1) | COB_ID_INVALID
+            n += 1
         self.seen[(TPDO_MAP, 0)] = len(entries)
         for sub, entry in enumerate(entries, start=1):
             self.seen[(TPDO_MAP, sub)] = entry.to_raw()
@@ -276,16 +285,20 @@ class NodeView:
             return lambda value: reason_value(f"S{subindex - 1}", int(value))
         if product == FORCES_PRODUCT and index == 0x2005:
             return valid_taxels_value
+        if product == FORCES_PRODUCT and index == contact_record.CONTACT and \
+                1 <= subindex <= contact_record.SUBS:
+            return functools.partial(contact_value, subindex)
         if index == 0x1001:
             return lambda value: NamedValue("ER", value, "", f"ER=0x{int(value):02X}")
         var = self._variable(index, subindex)
         name = var.name if var is not None else f"0x{index:04X}:{subindex:02X}"
         factor = var.factor if var is not None else 1.0
         unit = (var.unit if var is not None else "") or CIA301_UNITS.get(index, "")
-        if product == PATCH_PRODUCT and index in _PATCH_UNITS:
-            unit = _PATCH_UNITS[index]
-        if product == PATCH_PRODUCT and index == 0x2003 and 1 <= subindex <= 7:
-            unit = _PATCH_CONSTANT_UNITS[subindex - 1]
+        scale = scale_of(index, subindex) if product == PATCH_PRODUCT else None
+        if scale is not None:  # a physical constant as a count of a small unit: in SI
+            digits = max(0, round(-math.log10(scale.si_per_count)))
+            return functools.partial(counted_value, name, scale.si_per_count, digits,
+                                     scale.si_unit)
         return functools.partial(scaled_value, name, factor, unit)
 
     def object_name(self, index: int, subindex: int) -> str:
@@ -320,8 +333,8 @@ class NodeView:
             return obj if subindex == 0 else None
         if isinstance(obj, canopen.objectdictionary.ODArray) and subindex > 0:
             count = obj[0].default  # canopen invents any sub-index of an ARRAY; we do not
-            if count is None or subindex > int(count):
-                return None
+            if subindex not in obj.subindices and (count is None or subindex > int(count)):
+                return None  # (0x1003's entries are in the EDS, its count starts at 0)
         try:
             return obj[subindex]
         except KeyError:
@@ -359,13 +372,3 @@ class NodeView:
             {c: e.layout for c, e in self.pdos.items()}
         self.pdos = table
         return changed
-
-
-def __getattr__(name: str) -> object:
-    """``Dictionary`` and ``parse_assignment`` live in :mod:`canbus.tools.pdo_dictionary`
-    (which builds on this module); they are named here too."""
-    if name in ("Dictionary", "parse_assignment"):
-        from canbus.tools import pdo_dictionary
-
-        return getattr(pdo_dictionary, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import canopen
 
-from canbus import codes
+from canbus import codes, contact_record
 from decoder.reasons import reason_name
 
 NO_FORCE = -0x8000
@@ -84,3 +84,15 @@ def reason_value(name: str, code: int) -> NamedValue:
 def describe_taxel_fault(taxel: int, status: int) -> str:
     """The manufacturer bytes of a patch EMCY (taxel, status byte) in words."""
     return f"taxel {taxel}: {status_value('', status).text.removeprefix('=')}"
+
+
+def contact_value(sub: int, value: float) -> NamedValue:
+    """A force node's 0x2008 sub-index ``sub`` (:mod:`canbus.contact_record`)."""
+    return NamedValue(*contact_record.describe(sub, int(value)))
+
+
+def counted_value(name: str, factor: float, digits: int, unit: str, value: float) -> NamedValue:
+    """A count of a small unit in SI, every digit the count has and no more."""
+    scaled = value * factor
+    number = f"{scaled:.{digits}f}".rstrip("0").rstrip(".") if digits else f"{int(scaled)}"
+    return NamedValue(name, scaled, unit, f"{name}={number}{' ' + unit if unit else ''}")

@@ -13,12 +13,11 @@ from __future__ import annotations
 import itertools
 import os
 import statistics
-import struct
 from dataclasses import dataclass, field
 
 import can
-import numpy as np
 
+from canbus.patch_constants import decode_si
 from canbus.pdo_codec import TpdoLayout
 from canbus.tools.pdo_dictionary import Dictionary
 from canbus.tools.pdo_names import NodeView
@@ -29,7 +28,6 @@ SYNC_COB_ID = 0x080
 HEARTBEAT, SDO_TX, SDO_RX = 0x700, 0x580, 0x600
 HEARTBEAT_TIME, LSB, NOMINAL = 0x1017, 0x2001, 0x2002
 PDO_PARAMETERS = range(0x1800, 0x1C00)
-_REAL32 = struct.Struct("<f")
 
 
 @dataclass
@@ -157,11 +155,8 @@ def _observe(patch: PatchFacts, index: int, subindex: int, raw: bytes) -> None:
     elif index == HEARTBEAT_TIME and subindex == 0 and len(raw) >= 2:
         patch.heartbeat_ms_written = int.from_bytes(raw[:2], "little")
     elif index == LSB and subindex == 0 and len(raw) >= 4:
-        patch.lsb_ohm = _real32(raw)
+        patch.lsb_ohm = decode_si(index, subindex, raw)
     elif index == NOMINAL and 1 <= subindex <= 27 and len(raw) >= 4:
-        patch.r0_ohm[subindex] = _real32(raw)
-
-
-def _real32(raw: bytes) -> float:
-    """A REAL32 as its shortest decimal (0.05, not 0.05000000074505806), as the host reads it."""
-    return float(str(np.float32(_REAL32.unpack(raw[:4])[0])))
+        ohm = decode_si(index, subindex, raw)
+        if ohm is not None:
+            patch.r0_ohm[subindex] = ohm

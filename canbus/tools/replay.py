@@ -12,7 +12,9 @@ replayed:
 - .log and .asc: UTF-8, every line ends with a newline (a cut line is a truncated file);
   every .log line is a ``candump -L`` frame; every .asc frame line yields a frame; an
   .asc ends with ``End TriggerBlock``;
-- .blf: the file is as long as its header says; parse and zlib errors;
+- .blf: the file is as long as its header says; parse and zlib errors; object and
+  container sizes bounded (``canbus.tools.blfread``: no endless loop, no decompression
+  bomb);
 - .pcap: see ``canbus.tools.pcap``; a pcapng file (dumpcap's default, also under a .pcap
   name): see ``canbus.tools.pcapng``.
 
@@ -54,6 +56,7 @@ from typing import Any, BinaryIO, TextIO, cast
 import can
 from can.io.blf import BLFParseError
 
+from canbus.tools.blfread import BoundedBLFReader
 from canbus.tools.pcap import FD_LENGTHS, PcapReader
 from canbus.tools.pcapng import SECTION_HEADER, PcapngReader
 from skin.errors import ConfigError, RecordingError
@@ -64,7 +67,7 @@ __all__ = ["READERS", "Recording", "RecordingError", "ReplayResult", "Replayer",
            "recording_reader"]
 
 READERS: dict[str, Callable[..., can.io.generic.MessageReader]] = {
-    ".log": can.CanutilsLogReader, ".asc": can.ASCReader, ".blf": can.BLFReader,
+    ".log": can.CanutilsLogReader, ".asc": can.ASCReader, ".blf": BoundedBLFReader,
     ".pcap": PcapReader, ".pcapng": PcapngReader,
 }
 _LOG_LINE = re.compile(
@@ -73,7 +76,9 @@ _LOG_LINE = re.compile(
 _ASC_FRAME = re.compile(r"\s*\d+\.\d+\s+(?:\d+\s+[0-9A-Fa-f]+x?\s+(?:Rx|Tx)\s|\d+\s+ErrorFrame"
                         r"|CANFD\s+\d+\s+(?:Rx|Tx)\s)")
 _READ_ERRORS = (ValueError, IndexError, KeyError, struct.error, zlib.error, BLFParseError,
-                UnicodeDecodeError)
+                UnicodeDecodeError, ArithmeticError, TypeError, AttributeError, EOFError)
+MAX_LINE = 1 << 16
+"""The longest line a text recording may have (a candump -L line is under 300 bytes)."""
 
 
 def recording_reader(path: str | os.PathLike[str], *, field: str = "FILE") -> str:
@@ -116,7 +121,10 @@ class _Lines:
 
     def __next__(self) -> str:
         self._check_skipped()
-        raw = self._file.readline()
+        raw = self._file.readline(MAX_LINE + 1)
+        if len(raw) > MAX_LINE:
+            self.line += 1
+            raise self._fail(f"longer than {MAX_LINE} bytes: not a recording's line")
         if not raw:
             if self._suffix == ".asc" and self._last.strip().lower() != "end triggerblock":
                 raise RecordingError(self._source, self._frames() + 1,
@@ -209,6 +217,13 @@ class Recording:
         except RecordingError:
             self._close_files()
             raise
+        except FileNotFoundError as err:
+            raise RecordingError(source, None, "no such file") from err
+        except IsADirectoryError as err:
+            raise RecordingError(source, None, "is a folder, not a recording") from err
+        except OSError as err:
+            self._close_files()
+            raise RecordingError(source, None, f"cannot read: {err.strerror}") from err
         except _READ_ERRORS as err:
             self._close_files()
             raise RecordingError(source, None, f"not a {self.suffix} file: {err}") from err

@@ -12,7 +12,6 @@ mode) or whose PDO did not come is NaN.
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
@@ -20,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canbus.codes import code_to_resistance
+from canbus.patch_constants import decode_si
 from canbus.tools.attribution import KnownNode
 from canbus.tools.pdo_assembly import PdoAssembly, RawSample
 from canbus.tools.pdo_samples import PdoSampleReader
@@ -67,7 +67,7 @@ class ResistanceReader(PdoSampleReader):
                 callback(sample)
 
     def on_observed(self, node_id: int, index: int, subindex: int, raw: bytes) -> None:
-        if (index, subindex) == (LSB, 0) and len(raw) >= 4:
-            lsb = struct.unpack_from("<f", raw)[0]
-            if np.isfinite(lsb) and lsb > 0:
-                self.lsb_ohm[node_id] = float(lsb)
+        if (index, subindex) == (LSB, 0):
+            lsb = decode_si(index, subindex, raw)
+            if lsb is not None and lsb > 0:
+                self.lsb_ohm[node_id] = lsb

@@ -18,7 +18,8 @@ import can
 from can.io.generic import MessageWriter
 
 from canbus.tools.pcap import PcapWriter
-from skin.errors import ConfigError
+from skin.errors import ConfigError, SkinError
+from skin.inputs.outputs import create_beside, discard, put_in_place, reserve, write_error
 
 DEFAULT_LOG_CHANNEL = "can0"
 _INTERFACE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,14}")  # a Linux interface name
@@ -169,11 +170,22 @@ class StreamSegment(Segment):
         self._writer = WRITERS[suffix](cast(Any, self._memory), **kwargs)
         self._footer = _footer(suffix)
         self._end = 0  # bytes on disk before the footer
-        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o666)
+        # Written beside the target and renamed over it once it holds its header: an
+        # existing file is replaced only by a recording that could be written.
+        self._fd, tmp = create_beside(path)
         try:
             header = self._take()
             self._write(header + self._footer)  # a valid, empty recording from the start
             self._end = len(header)
+            reserve(self._fd)
+        except BaseException as err:
+            os.close(self._fd)
+            discard(tmp)
+            if isinstance(err, OSError) and not isinstance(err, SkinError):
+                raise write_error(path, err) from err
+            raise
+        try:
+            put_in_place(tmp, path)
         except BaseException:
             os.close(self._fd)
             raise
@@ -221,10 +233,20 @@ class StreamSegment(Segment):
 class BlfSegment(Segment):
     def __init__(self, path: Path) -> None:
         super().__init__(path)
-        file = path.open("w+b")
+        fd, tmp = create_beside(path)  # renamed over the target once it is a .blf
+        file = os.fdopen(fd, "w+b")
         try:
             self._writer = LiveBLFWriter(file)
             self._writer.checkpoint()
+            reserve(fd)
+        except BaseException as err:
+            file.close()
+            discard(tmp)
+            if isinstance(err, OSError) and not isinstance(err, SkinError):
+                raise write_error(path, err) from err
+            raise
+        try:
+            put_in_place(tmp, path)
         except BaseException:
             file.close()
             raise

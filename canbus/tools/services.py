@@ -22,6 +22,7 @@ from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoAbortedError
 
 from canbus.tools.attribution import Attribution
+from canbus.tools.lss_names import describe_lss
 from canbus.tools.pdo_dictionary import Dictionary
 from canbus.tools.pdo_names import PATCH_PRODUCT, NodeView
 from canbus.tools.pdo_values import describe_taxel_fault
@@ -357,6 +358,8 @@ class ServiceDecoder:
             text = describe_emcy(data, view)
         elif service is Service.TIME:
             text = describe_time(data)
+        elif service is Service.LSS:
+            text = describe_lss(msg.arbitration_id, data)
         elif service is Service.ERROR:
             text = f"error frame class 0x{msg.arbitration_id:08X} {data.hex(' ')}".rstrip()
         else:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,6 +17,9 @@ F64 = NDArray[np.float64]
 class CrosstalkParams:
     coupling: float = 0.05
     diagonal_coupling: float = 0.02
+
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "coupling": (0.0, 1.0), "diagonal_coupling": (0.0, 1.0)}
 
     def check(self, where: str) -> None:
         non_negative(self.coupling, f"{where}.coupling")

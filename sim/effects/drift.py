@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,6 +26,10 @@ class DriftParams:
     walk_K_per_sqrt_s: float = 0.0
     creep_tau_s: float = 5.0
     creep_gain: float = 0.05
+
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "alpha_per_K": (-1.0, 1.0), "ramp_K_per_s": (-100.0, 100.0),
+        "walk_K_per_sqrt_s": (0.0, 100.0), "creep_tau_s": (0.0, 1e6), "creep_gain": (0.0, 1.0)}
 
     def check(self, where: str) -> None:
         positive(self.creep_tau_s, f"{where}.creep_tau_s")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,6 +30,9 @@ class FaultSpec:
     pillar: str = "z"
     kind: str = "open"
     from_s: float = 0.0
+
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "node_id": (1, 127), "taxel": (0, 8), "from_s": (0.0, 1e9)}
 
     def check(self, where: str) -> None:
         if not 0 <= self.taxel <= 8:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,6 +16,9 @@ F64 = NDArray[np.float64]
 @dataclass(frozen=True)
 class HysteresisParams:
     width: float = 0.005
+
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "width": (0.0, 1.0)}
 
     def check(self, where: str) -> None:
         positive(self.width, f"{where}.width")

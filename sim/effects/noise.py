@@ -8,6 +8,7 @@ is code * lsb. This is the only place values saturate.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,6 +22,9 @@ F64 = NDArray[np.float64]
 @dataclass(frozen=True)
 class NoiseParams:
     sigma_rel: float = 0.0005
+
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "sigma_rel": (0.0, 1.0)}
 
     def check(self, where: str) -> None:
         non_negative(self.sigma_rel, f"{where}.sigma_rel")

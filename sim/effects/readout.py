@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,6 +32,9 @@ class ReadoutParams:
     kind: str = "ideal"
     open_loop_gain: float = 1.0e4
     feedback_ohm: float | None = None
+
+    RANGES: ClassVar[dict[str, tuple[float, float]]] = {
+        "open_loop_gain": (0.0, 1e12), "feedback_ohm": (0.0, 1e12)}
 
     def check(self, where: str) -> None:
         one_of(self.kind, READOUTS, f"{where}.kind", "readout")

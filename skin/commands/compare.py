@@ -120,7 +120,7 @@ def _read_csv(path: str) -> Decoded:
 def _compare(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from skin.commands.calibrate_out import write_json
+    from skin.commands.calibrate.output import write_json
     from skin.errors import ConfigError
     from skin.reference import read_reference
 

@@ -16,6 +16,8 @@ import logging
 from collections.abc import Iterator
 from typing import Any
 
+from skin.commands.common import argtypes
+
 _SOURCES = {"sdo": "the SDO writes", "eds": "the EDS default", "option": "--mapping"}
 
 
@@ -33,9 +35,9 @@ def _quiet_host() -> Iterator[None]:
 
 
 def _from_recording(args: argparse.Namespace) -> int:
-    from canbus.master.recorded_dataset import JoinChoice, dataset_from_recording
+    from canbus.offline.dataset import JoinChoice, dataset_from_recording
     from canbus.tools.replay import recording_reader
-    from skin.commands.calibrate_out import write_json
+    from skin.commands.calibrate.output import write_json
     from skin.dataset import write_dataset
     from skin.errors import ConfigError
 
@@ -99,27 +101,6 @@ def _print(args: argparse.Namespace, report: dict[str, Any]) -> None:
               f"written {p['written']}")
 
 
-def _positive(text: str) -> float:
-    value = float(text)
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return value
-
-
-def _finite(text: str) -> float:
-    value = float(text)
-    if value != value or value in (float("inf"), float("-inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
-    return value
-
-
-def _milliseconds(text: str) -> int:
-    value = int(text)
-    if not 1 <= value <= 0xFFFF:
-        raise argparse.ArgumentTypeError(f"must be in 1..65535 ms, got {text}")
-    return value
-
-
 def add_subparser(subparsers: Any) -> None:
     parser = subparsers.add_parser("dataset", help="calibration datasets from bus recordings")
     group = parser.add_subparsers(title="dataset commands", metavar="ACTION", required=True)
@@ -134,8 +115,8 @@ def add_subparser(subparsers: Any) -> None:
     make.add_argument("recording", metavar="REC", help="the bus recording")
     make.add_argument("--reference", required=True, metavar="F.csv|F.npz",
                       help="reference forces (skin sim run --truth writes them)")
-    make.add_argument("-o", "--output", required=True, metavar="D.npz")
-    make.add_argument("--node", type=int, action="append", metavar="N",
+    make.add_argument("-o", "--output", type=argtypes.output_file, required=True, metavar="D.npz")
+    make.add_argument("--node", type=argtypes.node_id, action="append", metavar="N",
                       help="a patch to read (repeat; default: every patch of the reference)")
     make.add_argument("--mapping", choices=("z", "xyz", "fd-z", "fd-xyz"),
                       help="the patches' TPDO mapping (default: what the recording's SDO "
@@ -143,19 +124,27 @@ def add_subparser(subparsers: Any) -> None:
     make.add_argument("--join", choices=("sync", "time"),
                       help="join by SYNC counter or by time (default: sync when the "
                            "reference and the SYNCs carry counters)")
-    make.add_argument("--tolerance-ms", type=_positive, metavar="MS",
+    make.add_argument("--tolerance-ms",
+                      type=argtypes.number("milliseconds", above=0.0, high=1e9, unit="ms"),
+                      metavar="MS",
                       help="how far apart a joined pair may be on one clock (default: "
                            "40 %% of the SYNC period by time, 60 SYNC periods by counter)")
-    make.add_argument("--clock-offset-ms", type=_finite, metavar="MS",
+    make.add_argument("--clock-offset-ms",
+                      type=argtypes.number("milliseconds", low=-1e13, high=1e13, unit="ms"),
+                      metavar="MS",
                       help="reference time + this = recording time (default: estimated)")
-    make.add_argument("--sync-window-ms", type=_positive, metavar="MS",
+    make.add_argument("--sync-window-ms",
+                      type=argtypes.number("milliseconds", above=0.0, high=60_000.0, unit="ms"),
+                      metavar="MS",
                       help="the SYNC window the recording's master used (default 80 %% of "
                            "the SYNC period, the host's default)")
     make.add_argument("--answer-order", choices=("cob-id", "tpdo"), default="cob-id",
                       help="how the patches order one answer's TPDOs (default cob-id; "
                            "docs/host.md)")
-    make.add_argument("--heartbeat-ms", type=_milliseconds, metavar="MS",
+    make.add_argument("--heartbeat-ms", type=argtypes.count("milliseconds", 1, 0xFFFF, "ms"),
+                      metavar="MS",
                       help="the patches' heartbeat period (default: what their master "
                            "wrote, else what they beat at)")
-    make.add_argument("--json", metavar="FILE", help="write the counts as JSON")
+    make.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                      help="write the counts as JSON")
     make.set_defaults(func=_from_recording)

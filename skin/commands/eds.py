@@ -10,10 +10,11 @@ from typing import Any
 def _check(args: argparse.Namespace) -> int:
     from canbus.od import eds_file
     from canbus.tools.edscheck import check
+    from skin.commands.common.logs import held_back
 
     failed = 0
     for name in args.files:
-        with eds_file(name) as path:
+        with eds_file(name) as path, held_back("canopen"):
             problems = check(path)
         for problem in problems:
             print(f"{name}: {problem}", file=sys.stderr)

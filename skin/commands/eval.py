@@ -19,6 +19,8 @@ import math
 import os
 from typing import TYPE_CHECKING, Any
 
+from skin.commands.common import argtypes
+
 if TYPE_CHECKING:
     from decoder.protocol import Decoded, Decoder
     from skin.dataset import Dataset
@@ -38,7 +40,8 @@ def add_subparser(subparsers: Any) -> None:
                     "of taxels masked invalid by reason.")
     parser.add_argument("model", metavar="MODEL", help="a .msgpack model file or a decoder name")
     parser.add_argument("data", metavar="D.npz", help="the dataset (skin sim dataset)")
-    parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write the figures as JSON")
     parser.set_defaults(func=_eval)
 
 

@@ -7,6 +7,7 @@ import json
 from typing import Any
 
 from skin.atomic import atomic_write
+from skin.commands.common import argtypes
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -16,7 +17,8 @@ def add_subparser(subparsers: Any) -> None:
         "approx",
         help="force error of the paper's small-strain approximation at 5, 10 and 20 %% strain",
     )
-    approx.add_argument("--json", metavar="FILE", help="also write the table as JSON")
+    approx.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="also write the table as JSON")
     approx.set_defaults(func=_approx)
 
 

@@ -10,6 +10,8 @@ import sys
 from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
 
+from skin.commands.common import argtypes
+
 if TYPE_CHECKING:
     from canbus.busload import BusPlan, Plan
     from canbus.sizing import Sizing
@@ -79,11 +81,13 @@ def _plan(args: argparse.Namespace) -> int:
     result = plan(args.patches, args.rate, args.mode, args.bitrate,
                   data_bitrate=data_bitrate, target_pct=args.target, forces=args.forces,
                   buses=args.buses, heartbeat_ms=args.heartbeat_ms,
-                  force_heartbeat_ms=args.force_heartbeat_ms)
+                  force_heartbeat_ms=args.force_heartbeat_ms, contact=not args.no_contact)
     bus = (f"CAN FD {args.bitrate}/{data_bitrate} bit/s" if data_bitrate
            else f"CAN {args.bitrate} bit/s")
     forces = {"same-bus": "forces on each patch's bus", "other-bus": "forces on their own bus",
               "none": "forces not counted"}[args.forces]
+    if args.forces != "none":
+        forces += " without the contact PDO" if args.no_contact else " with the contact PDO"
     buses = f"{args.buses} bus{'es' if args.buses > 1 else ''}" + (
         " and a force bus" if args.forces == "other-bus" else "")
     print(f"{result.patches} patches x {result.rate_hz:g} Hz, mode {result.mode}, {bus}, "
@@ -120,7 +124,7 @@ def _sizings(args: argparse.Namespace) -> list[Sizing]:
 
     return [size(args.patches, args.rate, args.mode, args.bitrate, data_bitrate=fd,
                  target_pct=args.target, forces=args.forces, heartbeat_ms=args.heartbeat_ms,
-                 force_heartbeat_ms=args.force_heartbeat_ms)
+                 force_heartbeat_ms=args.force_heartbeat_ms, contact=not args.no_contact)
             for fd in (None, args.data_bitrate)]
 
 
@@ -137,7 +141,7 @@ def _buses(s: Sizing) -> str:
 
 def _print_sizing(args: argparse.Namespace, sizings: list[Sizing]) -> None:
     """Classic and CAN FD side by side: buses needed, patches a bus, load, highest rate."""
-    from skin.commands.tables import show
+    from skin.commands.common.tables import show
 
     rows = []
     for s in sizings:
@@ -165,26 +169,32 @@ def _advice(sizings: list[Sizing]) -> str:
 def add_subparser(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "plan", help="bus load of N patches at a rate: patch and force PDOs, SYNC, heartbeats")
-    parser.add_argument("--patches", type=int, required=True, metavar="N")
-    parser.add_argument("--rate", type=float, required=True, metavar="HZ",
+    parser.add_argument("--patches", type=argtypes.count("patches", 1, 100_000), required=True,
+                        metavar="N")
+    parser.add_argument("--rate", type=argtypes.rate_hz, required=True, metavar="HZ",
                         help="samples per second per patch (the SYNC rate)")
     parser.add_argument("--mode", choices=("z", "xyz"), default="xyz")
-    parser.add_argument("--bitrate", type=int, default=1_000_000, metavar="B",
+    parser.add_argument("--bitrate", type=argtypes.bitrate, default=1_000_000, metavar="B",
                         help="(nominal) bitrate in bit/s (default 1000000)")
     parser.add_argument("--fd", action="store_true",
                         help="CAN FD: one PDO per sample, data phase at --data-bitrate")
-    parser.add_argument("--data-bitrate", type=int, default=5_000_000, metavar="B",
+    parser.add_argument("--data-bitrate", type=argtypes.bitrate, default=5_000_000, metavar="B",
                         help="CAN FD data-phase bitrate (default 5000000)")
     parser.add_argument("--forces", choices=("same-bus", "other-bus", "none"),
                         default="same-bus",
                         help="where the host republishes the forces (default same-bus)")
-    parser.add_argument("--buses", type=int, default=1, metavar="N",
+    parser.add_argument("--no-contact", action="store_true",
+                        help="the host publishes no contact summary ([contact] enabled = "
+                             "false): 7 force PDOs per sample, not 8 (CAN FD: 57 bytes, not 64)")
+    parser.add_argument("--buses", type=argtypes.count("buses", 1, 100_000), default=1, metavar="N",
                         help="spread the patches over N buses, each with its own SYNC")
-    parser.add_argument("--heartbeat-ms", type=int, default=100, metavar="MS",
+    parser.add_argument("--heartbeat-ms", type=argtypes.heartbeat_ms, default=100, metavar="MS",
                         help="patch heartbeat period (default 100; 0 = off)")
-    parser.add_argument("--force-heartbeat-ms", type=int, default=1000, metavar="MS",
+    parser.add_argument("--force-heartbeat-ms", type=argtypes.heartbeat_ms, default=1000,
+                        metavar="MS",
                         help="force node heartbeat period (default 1000; 0 = off)")
-    parser.add_argument("--target", type=float, default=70.0, metavar="PCT",
+    parser.add_argument("--target", type=argtypes.percent, default=70.0, metavar="PCT",
                         help="target bus load in %% (default 70)")
-    parser.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="also write the figures as JSON")
     parser.set_defaults(func=_plan)

@@ -16,13 +16,14 @@ import json
 import sys
 from typing import Any
 
+from skin.commands.common import argtypes
+
 
 def _replay(args: argparse.Namespace) -> int:
-
     from canbus.tools.replay import Recording, RecordingError, Replayer
     from skin.atomic import atomic_write
-    from skin.commands.busopen import open_bus
-    from skin.commands.signals import until_stopped
+    from skin.commands.common.busopen import open_command_bus
+    from skin.commands.common.signals import until_stopped
     from skin.errors import ConfigError
 
     if args.loop is not None and args.loop < 0:
@@ -33,7 +34,7 @@ def _replay(args: argparse.Namespace) -> int:
         raise ConfigError("--rate", f"must be a positive number of frames/s, got {args.rate}")
     with Recording(args.file):  # suffix and file header checked before the bus is opened
         pass
-    bus, described = open_bus(args, command="skin replay", sends=True)
+    bus, described = open_command_bus(args, command="skin replay", sends=True)
     passes = 1 if args.loop is None else args.loop
     rate = args.rate if args.rate is not None else DEFAULT_RATES.get(args.interface)
 
@@ -48,9 +49,9 @@ def _replay(args: argparse.Namespace) -> int:
         try:
             with until_stopped() as stopped:
                 replayer.run(on_pass=progress)
-        except RecordingError:
-            print(f"sent {replayer.sent:,} frames before the damaged one", file=sys.stderr)
-            raise
+        except RecordingError as err:
+            raise RecordingError(err.source, err.frame, f"{err.problem} (sent "
+                                 f"{replayer.sent:,} frames before it)") from err
     result = replayer.result()  # what was sent, however it ended
     pacing = ", as fast as possible" if rate is None else f", paced to {rate:,.0f} frames/s"
     achieved = result.frames_sent / result.seconds if result.seconds > 0 else 0.0
@@ -87,8 +88,6 @@ def _defaults_text() -> str:
 
 
 def add_subparser(subparsers: Any) -> None:
-    import can.cli
-
     parser = subparsers.add_parser(
         "replay", help="a recording back onto a bus",
         description="Send a recording (.log, .asc, .blf, .pcap) onto a bus with its original "
@@ -100,12 +99,15 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--fast", action="store_true",
                         help="as fast as the bus takes frames, or --rate (default: original "
                              "timing)")
-    parser.add_argument("--rate", type=float, default=None, metavar="FPS",
+    parser.add_argument("--rate",
+                        type=argtypes.number("rate", above=0.0, high=1e7, unit="frames/s"),
+                        default=None, metavar="FPS",
                         help="with --fast: at most FPS frames/s (default: unpaced, except "
                              f"{_defaults_text()})")
-    parser.add_argument("--loop", type=int, nargs="?", const=0, default=None, metavar="N",
+    parser.add_argument("--loop", type=argtypes.count("passes", 0, 10**9), nargs="?", const=0,
+                        default=None, metavar="N",
                         help="play N times in all; without N, until Ctrl-C")
-    parser.add_argument("--skip", type=float, default=60.0, metavar="S",
+    parser.add_argument("--skip", type=argtypes.seconds, default=60.0, metavar="S",
                         help="cut recorded pauses longer than S seconds to S (default 60)")
     parser.add_argument("--partial", action="store_true",
                         help="a recording whose writer was killed: a bad frame at the very "
@@ -113,6 +115,7 @@ def add_subparser(subparsers: Any) -> None:
                              "footer) ends the replay with a warning instead of an error")
     parser.add_argument("--error-frames", action="store_true",
                         help="also send error frames (most interfaces cannot)")
-    parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
-    can.cli.add_bus_arguments(parser)
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write the figures as JSON")
+    argtypes.add_bus_arguments(parser)
     parser.set_defaults(func=_replay)

@@ -3,14 +3,14 @@
 The config is read and checked before a bus is opened, so a bad config fails at once
 with one line naming the field. The buses are the config's (``[bus]``, or several
 ``[[buses]]``); python-can's bus flags (``-i``, ``-c``, ``-b``, ``--fd`` ...) go over the
-one bus of a config (:mod:`skin.commands.hostbus`); with no bus anywhere, one line says so.
+one bus of a config (:mod:`skin.commands.common.hostbus`); with no bus anywhere, one line says so.
 While running, every change of a patch's state and every unknown node is printed on a
 line, and ``--status-every S`` prints a health line every S seconds; Ctrl-C, SIGTERM or
 SIGHUP (or ``--seconds``) stops the host and prints a summary.
 
 ``--listen-only`` (or ``host.listen_only = true``): decode what another master runs, or a
 recording ``skin replay`` sends, and transmit nothing. ``--cpu 3`` runs every thread of
-the host on CPU 3 (see ``skin.commands.cpu``).
+the host on CPU 3 (see ``skin.commands.common.cpu``).
 """
 
 from __future__ import annotations
@@ -26,12 +26,15 @@ import time
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
+from skin.commands.common import argtypes
+
 if TYPE_CHECKING:
     import can
 
     from canbus.master.discovery import UnknownNode
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig
+    from canbus.zenoh.publisher import ZenohPublisher
 
 POLL_S = 0.1
 
@@ -101,14 +104,18 @@ def _wire(bus: can.BusABC) -> Any:
 
 def _run(args: argparse.Namespace) -> int:
     from canbus.master.hostconfig import load_host_config
-    from skin.commands.configpath import find_config
-    from skin.commands.cpu import pinned
-    from skin.commands.hostbus import resolve
+    from skin.commands.common.configpath import find_config
+    from skin.commands.common.cpu import pinned
+    from skin.commands.common.hostbus import resolve
     from skin.errors import ConfigError
 
     if args.status_every is not None and not args.status_every > 0:
         raise ConfigError("--status-every", f"must be > 0 s, got {args.status_every}")
     config = resolve(load_host_config(find_config(args.config)), args)
+    if args.zenoh or (config.zenoh is not None and config.zenoh.enabled):
+        from canbus.zenoh.config import require_zenoh
+
+        require_zenoh("--zenoh" if args.zenoh else "zenoh")
     with pinned(args.cpu):  # before the bus and the host start their threads
         return _run_host(args, config)
 
@@ -119,8 +126,8 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     from canbus.master.host import HostManager
     from canbus.tools.recorder import enlarge_receive_buffer
     from skin.atomic import atomic_write
-    from skin.commands.hostbus import describe, open_all
-    from skin.commands.signals import until_stopped
+    from skin.commands.common.hostbus import describe, open_all
+    from skin.commands.common.signals import until_stopped
 
     started = time.monotonic()
     with ExitStack() as stack:
@@ -134,18 +141,13 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
         gc.freeze()
         stack.callback(gc.unfreeze)
         stack.enter_context(_host_events_shown())
-        n = len(config.patches)
-        patches = f"{n} patch{'es' if n > 1 else ''} on {describe(config)}"
+        publisher = _zenoh_publisher(host, config, args)
+        if publisher is not None:  # closed after the host stops: its last samples go out
+            stack.enter_context(publisher)
         # A stop (Ctrl-C, SIGTERM, SIGHUP) from the line that says how to stop on ends the
         # run as --seconds does: the summary and --json follow.
         with until_stopped() as stopped:
-            if host.listen_only:
-                print(f"host (listen-only): {patches}, following the SYNCs on the bus, "
-                      "decoding; nothing is sent; Ctrl-C stops", flush=True)
-            else:
-                forces = ", ".join(f"{p.node_id}->{p.force_node}" for p in config.patches)
-                print(f"host: {patches}, SYNC {sync_text(config)}, forces published as "
-                      f"nodes {forces}; Ctrl-C stops", flush=True)
+            _print_banner(host.listen_only, config, describe(config))
             with host:
                 _hint_if_nobody_answered(host, config)
                 _follow(host, args.seconds, args.status_every)
@@ -160,6 +162,10 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
           f"{stats['incomplete_samples']} incomplete) in {elapsed:.1f} s; frames in "
           f"{stats['frames_in']}, out {stats['frames_out']}, late {stats['late_frames']}, "
           f"duplicate {stats['duplicate_frames']}")
+    if publisher is not None:
+        z = publisher.counters()
+        print(f"zenoh: {z['sent']} samples sent on {publisher.settings.prefix}/"
+              f"{publisher.host_name}/**, {z['dropped']} dropped, {z['events_sent']} events")
     if args.json:
         record: dict[str, Any] = {
             "config": config.source, "listen_only": host.listen_only,
@@ -167,10 +173,42 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
             "buses": buses_stats,
             "patches": {str(n): dataclasses.asdict(h) for n, h in health.items()},
             "unknown_nodes": sorted(host.unknown_nodes),
+            "zenoh": None if publisher is None else publisher.counters(),
         }
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
     return 0
+
+
+def _print_banner(listen_only: bool, config: HostConfig, bus_text: str) -> None:
+    n = len(config.patches)
+    patches = f"{n} patch{'es' if n > 1 else ''} on {bus_text}"
+    if listen_only:
+        print(f"host (listen-only): {patches}, following the SYNCs on the bus, "
+              "decoding; nothing is sent; Ctrl-C stops", flush=True)
+    else:
+        forces = ", ".join(f"{p.node_id}->{p.force_node}" for p in config.patches)
+        print(f"host: {patches}, SYNC {sync_text(config)}, forces published as "
+              f"nodes {forces}; Ctrl-C stops", flush=True)
+
+
+def _zenoh_publisher(host: HostManager, config: HostConfig,
+                     args: argparse.Namespace) -> ZenohPublisher | None:
+    """The host's publisher on Zenoh when the config's [zenoh] or --zenoh asks for one."""
+    if not (args.zenoh or (config.zenoh is not None and config.zenoh.enabled)):
+        return None
+    from dataclasses import replace
+
+    from canbus.zenoh.config import ZenohSettings
+    from canbus.zenoh.publisher import ZenohPublisher
+
+    settings = replace(config.zenoh or ZenohSettings(), enabled=True)
+    publisher = ZenohPublisher(host, settings)
+    listen = ", ".join(settings.listen_endpoints()) or "nothing"
+    connect = ", ".join(settings.connect_endpoints())
+    print(f"zenoh: publishing on {settings.prefix}/{publisher.host_name}/** ({settings.mode}, "
+          f"listen {listen}{', connect ' + connect if connect else ''})", flush=True)
+    return publisher
 
 
 def sync_text(config: HostConfig) -> str:
@@ -198,7 +236,7 @@ def _hint_if_nobody_answered(host: HostManager, config: HostConfig) -> None:
     if host.listen_only or not config.scan:
         return
     if all(h.state == "absent" for h in host.health().values()):
-        from skin.commands.hostbus import describe
+        from skin.commands.common.hostbus import describe
 
         print(f"no patch answered on {describe(config)} within {config.scan_ms} ms: check "
               "that the patches are powered and on this bus (interface, channel, bit rate); "
@@ -206,26 +244,29 @@ def _hint_if_nobody_answered(host: HostManager, config: HostConfig) -> None:
 
 
 def add_subparser(subparsers: Any) -> None:
-    import can.cli
-
-    from skin.commands.busargs import add_rcvbuf_argument
-    from skin.commands.cpu import add_cpu_argument
+    from skin.commands.common.busargs import add_rcvbuf_argument
+    from skin.commands.common.cpu import add_cpu_argument
 
     parser = subparsers.add_parser("run", help="the host manager on a bus (CONFIG.toml)")
     parser.add_argument("config", metavar="CONFIG", nargs="?", default=None,
                         help="host config (see examples/host.toml); default: the first of "
                              "$SKIN_HOST_CONFIG, ./host.toml, ~/.config/canskin/host.toml, "
                              "/etc/canskin/host.toml")
-    parser.add_argument("--seconds", type=float, default=None, metavar="S",
+    parser.add_argument("--seconds", type=argtypes.seconds, default=None, metavar="S",
                         help="stop after S seconds (default: run until Ctrl-C)")
     parser.add_argument("--listen-only", action="store_true",
                         help="decode what another master runs (or `skin replay` sends) and "
                              "transmit nothing: no scan, SDO, NMT, SYNC or force node "
                              "(default: host.listen_only of the config)")
-    parser.add_argument("--json", metavar="FILE", help="write the run's figures as JSON")
-    parser.add_argument("--status-every", type=float, default=None, metavar="S",
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write the run's figures as JSON")
+    parser.add_argument("--status-every", type=argtypes.seconds, default=None, metavar="S",
                         help="print a health line every S seconds")
+    parser.add_argument("--zenoh", action="store_true",
+                        help="publish every force sample, state change, EMCY and the "
+                             "statistics on Zenoh (the config's [zenoh] table, else "
+                             "defaults: listen on tcp/127.0.0.1:7447; docs/zenoh.md)")
     add_cpu_argument(parser, default="all")
     add_rcvbuf_argument(parser)
-    can.cli.add_bus_arguments(parser)
+    argtypes.add_bus_arguments(parser)
     parser.set_defaults(func=_run)

@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from skin.commands.common import argtypes
+
 ABORTS = {0x0800_0022: "the patch is loaded, or not operational: unload it and try again",
           0x0609_0030: "the value is not a tare command",
           0x0602_0000: "the node has no tare object: is it a canskin force node?"}
@@ -22,10 +24,10 @@ def _tare(args: argparse.Namespace) -> int:
 
     from canbus.master.forcenode import TARE, TARE_COMMAND
     from canbus.od import load_od
-    from skin.commands.busopen import open_bus
+    from skin.commands.common.busopen import open_command_bus
     from skin.errors import BusError
 
-    bus, described = open_bus(args, command="skin tare", sends=True)
+    bus, described = open_command_bus(args, command="skin tare", sends=True)
     with bus:
         network = canopen.Network(bus)
         network.connect()
@@ -49,19 +51,17 @@ def _tare(args: argparse.Namespace) -> int:
 
 
 def add_subparser(subparsers: Any) -> None:
-    import can.cli
 
-    from skin.commands.busargs import node_id
 
     parser = subparsers.add_parser(
         "tare", help="re-zero a patch through its force node (SDO write of 0x2007)",
         description="Re-zero the patch a force node publishes, by an SDO write of 1 to its "
                     "object 0x2007, as any CANopen master can. Refused while the patch is "
                     "loaded.")
-    parser.add_argument("node", type=node_id, metavar="NODE",
+    parser.add_argument("node", type=argtypes.node_id, metavar="NODE",
                         help="the force node's node-ID (a patch's is its node-ID + 64 by "
                              "default)")
-    parser.add_argument("--timeout", type=float, default=1.0, metavar="S",
+    parser.add_argument("--timeout", type=argtypes.seconds, default=1.0, metavar="S",
                         help="SDO response time-out (default 1 s)")
-    can.cli.add_bus_arguments(parser)
+    argtypes.add_bus_arguments(parser)
     parser.set_defaults(func=_tare)

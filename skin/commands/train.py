@@ -6,6 +6,7 @@ import argparse
 import time
 from typing import Any
 
+from skin.commands.common import argtypes
 from skin.errors import ConfigError
 
 
@@ -39,8 +40,10 @@ def add_subparser(subparsers: Any) -> None:
                         help="where the goal MSE is measured (lm-mlp, hybrid): on the forces "
                              "in newtons (default, as MATLAB's trainlm) or on the scaled "
                              "outputs")
-    parser.add_argument("--seed", type=int, help="random seed of the weights and the split")
-    parser.add_argument("-o", "--output", required=True, metavar="MODEL.msgpack")
+    parser.add_argument("--seed", type=argtypes.seed,
+                        help="random seed of the weights and the split")
+    parser.add_argument("-o", "--output", type=argtypes.output_file, required=True,
+                        metavar="MODEL.msgpack")
     parser.set_defaults(func=run)
 
 
@@ -85,11 +88,11 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from decoder.registry import create_decoder
-    from skin.commands.bench import limit_blas_threads
-    from skin.dataset import read_dataset
+    from skin.commands.common.blas import limit_blas_threads
+    from skin.dataset import read_training_set
 
     limit_blas_threads()
-    dataset = read_dataset(args.data)
+    dataset = read_training_set(args.data)
     given = (("hidden", args.hidden), ("seed", args.seed), ("goal_units", args.goal_units))
     params = {k: v for k, v in given if v is not None}
     try:

@@ -10,7 +10,7 @@ from collections.abc import Iterator
 import can.interfaces.virtual
 import pytest
 
-from tests.canbus.dataplane_rig import Host
+from bench.rigs.dataplane import Host
 
 _groups = itertools.count(43000 + (os.getpid() % 1000) * 16)
 _udp_ports = itertools.count(20000 + (os.getpid() % 750) * 16)  # below Linux's ephemeral ports
@@ -39,7 +39,7 @@ def udp_port() -> int:
 
 @pytest.fixture
 def host() -> Iterator[Host]:
-    """A data plane publishing to a sink bus, with patches 1 and 2 (tests.canbus.dataplane_rig)."""
+    """A data plane publishing to a sink bus, with patches 1 and 2 (bench.rigs.dataplane)."""
     h = Host()
     yield h
     h.close()

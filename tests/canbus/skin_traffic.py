@@ -149,7 +149,9 @@ def _publish(out: Traffic, t: float, patch: PatchConfig, rng: np.random.Generato
     force = np.round(rng.uniform(-3.0, 6.0, (9, 3)), 3)
     valid = rng.random(9) > 0.1
     frames = _force_node(patch.force_node, patch.node_id).frames(force, valid, True)
-    cob_ids = patch.force_cob_ids or [cob for cob, _ in frames]
+    defaults = [cob for cob, _ in frames]  # TPDO 1..8 at the node's predefined COB-IDs
+    given = list(patch.force_cob_ids or ())
+    cob_ids = [*given, *defaults[len(given):]]  # 7 given: TPDO 8 (the contact) keeps its own
     for n, ((_, data), cob) in enumerate(zip(frames, cob_ids, strict=True), start=1):
         t = out.add(t, cob, data, Sent(patch.force_node, n))
     mN, on_bus = forces_to_mN(force, valid)

@@ -20,13 +20,13 @@ import can
 import numpy as np
 import pytest
 
+from bench.rigs.answer_audit import audit
 from canbus.master.dataplane import ForceFrame
 from canbus.master.forcenode import forces_to_mN
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import load_host_config
 from canbus.tools.recorder import DEFAULT_RCVBUF, enlarge_receive_buffer
 from canbus.tools.replay import Recording
-from tests.canbus.answer_audit import audit
 
 SECONDS = 10
 

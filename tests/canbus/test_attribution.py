@@ -22,13 +22,13 @@ from hypothesis import strategies as st
 
 from canbus.master.cobids import predefined_tpdo_cob_ids, restricted
 from canbus.master.hostconfig import HostConfig, PatchConfig, load_host_config
-from canbus.master.known_nodes import known_nodes
 from canbus.tools.attribution import Attribution, KnownNode, cob_ranges
 from canbus.tools.forcereader import ForceNodeSpec, ForceReader, ForceSample
-from canbus.tools.pdo_names import Dictionary
+from canbus.tools.pdo_dictionary import Dictionary
 from canbus.tools.services import Route, Service, ServiceDecoder
 from canbus.tools.sniffer import FrameFilter, Sniffer
-from skin.commands.sniff_view import LinePrinter, ViewStats
+from skin.commands.common.known_nodes import known_nodes
+from skin.commands.sniff.view import LinePrinter, ViewStats
 from skin.errors import ConfigError
 from tests.canbus.skin_traffic import Traffic, traffic
 

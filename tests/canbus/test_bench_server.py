@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from canbus.device.server_bench import check_answers
+from bench.server import check_answers
 from skin.cli import main
 
 
@@ -39,5 +39,7 @@ def test_bench_server_writes_its_figures(tmp_path: Path, udp_channel: str, udp_p
 
 
 def test_bench_server_refuses_bad_sizes(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["bench", "server", "--patches", "0"]) == 1
-    assert "--patches: must be in 1..127" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:
+        main(["bench", "server", "--patches", "0"])
+    assert refused.value.code == 2
+    assert "argument --patches: must be in 1..127" in capsys.readouterr().err

@@ -15,8 +15,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bench.rigs.dataplane import WINDOW_S, Host, Patch, load, sync_time
 from decoder.reasons import Reason
-from tests.canbus.dataplane_rig import WINDOW_S, Host, Patch, load, sync_time
 
 PERIOD_S = 0.01  # SYNC k at sync_time(k) = T0 + k / 100
 PDOS = 7  # a 3-axis answer

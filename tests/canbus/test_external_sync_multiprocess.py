@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from canbus.od import load_od
-from skin.commands.busargs import DEFAULT_CHANNELS
+from skin.commands.common.busargs import DEFAULT_CHANNELS
 
 REST_SCENE = """
 [scene]

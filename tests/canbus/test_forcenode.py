@@ -76,18 +76,23 @@ def test_values_beyond_integer16_are_no_value_never_clipped() -> None:
 
 def test_cob_ids_cover_every_transmitted_identifier() -> None:
     node = ForceNode(70, 6)
-    expected = {0x1C6, 0x2C6, 0x3C6, 0x4C6, 0x246, 0x346, 0x446, 0xC6, 0x746, 0x5C6}
+    expected = {0x1C6, 0x2C6, 0x3C6, 0x4C6, 0x246, 0x346, 0x446, 0x546, 0xC6, 0x746, 0x5C6}
     assert node.cob_ids() == force_node_cob_ids(70) == expected
     assert {cob for cob, _ in node.frames(np.zeros((9, 3)), np.ones(9, bool), True)} < expected
+    # without a contact summary TPDO 8 (0x500 + ID) is invalid from power-on
+    assert ForceNode(70, 6, contact=None).cob_ids() == expected - {0x546}
 
 
-def test_eds_maps_valid_taxels_into_tpdo7_event_driven() -> None:
+def test_eds_maps_valid_taxels_into_tpdo7_and_the_contact_into_tpdo8_event_driven() -> None:
     node = ForceNode(70, 6)
-    layout = node.codec.layouts[-1]
-    assert layout.number == 7 and layout.size == 8
-    assert [(e.index, e.subindex) for e in layout.entries] == [
+    tpdo7, tpdo8 = node.codec.layouts[-2:]
+    assert tpdo7.number == 7 and tpdo7.size == 8
+    assert [(e.index, e.subindex) for e in tpdo7.entries] == [
         (0x2000, 25), (0x2000, 26), (0x2000, 27), (0x2005, 0)]
-    assert {int(node.store.value(0x1800 + n, 2)) for n in range(7)} == {254}
+    assert tpdo8.number == 8 and tpdo8.size == 8 and tpdo8.cob_id == 0x546
+    assert [(e.index, e.subindex) for e in tpdo8.entries] == [
+        (0x2008, 3), (0x2008, 7), (0x2008, 8), (0x2008, 11), (0x2008, 12)]
+    assert {int(node.store.value(0x1800 + n, 2)) for n in range(8)} == {254}
 
 
 def test_bad_arguments_are_config_errors() -> None:

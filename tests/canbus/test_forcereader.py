@@ -79,7 +79,7 @@ def test_the_reader_gives_back_what_a_force_node_published(
                                   np.where(on_bus[:, None], mN / 1000.0, 0.0))
     assert sample.complete == complete and sample.pdos_missing == 0
     np.testing.assert_array_equal(sample.reason, np.where(on_bus, 0, UNSPECIFIED))
-    assert sample.timestamp == pytest.approx(10.0 + 6e-4)
+    assert sample.timestamp == pytest.approx(10.0 + 7e-4)  # the 8th PDO's: the contact
 
 
 @pytest.mark.parametrize("lost", range(7))
@@ -143,7 +143,7 @@ def test_a_frame_seen_twice_is_one_frame_but_other_bytes_end_the_sample() -> Non
     # B's first PDO lost, and its third is one A already holds: A ends there
     first, second = _read(_known(65), [*_messages(fa[:3], 1.0),
                                                *_messages(fb[1:], 1.001)], now=1.05)
-    assert (first.pdos_missing, second.pdos_missing) == (4, 1)
+    assert (first.pdos_missing, second.pdos_missing) == (5, 1)
     assert not first.complete and not second.complete
     np.testing.assert_array_equal(second.valid, ~np.isin(np.arange(9), [0, 1]))
 
@@ -153,12 +153,12 @@ def test_samples_without_their_first_pdo_stay_apart_and_open_ones_close_by_bus_t
     fa = NODE.frames(_press(14), np.ones(9, bool), True)
     fb = NODE.frames(_press(15), np.ones(9, bool), True)
     got = _read(reader, [*_syncs(0.999), *_messages(fa[1:3], 1.0), *_messages(fb[3:], 1.01)])
-    assert [s.pdos_missing for s in got] == [5]  # B's frames came 10 ms after A's began
+    assert [s.pdos_missing for s in got] == [6]  # B's frames came 10 ms after A's began
     assert _read(reader, [], now=1.017) == []  # B, open 7 ms: less than 80 % of a period
     assert [s.pdos_missing for s in _read(reader, [], now=1.019)] == [3]
     reader.feed(_messages(fa[:2], 1.03))  # with its first PDO: open for two periods
     assert _read(reader, [], now=1.045) == []
-    assert [s.pdos_missing for s in _read(reader, [], now=1.051)] == [5]
+    assert [s.pdos_missing for s in _read(reader, [], now=1.051)] == [6]
     status = reader.snapshot(1.06).patches[1]
     assert (status.samples, status.incomplete, status.partial) == (3, 3, 3)
 
@@ -233,7 +233,7 @@ def test_a_remap_and_the_source_patch_read_by_sdo_are_followed() -> None:
 
 
 def test_pinned_cob_ids_and_patches_from_a_config() -> None:
-    cob_ids = (0x1E0, 0x1E1, 0x1E2, 0x1E3, 0x1E4, 0x1E5, 0x1E6)
+    cob_ids = (0x1E0, 0x1E1, 0x1E2, 0x1E3, 0x1E4, 0x1E5, 0x1E6, 0x1E7)
     f = _press(6)
     frames = [(cob_ids[n], data)
               for n, (_, data) in enumerate(ForceNode(100, 3).frames(f, np.ones(9, bool), True))]
@@ -244,7 +244,7 @@ def test_pinned_cob_ids_and_patches_from_a_config() -> None:
 
 def _fd_force_eds(path: Path) -> Path:
     """skin-forces.eds as a CAN FD force node: TPDO 1 carries 27 forces, 0x2005 and a SYNC
-    counter byte 0x2006 (57 bytes); TPDO 2..7 are invalid."""
+    counter byte 0x2006 (57 bytes); TPDO 2..8 are invalid."""
     eds = configparser.ConfigParser(interpolation=None)
     eds.optionxform = str  # type: ignore[assignment,method-assign]
     with eds_file("skin-forces") as shipped:
@@ -257,7 +257,7 @@ def _fd_force_eds(path: Path) -> Path:
         eds[f"1A00sub{k:X}"] = {"ParameterName": f"Application object {k}", "ObjectType": "0x7",
                                 "DataType": "0x0007", "AccessType": "rw",
                                 "DefaultValue": f"0x{raw:08X}", "PDOMapping": "0"}
-    for n in range(1, 7):
+    for n in range(1, 8):
         eds[f"18{n:02X}sub1"]["DefaultValue"] = "0x80000000"
     eds["2006"] = {"ParameterName": "SYNC counter answered", "ObjectType": "0x7",
                    "DataType": "0x0005", "AccessType": "ro", "DefaultValue": "0",

@@ -19,10 +19,11 @@ from canbus.device.patch_node import PatchNode
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.baseline import PatchLoadedError
+from canbus.master.cobids import predefined_tpdo_cob_ids
 from canbus.master.dataplane import ForceFrame
 from canbus.master.discovery import UnknownNode
 from canbus.master.host import HostManager
-from canbus.master.hostconfig import DriftConfig, HostConfig, PatchConfig, predefined_tpdo_cob_ids
+from canbus.master.hostconfig import DriftConfig, HostConfig, PatchConfig
 from decoder.analytic import AnalyticDecoder
 from decoder.reasons import Reason
 from decoder.registry import create_decoder

@@ -4,14 +4,9 @@ from pathlib import Path
 
 import pytest
 
+from canbus.master.cobids import node_cob_ids, predefined_tpdo_cob_ids
 from canbus.master.forcenode import force_node_cob_ids
-from canbus.master.hostconfig import (
-    HostConfig,
-    PatchConfig,
-    load_host_config,
-    node_cob_ids,
-    predefined_tpdo_cob_ids,
-)
+from canbus.master.hostconfig import HostConfig, PatchConfig, load_host_config
 from canbus.od import load_od
 from canbus.pdo_codec import read_defaults, read_layouts
 from decoder.registry import create_decoder
@@ -29,11 +24,14 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 
 def _error(tmp_path: Path, text: str) -> str:
+    """The one-line error of the config ``text``, without the file's name it starts with."""
+    path = _write(tmp_path, text)
     with pytest.raises(ConfigError) as info:
-        load_host_config(_write(tmp_path, text))
+        load_host_config(path)
     message = str(info.value)
     assert "\n" not in message
-    return message
+    assert message.startswith(f"{path}: ")
+    return message.removeprefix(f"{path}: ")
 
 
 def test_the_documented_example_loads_with_its_values() -> None:
@@ -63,7 +61,7 @@ def test_defaults_fill_a_minimal_config(tmp_path: Path) -> None:
     ("[[patches]]\nnode_id = 1\ndecoder = 'deconv'\n", "patches[0].model: decoder 'deconv' "
      "must be fitted"),
     ("[[patches]]\nnode_id = 1\nmodel = 'm.msgpack'\n", "patches[0].model: no such file"),
-    ("[[patches]]\nnode_id = '1'\n", "patches[0].node_id: must be int, got str"),
+    ("[[patches]]\nnode_id = '1'\n", "patches[0].node_id: must be an integer, got a string '1'"),
     ("[[patches]]\nnode_id = 1\nforce_node = 200\n", "patches[0].force_node: must be a node-ID"),
     ("[[patches]]\nnode_id = 1\nforce_cob_ids = [0x1E0]\n",
      "patches[0].force_cob_ids: must list 7 COB-IDs"),
@@ -72,29 +70,32 @@ def test_defaults_fill_a_minimal_config(tmp_path: Path) -> None:
     ("[host]\nsync_period_ms = 0\n[[patches]]\nnode_id = 1\n", "host.sync_period_ms: must be > 0"),
     ("[host]\nsync_period_ms = 10\nsync_window_ms = 12\n[[patches]]\nnode_id = 1\n",
      "host.sync_window_ms: 12 is longer than the SYNC period 10"),
-    ("[host]\nheartbeat_ms = 70000\n[[patches]]\nnode_id = 1\n", "host.heartbeat_ms: out of range"),
-    ("[host]\nscan = 1\n[[patches]]\nnode_id = 1\n", "host.scan: must be bool"),
+    ("[host]\nheartbeat_ms = 70000\n[[patches]]\nnode_id = 1\n",
+     "host.heartbeat_ms: must be in 1..65535, got 70000"),
+    ("[host]\nscan = 1\n[[patches]]\nnode_id = 1\n",
+     "host.scan: must be true or false, got an integer 1"),
     ("[host]\nlisten_only = 'yes'\n[[patches]]\nnode_id = 1\n",
-     "host.listen_only: must be bool, got str"),
+     "host.listen_only: must be true or false, got a string 'yes'"),
     ("[[patches]]\nnode_id = 1\nconstants = 3\n",
      "patches[0].constants: must be a table of sensor constants"),
     ("[[patches]]\nnode_id = 1\nconstants = { adc_bits = 12 }\n",
      "patches[0].constants.adc_bits: unknown key; known: area_m2, "),
     ("[[patches]]\nnode_id = 1\nconstants = { resistivity_ohm_m = -0.4 }\n",
-     "patches[0].constants.resistivity_ohm_m: must be a positive finite number"),
+     "patches[0].constants.resistivity_ohm_m: must be > 0 and <= 1e+09, got -0.4"),
     ("[[patches]]\nnode_id = 1\n[patches.constants]\nmax_strain = 'a lot'\n",
-     "patches[0].constants.max_strain: must be float, got str"),
-    ("[[patches]]\nnode_id = 1\nr0_ohm = 1000\n", "patches[0].r0_ohm: must be a list"),
+     "patches[0].constants.max_strain: must be a number, got a string 'a lot'"),
+    ("[[patches]]\nnode_id = 1\nr0_ohm = 1000\n",
+     "patches[0].r0_ohm: must be an array, got an integer 1000"),
     ("[[patches]]\nnode_id = 1\nr0_ohm = [1000.0, 1414.2]\n",
      "patches[0].r0_ohm: must list 27 values (taxel 0 z, x, y, taxel 1 ...) or 3"),
     ("[[patches]]\nnode_id = 1\nr0_ohm = [1000.0, 0, 1414.2]\n",
-     "patches[0].r0_ohm[1]: must be > 0 ohm"),
+     "patches[0].r0_ohm[1]: must be > 0 and <= 1e+09, got 0"),
     ("[[patches]]\nnode_id = 1\nr0_ohm = [1000.0, nan, 1414.2]\n",
      "patches[0].r0_ohm[1]: must be a finite number"),
     ("[host]\nother_nodes = [1, 'x']\n[[patches]]\nnode_id = 2\n",
-     "host.other_nodes[1]: must be int"),
+     "host.other_nodes[1]: must be an integer, got a string 'x'"),
     ("[drift]\ntime_constant_s = -1\n[[patches]]\nnode_id = 1\n",
-     "drift.time_constant_s: must be > 0"),
+     "drift.time_constant_s: must be > 0 and <= 1e+06, got -1"),
     ("[hosts]\n[[patches]]\nnode_id = 1\n", "hosts: unknown key"),
     ("[host]\n", "patches: missing"),
     ("[[patches]]\nnode_id = 1\n[[patches\n", "config: "),
@@ -196,3 +197,18 @@ def test_a_model_file_names_its_decoder_and_must_fit_the_mode(tmp_path: Path,
     broken = Path(__file__).resolve().parents[1] / "files" / "model_truncated.msgpack"
     assert _error(tmp_path, f"[[patches]]\nnode_id = 1\nmodel = '{broken}'\n").startswith(
         "patches[0].model: ")
+
+
+def test_the_check_knows_a_decoder_needs_fitting_without_decoding(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from decoder.analytic import AnalyticDecoder
+    from decoder.deconv import DeconvDecoder
+
+    def decode(self: object, resistance_ohm: object) -> None:
+        raise AssertionError("the config check decoded")
+
+    for cls in (AnalyticDecoder, DeconvDecoder):
+        monkeypatch.setattr(cls, "decode", decode)
+    assert HostConfig(patches=(PatchConfig(1, decoder="analytic"),)).check().checked
+    with pytest.raises(ConfigError, match=r"patches\[0\]\.model: decoder 'deconv' must be fitted"):
+        HostConfig(patches=(PatchConfig(1, decoder="deconv"),)).check()

@@ -55,7 +55,7 @@ def test_a_canopen_master_in_another_process_reads_what_the_api_gives(
             host.on_forces(frames.append)
             assert host.wait_operational(timeout=10.0), host.health()
             run = subprocess.run(
-                [sys.executable, str(Path(__file__).with_name("host_master_script.py")),
+                [sys.executable, "-m", "bench.rigs.force_master",
                  udp_channel, str(udp_port), "65,90", str(CYCLES), str(out)],
                 capture_output=True, text=True, timeout=60)
     finally:

@@ -16,16 +16,17 @@ import pytest
 from canbus.device.nmt_slave import PRE_OPERATIONAL
 from canbus.device.patch_node import PatchNode, z_only_mapping
 from canbus.master.baseline import Baseline, PatchLoadedError
-from canbus.master.host import _warn_if_unlike_config, configured_info
 from canbus.master.hostconfig import PatchConfig
 from canbus.master.liveness import HeartbeatMonitor
 from canbus.master.patch_setup import (
     PatchInfo,
+    configured_info,
     patch_info,
     plan_setup,
     read_patch_info,
     setup_patch,
     tpdo_layouts,
+    warn_if_unlike_config,
 )
 from canbus.master.sync_producer import SyncFollower, SyncProducer, sync_counter
 from canbus.od import load_od
@@ -341,9 +342,9 @@ def test_setup_reads_the_constants_and_maps_the_decoders_mode(
         patch_net: tuple[PatchNode, canopen.RemoteNode]) -> None:
     node, remote = patch_net
     info = read_patch_info(remote.sdo, 9)
-    assert info.constants == node.constants  # REAL32 values read back as their decimals
+    assert info.constants == node.constants  # scaled counts read back as the same SI values
     np.testing.assert_allclose(info.r0_ohm, np.tile(node.constants.nominal_resistance_ohm,
-                                                    (9, 1)), rtol=1e-7)
+                                                    (9, 1)), rtol=0, atol=0.5e-3)
     # a z-only node, mapped for 3 axes: 27 codes in TPDO 1..7, every SYNC, heartbeat 250 ms
     setup = setup_patch(remote, "xyz", heartbeat_ms=250)
     assert [x.cob_id for x in setup.layouts] == [0x189, 0x289, 0x389, 0x489, 0x209, 0x309, 0x409]
@@ -369,7 +370,7 @@ def test_a_listen_only_host_plans_the_setup_the_host_writes_and_reads(
         patch_net: tuple[PatchNode, canopen.RemoteNode], caplog: pytest.LogCaptureFixture) -> None:
     node, remote = patch_net
     read = read_patch_info(remote.sdo, 9)
-    # what the patch reports, computed from its constants: every value through REAL32
+    # what the patch reports, computed from its constants: every value through its count
     assert _same_info(patch_info(9, node.constants), read)
     assert _same_info(configured_info(PatchConfig(9, constants=node.constants)), read)
     assert _same_info(patch_info(9), configured_info(PatchConfig(9)))  # DEFAULT_CONSTANTS
@@ -386,9 +387,9 @@ def test_a_listen_only_host_plans_the_setup_the_host_writes_and_reads(
         assert (planned.mode, planned.pillars) == (written.mode, written.pillars)
     # a normal host warns when the patch disagrees with constants given for listen-only
     with caplog.at_level(logging.WARNING, logger="canbus.master.host"):
-        _warn_if_unlike_config(PatchConfig(9, constants=node.constants), read)
+        warn_if_unlike_config(PatchConfig(9, constants=node.constants), read)
         assert not caplog.records
-        _warn_if_unlike_config(PatchConfig(9, constants=DEFAULT_CONSTANTS,
+        warn_if_unlike_config(PatchConfig(9, constants=DEFAULT_CONSTANTS,
                                            r0_ohm=(1001.0, 1415.0, 1414.0)), read)
     messages = [r.getMessage() for r in caplog.records]
     assert len(messages) == 2 and messages[0].startswith("patch 9 reports constants ")

@@ -3,7 +3,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import canopen
 import numpy as np
@@ -36,7 +35,7 @@ def test_canopen_master_decodes_the_simulator_resistances(udp_channel: str,
     net.connect(interface="udp_multicast", channel=udp_channel, port=udp_port)
     try:
         with PatchServer(net, SimulatorSource(simulator)) as server:
-            run = subprocess.run([sys.executable, str(Path(__file__).with_name("master_script.py")),
+            run = subprocess.run([sys.executable, "-m", "bench.rigs.patch_master",
                                   udp_channel, str(udp_port), str(SYNCS)],
                                  capture_output=True, text=True,
                                  timeout=30)

@@ -148,7 +148,7 @@ def test_remap_to_status_by_cia301_sequence(bench: Bench) -> None:
     sdo[0x1A00][1].raw = 0x20040108
     sdo[0x1A00][2].raw = 0x20040208
     with pytest.raises(SdoAbortedError) as err:
-        sdo[0x1A00][3].raw = 0x20020120  # REAL32 R0: not mappable
+        sdo[0x1A00][3].raw = 0x20020120  # R0 (UNSIGNED32 mOhm): not mappable
     assert err.value.code == 0x06040041
     sdo[0x1A00][0].raw = 2
     sdo[0x1800][1].raw = 0x181

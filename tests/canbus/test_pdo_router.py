@@ -5,9 +5,9 @@ from __future__ import annotations
 import can
 import pytest
 
+from bench.dataplane import SinkBus
 from canbus.device.patch_node import PatchNode
 from canbus.master.dataplane import DataPlane, PatchChannel
-from canbus.master.dataplane_bench import SinkBus
 from canbus.master.forcenode import ForceNode
 from canbus.master.pdo_router import PdoRouter
 from decoder.registry import create_decoder

@@ -47,11 +47,14 @@ def test_frame_bounds_match_the_hand_calculation() -> None:
 def test_payloads_are_the_project_s_mappings() -> None:
     assert busload.patch_payloads("xyz", fd=False) == [8] * 6 + [6]
     assert busload.patch_payloads("z", fd=False) == [6] * 3
-    assert busload.force_payloads(fd=False) == [8] * 7
-    # FD: the codes and the SYNC counter in one frame; forces: 27 + 0x2005 + counter
+    assert busload.force_payloads(fd=False) == [8] * 8  # 7 of forces, the contact's TPDO 8
+    assert busload.force_payloads(fd=False, contact=False) == [8] * 7
+    # FD: the codes and the SYNC counter in one frame; forces: 27 + 0x2005 + counter, and
+    # the contact's net Fz, CoP and state
     assert busload.patch_payloads("xyz", fd=True) == [55]
     assert busload.patch_payloads("z", fd=True) == [19]
-    assert busload.force_payloads(fd=True) == [57]
+    assert busload.force_payloads(fd=True) == [64]
+    assert busload.force_payloads(fd=True, contact=False) == [57]
 
 
 def test_one_patch_cycle_by_hand() -> None:
@@ -70,11 +73,14 @@ def test_one_patch_cycle_by_hand() -> None:
 
 def test_forces_and_heartbeats_are_counted() -> None:
     p = plan(16, 100, "xyz", 1_000_000)
-    # 16 x 100 x (7 patch + 7 force) + 100 SYNC + 16 x 10 patch and 16 x 1 force heartbeats
-    assert p.frames_per_s == pytest.approx(22_400 + 100 + 160 + 16)
+    # 16 x 100 x (7 patch + 8 force) + 100 SYNC + 16 x 10 patch and 16 x 1 force heartbeats
+    assert p.frames_per_s == pytest.approx(24_000 + 100 + 160 + 16)
     (bus,) = p.buses
     assert bus.frames_per_s == pytest.approx({"sync": 100, "patch_pdo": 11_200,
-                                              "heartbeat": 176, "force_pdo": 11_200})
+                                              "heartbeat": 176, "force_pdo": 12_800})
+    without = plan(16, 100, "xyz", 1_000_000, contact=False)  # [contact] enabled = false
+    assert without.buses[0].frames_per_s["force_pdo"] == pytest.approx(11_200)
+    assert without.force_frames_per_sample == 7 and p.force_frames_per_sample == 8
     assert bus.force_nodes == tuple(range(65, 81))
     # with max_rate_hz the worst case sits at the target, heartbeats included
     at_max = plan(16, p.max_rate_hz, "xyz", 1_000_000)
@@ -83,9 +89,13 @@ def test_forces_and_heartbeats_are_counted() -> None:
 
 def test_four_patches_need_about_6_ms_of_wire_per_cycle() -> None:
     # issue 11: 4 patches, 3-axis, forces on the same bus: about 6.3 ms per 10 ms cycle
-    p = plan(4, 100, "xyz", 1_000_000)
+    p = plan(4, 100, "xyz", 1_000_000, contact=False)
     assert p.cycle_ms_best < 6.3 < p.cycle_ms_worst
     assert p.fits and p.over_target  # 62 to 76 % of the wire
+    # the contact PDO: 4 more 8-byte frames (111 to 135 bits each) a cycle
+    with_contact = plan(4, 100, "xyz", 1_000_000)
+    assert with_contact.cycle_ms_best == pytest.approx(p.cycle_ms_best + 4 * 0.111)
+    assert with_contact.cycle_ms_worst == pytest.approx(p.cycle_ms_worst + 4 * 0.135)
 
 
 def test_buses_share_the_patches_and_each_has_its_sync() -> None:
@@ -110,7 +120,7 @@ def test_the_bar_classic_does_not_fit_can_fd_does(tmp_path: Path) -> None:
     assert run.returncode == 0 and "does not fit" in run.stderr
     assert run.stderr.count("\n") == 1
     c = json.loads(classic.read_text())
-    assert c["force_frames_per_sample"] == 7 and c["buses"][0]["frames_per_s"]["force_pdo"] == 5600
+    assert c["force_frames_per_sample"] == 8 and c["buses"][0]["frames_per_s"]["force_pdo"] == 6400
     assert c["load_best_pct"] > 100 and not c["fits"]
     run = _skin_plan("--patches", "8", "--rate", "100", "--mode", "xyz", "--bitrate",
                      "1000000", "--fd", "--data-bitrate", "5000000", "--json", str(fd))
@@ -134,16 +144,18 @@ def test_a_plan_under_100_but_over_target_warns_so() -> None:
     assert "bus 0 (patches 1-4)" in run.stdout
 
 
-@pytest.mark.parametrize(("args", "message"), [
-    (["--buses", "0"], "--buses: must be positive"),
-    (["--buses", "9"], "a bus would carry none"),
-    (["--fd", "--data-bitrate", "500000"], "below the nominal bitrate"),
-    (["--heartbeat-ms", "-1"], "--heartbeat-ms"),
+@pytest.mark.parametrize(("args", "message", "status"), [
+    (["--buses", "0"], "argument --buses: must be in 1..100000, got '0'", 2),
+    (["--buses", "9"], "a bus would carry none", 1),
+    (["--fd", "--data-bitrate", "500000"], "below the nominal bitrate", 1),
+    (["--heartbeat-ms", "-1"], "argument --heartbeat-ms: must be in 0..65535 ms", 2),
+    (["--rate", "inf"], "argument --rate: must be a finite number", 2),
 ])
-def test_bad_plans_fail_in_one_line(args: list[str], message: str, tmp_path: Path) -> None:
+def test_bad_plans_fail_in_one_line(args: list[str], message: str, status: int,
+                                    tmp_path: Path) -> None:
     out = tmp_path / "plan.json"
     run = _skin_plan("--patches", "8", "--rate", "100", "--json", str(out), *args)
-    assert run.returncode == 1 and message in run.stderr
+    assert run.returncode == status and message in run.stderr
     assert run.stderr.count("\n") == 1 and not out.exists()
 
 
@@ -175,14 +187,15 @@ def test_the_buses_needed_are_the_fewest_that_keep_every_bus_under_the_target(
 
 
 def test_plan_answers_the_sizing_question(tmp_path: Path) -> None:
-    """16 patches at 200 Hz (3-axis, forces on each patch's bus): 600 % of one classic bus."""
+    """16 patches at 200 Hz (3-axis, forces with the contact PDO on each patch's bus): 644 %
+    of one classic bus."""
     out = tmp_path / "plan.json"
     run = _skin_plan("--patches", "16", "--rate", "200", "--json", str(out))
     assert run.returncode == 0
     assert "buses needed for 16 patches x 200 Hz under the 70 % target" in run.stdout
     rows = {line.split("  ")[0]: line.split() for line in run.stdout.splitlines()
             if line.startswith("CAN ")}
-    assert rows["CAN 1,000,000 bit/s"][-6:-3] == ["16", "1", "38.8"]
+    assert rows["CAN 1,000,000 bit/s"][-6:-3] == ["16", "1", "41.5"]
     assert rows["CAN FD 1,000,000/5,000,000 bit/s"][-6:-3] == ["2", "8", "55.6"]
     assert "or use 16 buses of CAN 1,000,000 bit/s or 2 buses of CAN FD" in run.stderr
     sizing = json.loads(out.read_text())["sizing"]

@@ -15,7 +15,7 @@ import pytest
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from skin.cli import main
-from skin.commands.demo import _scene
+from skin.commands.demo import demo_scene
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 
@@ -69,9 +69,9 @@ def test_skin_run_hosts_the_configured_patches_and_reports_the_rest(
 
 @pytest.mark.parametrize(("text", "expected"), [
     ("[[patches]]\nnode_id = 1\nmodel = 'gone.msgpack'\n",
-     "skin: error: patches[0].model: no such file"),
+     "patches[0].model: no such file"),
     ("[[patches]]\nnode_id = 1\nforce_node = 2\n[[patches]]\nnode_id = 2\n",
-     "skin: error: patches[1].node_id: node-ID 2 is also patches[0].force_node"),
+     "patches[1].node_id: node-ID 2 is also patches[0].force_node"),
 ])
 def test_skin_run_refuses_a_bad_config_in_one_line(tmp_path: Path, text: str, expected: str,
                                                    capsys: pytest.CaptureFixture[str]) -> None:
@@ -79,7 +79,7 @@ def test_skin_run_refuses_a_bad_config_in_one_line(tmp_path: Path, text: str, ex
     config.write_text(text, encoding="utf-8")
     assert main(["run", str(config), "-i", "virtual", "-c", "never-opened"]) == 1
     err = capsys.readouterr().err
-    assert err.startswith(expected) and err.count("\n") == 1
+    assert err.startswith(f"skin: error: {config}: {expected}") and err.count("\n") == 1
 
 
 @pytest.mark.parametrize("how", ["flag", "config"])
@@ -115,7 +115,8 @@ def test_skin_run_listen_only_flag_is_off_by_default_and_still_checks_the_config
     config.write_text("[host]\nlisten_only = 1\n[[patches]]\nnode_id = 1\n", encoding="utf-8")
     assert main(["run", str(config), "--listen-only", "-i", "virtual", "-c", "never"]) == 1
     err = capsys.readouterr().err
-    assert err == "skin: error: host.listen_only: must be bool, got int 1\n"
+    assert err == (f"skin: error: {config}: host.listen_only: must be true or false, got an "
+                   "integer 1\n")
 
 
 def test_skin_run_names_a_bus_it_cannot_open(tmp_path: Path,
@@ -188,7 +189,7 @@ def test_skin_demo_refuses_traffic_the_bus_cannot_carry(
     assert _in_thread(["demo", "--patches", "8", "--seconds", "0.5"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("skin: error: --patches: 8 patches x 100 Hz (xyz)") and \
-        "124-151 % load" in err and "cannot fit; use --fd, --buses 2" in err
+        "133-162 % load" in err and "cannot fit; use --fd, --buses 2" in err  # contact PDO in
 
 
 def test_skin_demo_refuses_a_cpu_it_cannot_use(capsys: pytest.CaptureFixture[str]) -> None:
@@ -208,12 +209,12 @@ def test_skin_demo_defaults_end_by_themselves(capsys: pytest.CaptureFixture[str]
 
 
 def test_demo_scenes_put_every_load_on_every_patch() -> None:
-    hard = _scene("hard", 3)
+    hard = demo_scene("hard", 3)
     assert hard.node_ids == (1, 2, 3)
     assert all(load.patches == (1, 2, 3) for load in hard.loads)
     faults = hard.effects["faults"].pillars
     assert {f.node_id for f in faults} == {1, 2}  # faults of patches that still exist
-    assert _scene("indenter", None) is not None and _scene("indenter", 1).node_ids == (1,)
+    assert demo_scene("indenter", None) is not None and demo_scene("indenter", 1).node_ids == (1,)
 
 
 def test_skin_demo_on_a_terminal_shows_the_skin_live(capsys: pytest.CaptureFixture[str],

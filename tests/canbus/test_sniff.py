@@ -30,12 +30,13 @@ from canbus.busload import classic_frame_bits
 from canbus.device.patch_server import PatchServer
 from canbus.od import load_od
 from canbus.tools.attribution import Attribution, KnownNode
-from canbus.tools.pdo_names import Dictionary
+from canbus.tools.pdo_dictionary import Dictionary
 from canbus.tools.replay import Recording
 from canbus.tools.services import Service, ServiceDecoder, route
 from canbus.tools.sniffer import FrameFilter, Sniffer, frame_bits
 from skin.cli import main
-from skin.commands.sniff_view import ViewStats, render
+from skin.commands.common import busopen
+from skin.commands.sniff.view import ViewStats, render
 from skin.constants import DEFAULT_CONSTANTS
 
 SYNCS = 6
@@ -318,22 +319,25 @@ def test_bad_arguments_fail_before_the_bus_opens(tmp_path: Path,
     def no_bus(*args: object, **kwargs: object) -> None:
         raise AssertionError("the bus was opened")
 
-    monkeypatch.setattr(can.cli, "create_bus_from_namespace", no_bus)
+    monkeypatch.setattr(busopen, "open_bus", no_bus)
     for argv, message in [
         (["--record", str(tmp_path / "x.txt")], "--record: unknown recording format '.txt'"),
         (["--eds", "3=missing.eds"], "eds: no shipped EDS 'missing.eds'"),
-        (["--seconds", "0"], "--seconds: must be positive"),
         (["--rotate-size", "1M"], "--rotate-size/--rotate-seconds: rotate a recording: give "
                                   "--record FILE too"),
-        (["--record", str(tmp_path / "r.log"), "--rotate-seconds", "0"],
-         "--rotate-seconds: must be positive, got 0.0"),
     ]:
         assert main(["sniff", *argv]) == 1
         assert message in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        main(["sniff", "--record", str(tmp_path / "r.log"), "--rotate-size", "10T"])
-    assert "argument --rotate-size: not a positive size in bytes: '10T'" in \
-        capsys.readouterr().err
+    for argv, message in [
+        (["--seconds", "0"], "argument --seconds: must be > 0 s"),
+        (["--record", str(tmp_path / "r.log"), "--rotate-seconds", "0"],
+         "argument --rotate-seconds: must be > 0 s"),
+        (["--record", str(tmp_path / "r.log"), "--rotate-size", "10T"],
+         "argument --rotate-size: must be in 1.0 KiB..1.0 TiB"),
+    ]:
+        with pytest.raises(SystemExit) as usage:
+            main(["sniff", *argv])
+        assert usage.value.code == 2 and message in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
 
 
@@ -368,7 +372,7 @@ def test_rotated_capture_names_its_files(tmp_path: Path,
 def test_line_printer_filters_batches_and_counts_drops(monkeypatch: pytest.MonkeyPatch) -> None:
     import io
 
-    from skin.commands import sniff_view
+    from skin.commands.sniff import view as sniff_view
 
     decoder = ServiceDecoder()
     out = io.StringIO()

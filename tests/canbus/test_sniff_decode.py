@@ -6,7 +6,8 @@ import can
 import pytest
 
 from canbus.tools.attribution import Attribution, KnownNode
-from canbus.tools.pdo_names import Dictionary, parse_assignment, shipped_default
+from canbus.tools.pdo_dictionary import Dictionary, parse_assignment
+from canbus.tools.pdo_names import shipped_default
 from canbus.tools.services import Service, ServiceDecoder, route
 from canbus.tools.sniffer import FrameFilter
 from skin.errors import ConfigError
@@ -33,9 +34,10 @@ TRACE = [  # (COB-ID, payload, service, node label, label, text)
      "write 0x1017:00 Producer heartbeat time = 50 ms"),
     (0x581, "6017100000000000", "sdo", "patch 1", "SDO tx",
      "write 0x1017:00 Producer heartbeat time done"),
-    (0x601, "4001200000000000", "sdo", "patch 1", "SDO rx", "read 0x2001:00 Resistance LSB"),
-    (0x581, "43012000cdcc4c3d", "sdo", "patch 1", "SDO tx",
-     "0x2001:00 Resistance LSB = 0.05 Ω"),
+    (0x601, "4001200000000000", "sdo", "patch 1", "SDO rx",
+     "read 0x2001:00 Resistance LSB (uOhm)"),
+    (0x581, "4301200050c30000", "sdo", "patch 1", "SDO tx",
+     "0x2001:00 Resistance LSB (uOhm) = 0.05 Ω"),
     (0x581, "8000201c11000906", "sdo", "patch 1", "SDO tx",
      "abort 0x2000:1C: Code 0x06090011, Subindex does not exist"),
     (0x581, "0000000000000000", "sdo", "patch 1", "SDO tx", "upload segment, toggle 0"),
@@ -61,6 +63,22 @@ TRACE = [  # (COB-ID, payload, service, node label, label, text)
     (0x100, "00000000 0100".replace(" ", ""), "time", "", "TIME",
      "TIME 1984-01-02T00:00:00.000+00:00"),
     (0x123, "01", "unknown", "", "0x123", "01"),
+    (0x601, "2310100173617665", "sdo", "patch 1", "SDO rx",
+     "write 0x1010:01 Store parameters.Save all parameters = 0x65766173"),
+    (0x601, "4003100100000000", "sdo", "patch 1", "SDO rx",
+     "read 0x1003:01 Pre-defined error field.Standard error field 1"),
+    (0x581, "4303100100500407", "sdo", "patch 1", "SDO tx",
+     "0x1003:01 Pre-defined error field.Standard error field 1 = 0x07045000"),
+    (0x581, "4f29100102000000", "sdo", "patch 1", "SDO tx",
+     "0x1029:01 Error behavior.Communication error = 2"),
+    (0x581, "4302200546941500", "sdo", "patch 1", "SDO tx",
+     "0x2002:05 Nominal resistances R0.Taxel 1 pillar x (mOhm) = 1414.214 Ω"),
+    (0x581, "43032001404b4c00", "sdo", "patch 1", "SDO tx",
+     "0x2003:01 Sensor constants.Youngs modulus (Pa) = 5000000 Pa"),
+    (0x7E5, "4301100000000000", "lss", "", "LSS master",
+     "switch state selective serial 0x00001001"),
+    (0x7E4, "4400000000000000", "lss", "", "LSS slave",
+     "switch state selective: the slave is in configuration state"),
     (0x1C2, "e80318fc0080e803", "pdo", "", "unattributed", "e8 03 18 fc 00 80 e8 03"),
 ]
 
@@ -127,7 +145,7 @@ def test_pdo_mapping_follows_sdo() -> None:
     assert decoder.decode(_msg(0x185, "204e6e4e204e")).text == decoded.text
     # the LSB read back by SDO rescales the resistances
     decoder.decode(_msg(0x605, "4001200000000000"))
-    decoder.decode(_msg(0x585, "430120000ad7233c"))  # 0.01 ohm
+    decoder.decode(_msg(0x585, "4301200010270000"))  # 10000 uOhm = 0.01 ohm
     assert decoder.decode(_msg(0x185, "204e6e4e204e")).text == \
         "R0z=200.00 Ω R1z=200.78 Ω R2z=200.00 Ω"
 
@@ -183,7 +201,7 @@ def test_nodes_sharing_an_eds_keep_their_own_cob_ids() -> None:
     patch5, forces70 = dictionary.view(5), dictionary.view(70)
     assert patch5 is not None and forces70 is not None
     assert sorted(patch5.pdos) == [0x185, 0x205, 0x285, 0x305, 0x385, 0x405, 0x485]
-    assert sorted(forces70.pdos) == [0x1C6, 0x246, 0x2C6, 0x346, 0x3C6, 0x446, 0x4C6]
+    assert sorted(forces70.pdos) == [0x1C6, 0x246, 0x2C6, 0x346, 0x3C6, 0x446, 0x4C6, 0x546]
     patch6 = dictionary.view(6)
     assert patch6 is not None and patch6.od is patch5.od  # one parse per EDS
     assert dictionary.view(0) is None and dictionary.view(128) is None
@@ -191,7 +209,7 @@ def test_nodes_sharing_an_eds_keep_their_own_cob_ids() -> None:
 
 def test_a_force_nodes_taxel_status_reads_as_the_decoders_reason() -> None:
     """0x2004 of a force node is the decoder's reason code, not a patch's pillar bits."""
-    from canbus.tools.pdo_names import Dictionary
+    from canbus.tools.pdo_dictionary import Dictionary
     from decoder.reasons import Reason
 
     forces, patch = Dictionary().view(65), Dictionary().view(1)

@@ -142,6 +142,8 @@ def _assert_same_forces(got: list[ForceFrame], want: list[ForceFrame]) -> None:
         np.testing.assert_array_equal(a.force_N, b.force_N, err_msg=str(_key(b)))
         np.testing.assert_array_equal(a.valid, b.valid, err_msg=str(_key(b)))
         np.testing.assert_array_equal(a.reason, b.reason, err_msg=str(_key(b)))
+        assert a.contact is not None and b.contact is not None  # the contact summary alike
+        assert a.contact.to_dict() == b.contact.to_dict(), _key(b)
 
 
 def _recorded_seconds(path: Path) -> float:
@@ -261,7 +263,7 @@ def test_skin_decode_gives_what_a_listen_only_host_publishes_for_a_replay(
         host_run: HostRun, tmp_path: Path) -> None:
     """Offline, on the recording's clock: the same samples, value for value, as a listen-only
     host fed the replay, and the same every time (pcap and log alike)."""
-    from canbus.master.offline import decode_recording
+    from canbus.offline.decode import decode_recording
 
     replayed: list[ForceFrame] = []
     with can.Bus(interface="virtual", channel="decode-replay") as bus, \
@@ -285,6 +287,15 @@ def test_skin_decode_gives_what_a_listen_only_host_publishes_for_a_replay(
     assert saved["force_N"].shape == (len(offline), 9, 3)
     np.testing.assert_array_equal(saved["force_N"], np.array([f.force_N for f in offline]))
     assert saved["complete"].tolist() == [f.complete for f in offline]
+    contacts = [f.contact for f in offline]
+    assert all(c is not None for c in contacts)
+    np.testing.assert_array_equal(saved["cop_m"], [c.cop_m for c in contacts if c])
+    np.testing.assert_array_equal(saved["contact_force_N"], [c.force_N for c in contacts if c])
+    assert saved["contact_state"].tolist() == [
+        sum(1 << k for k, on in enumerate((c.in_contact, c.onset, c.release, c.near_slip,
+                                           c.slipping, c.slip_onset, c.partial, c.unknown))
+            if on) for c in contacts if c]
+    assert saved["cop_defined"].any() and saved["contact_state"].any()  # presses were there
 
 
 def _write_config(folder: Path) -> Path:
@@ -308,6 +319,39 @@ def test_skin_decode_writes_csv_and_refuses_an_unknown_output(
                  "-o", str(tmp_path / "forces.txt")]) == 1
     assert "-o: unknown output format '.txt'" in capsys.readouterr().err
     assert not (tmp_path / "forces.txt").exists()
+    assert main(["decode", str(host_run.folder / "host.log"), "--config", str(config),
+                 "-o", str(out), "--contact", str(tmp_path / "contact.txt")]) == 1
+    assert "--contact: the contact table is a .csv file" in capsys.readouterr().err
+
+
+def test_skin_decode_writes_every_sample_s_contact(host_run: HostRun, tmp_path: Path) -> None:
+    from canbus.offline.decode import decode_recording
+
+    config = _write_config(tmp_path)
+    table = tmp_path / "contact.csv"
+    assert main(["decode", str(host_run.folder / "host.log"), "--config", str(config),
+                 "-o", str(tmp_path / "forces.npz"), "--contact", str(table)]) == 0
+    frames = decode_recording(host_run.folder / "host.log", host_run.config)
+    lines = table.read_text().splitlines()
+    header = lines[0].split(",")
+    assert header[:8] == ["cycle", "sync_counter", "time_s", "patch", "force_node", "fx_N",
+                          "fy_N", "fz_N"] and header[-8:] == [
+        "in_contact", "onset", "release", "near_slip", "slipping", "slip_onset", "partial",
+        "unknown"]
+    assert len(lines) == len(frames) + 1
+    for line, frame in zip(lines[1:], frames, strict=True):
+        row = dict(zip(header, line.split(","), strict=True))
+        c = frame.contact
+        assert c is not None
+        assert (int(row["cycle"]), int(row["patch"])) == (frame.cycle, frame.patch)
+        assert float(row["fz_N"]) == c.force_N[2]
+        if c.cop_defined:
+            assert (float(row["cop_x_m"]), float(row["cop_y_m"])) == tuple(c.cop_m)
+        else:
+            assert row["cop_x_m"] == row["cop_y_m"] == ""
+        assert (row["in_contact"], row["onset"], row["slipping"]) == (
+            str(int(c.in_contact)), str(int(c.onset)), str(int(c.slipping)))
+    assert any(line.split(",")[header.index("in_contact")] == "1" for line in lines[1:])
 
 
 def test_skin_decode_speaks_of_the_recording_not_of_a_live_bus(

@@ -43,7 +43,7 @@ def test_sim_run(tmp_path: Path, sig: signal.Signals) -> None:
     stdout, stderr = _stop(proc, sig)
     assert proc.returncode == 0, stderr
     assert stdout.startswith("served 0 SYNCs, sent 0 TPDOs in ")
-    assert f"INFO skin.commands.signals: stopping on {sig.name}" in stderr
+    assert f"INFO skin.commands.common.signals: stopping on {sig.name}" in stderr
     record = json.loads(out.read_text())
     assert record["stopped_by"] == sig.name and record["scene"] == "paper"
 

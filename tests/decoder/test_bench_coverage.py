@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from decoder import benchmark
-from skin.commands.bench_view import print_decoders, uncovered
+import bench.decoders as benchmark
+from skin.commands.bench.report import print_decoders, uncovered
 from tests.decoder.conftest import crosstalk_matrix, make_data
 
 

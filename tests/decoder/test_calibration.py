@@ -21,7 +21,7 @@ from decoder.calibration import (
 )
 from decoder.metrics import evaluate
 from decoder.registry import create_decoder
-from decoder.tare import MIN_REST_SAMPLES, nominal_r0, normalise, real32, tare_at_rest
+from decoder.tare import MIN_REST_SAMPLES, as_reported, nominal_r0, normalise, tare_at_rest
 from sim import generate_dataset, load_scene
 from skin.constants import DEFAULT_CONSTANTS
 from skin.errors import ConfigError, DecodeError
@@ -40,7 +40,7 @@ def test_the_tare_is_the_mean_rest_reading_as_a_patch_holds_it(
     assert rest.sum() > np.all(f == 0, axis=(1, 2)).sum()  # some barely touched
     tare = tare_at_rest(r, f)
     assert tare is not None and tare.samples == rest.sum() >= MIN_REST_SAMPLES
-    np.testing.assert_array_equal(tare.rest_ohm, real32(r[rest].mean(axis=0)))
+    np.testing.assert_array_equal(tare.rest_ohm, as_reported(r[rest].mean(axis=0)))
     np.testing.assert_allclose(tare.rest_ohm / DEFAULT_CONSTANTS.nominal_resistance_ohm, 1.03,
                                rtol=2e-4)  # the scene reads 3 % high
     few = np.flatnonzero(rest)[MIN_REST_SAMPLES - 1:]
@@ -55,11 +55,11 @@ def test_the_frame_is_what_the_host_feeds_a_decoder(data: tuple[np.ndarray, np.n
     tare = tare_at_rest(r, f)
     assert tare is not None
     r0 = nominal_r0(DEFAULT_CONSTANTS, 3)
-    # the host: baseline = the R0 the patch reports (REAL32), scale = r0 / baseline
+    # the host: baseline = the R0 the patch reports (whole mOhm), scale = r0 / baseline
     host = Baseline(r0, tare.rest_ohm, loaded_N=0.05)
     np.testing.assert_array_equal(r * host.scale, normalise(r, tare.rest_ohm, r0))
-    same = Baseline(r0, real32(r0), loaded_N=0.05)  # a patch that reports the nominal R0
-    np.testing.assert_array_equal(r * same.scale, normalise(r, real32(r0), r0))
+    same = Baseline(r0, as_reported(r0), loaded_N=0.05)  # a patch that reports the nominal R0
+    np.testing.assert_array_equal(r * same.scale, normalise(r, as_reported(r0), r0))
 
 
 def test_folds_are_contiguous_and_cover_everything() -> None:

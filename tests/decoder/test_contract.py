@@ -84,5 +84,42 @@ def test_entry_points_extend_the_registry(monkeypatch: pytest.MonkeyPatch) -> No
 
     ep = EntryPoint("mine", "decoder.analytic:AnalyticDecoder", registry.ENTRY_POINT_GROUP)
     monkeypatch.setattr(registry, "entry_points", lambda group: [ep])
-    assert "mine" in available_decoders()
-    assert decoder_class("mine").name == "analytic"
+    registry.refresh()  # the entry points are read once: read them again
+    try:
+        assert "mine" in available_decoders()
+        assert decoder_class("mine").name == "analytic"
+    finally:
+        monkeypatch.undo()
+        registry.refresh()
+    assert "mine" not in available_decoders()
+
+
+def test_the_registry_reads_entry_points_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    import decoder.registry as registry
+
+    reads = []
+    real = registry.entry_points
+    monkeypatch.setattr(registry, "entry_points", lambda group: reads.append(group) or real(
+        group=group))
+    registry.refresh()
+    try:
+        for name in available_decoders():
+            create_decoder(name)
+            assert decoder_class(name) is decoder_class(name)
+        assert reads == [registry.ENTRY_POINT_GROUP]
+    finally:
+        monkeypatch.undo()
+        registry.refresh()
+
+
+@pytest.mark.parametrize("name", available_decoders())
+def test_needs_fitting_says_whether_a_fresh_decoder_decodes(name: str) -> None:
+    """The class-level fact agrees with what a fresh decoder does."""
+    cls = decoder_class(name)
+    assert cls.needs_fitting == (name not in UNTRAINED)
+    rest = np.full((1, 9, 1), 1000.0)
+    if cls.needs_fitting:
+        with pytest.raises(NotFittedError):
+            _make(name).decode(rest)
+    else:
+        _check(_make(name).decode(rest), 1)

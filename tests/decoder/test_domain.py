@@ -238,7 +238,7 @@ def test_box_and_ellipsoid_by_hand() -> None:
 
 
 def test_cross_bars_compare_unseen_cells_and_skip_exact_oracles() -> None:
-    from decoder.benchmark import cross_bars
+    from bench.decoders import cross_bars
 
     def cell(decoder: str, train: str, test: str, err: float, oracle: float) -> dict[str, Any]:
         return {"decoder": decoder, "mode": "z", "train": train, "test": test,

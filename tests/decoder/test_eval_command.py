@@ -128,7 +128,7 @@ def test_clear_refusals(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
                              f"M.msgpack {z}`"),
         (["nothing", str(z)], "MODEL: 'nothing' is neither a model file nor a decoder name "
                               "(decoders: analytic, deconv, lm-mlp, hybrid"),
-        (["analytic", str(tmp_path / "absent.npz")], "No such file"),
+        (["analytic", str(tmp_path / "absent.npz")], "absent.npz: no such file"),
     ]
     for argv, problem in cases:
         assert main(["eval", *argv, "--json", str(tmp_path / "e.json")]) == 1

@@ -1,14 +1,14 @@
 """Speed benchmarks (pytest-benchmark); run with --benchmark-enable to measure.
 
-Figures: sim.benchmark.run_benchmark, printed by `skin bench sim`.
+Figures: bench.sim.run_benchmark, printed by `skin bench sim`.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from bench.sim import bench_scene, run_benchmark
 from sim import Simulator
-from sim.benchmark import bench_scene, run_benchmark
 
 STEPS = 2_000
 

@@ -33,17 +33,19 @@ def test_dataset_from_path_with_seed(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["paper", "-n", "-5"], "skin: error: n: must be a positive number of samples, got -5\n"),
         ([str(FILES / "sim_unknown_load.toml"), "-n", "5"],
-         "skin: error: loads[0].kind: unknown load 'foo'; known: "
-         "uniform_random, indenter, slide, grasp, idle\n"),
+         f"skin: error: {FILES / 'sim_unknown_load.toml'}: loads[0].kind: unknown load 'foo'; "
+         "known: uniform_random, indenter, slide, grasp, idle, stick_slip\n"),
         ([str(FILES / "sim_unknown_effect.toml"), "-n", "5"],
-         "skin: error: effects.wobble: unknown effect 'wobble'; known: elastic_crosstalk, "
-         "hysteresis, drift, readout, noise, faults\n"),
+         f"skin: error: {FILES / 'sim_unknown_effect.toml'}: effects.wobble: unknown effect "
+         "'wobble'; known: elastic_crosstalk, hysteresis, drift, readout, noise, faults\n"),
         ([str(FILES / "sim_unknown_key.toml"), "-n", "5"],
-         "skin: error: loads[0].radius_mm: unknown key; known: depth_max_m, fz_max_N, radius_m\n"),
-        ([str(FILES / "sim_overstrain.toml"), "-n", "5"], "skin: error: loads[0].fz_max_N: 20 "),
-        ([str(FILES / "sim_bad_syntax.toml"), "-n", "5"], "skin: error: "),
+         f"skin: error: {FILES / 'sim_unknown_key.toml'}: loads[0].radius_mm: unknown key; "
+         "known: depth_max_m, fz_max_N, radius_m\n"),
+        ([str(FILES / "sim_overstrain.toml"), "-n", "5"],
+         f"skin: error: {FILES / 'sim_overstrain.toml'}: loads[0].fz_max_N: 20 "),
+        ([str(FILES / "sim_bad_syntax.toml"), "-n", "5"],
+         f"skin: error: {FILES / 'sim_bad_syntax.toml'}: scene: not valid TOML: "),
         (["nope", "-n", "5"], "skin: error: scene: unknown scene 'nope'"),
     ],
 )
@@ -56,6 +58,17 @@ def test_errors_one_line_no_file(
     assert captured.out == ""
     assert captured.err.startswith(message)
     assert captured.err.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_negative_count_is_a_usage_error(tmp_path: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as refused:
+        main(["sim", "dataset", "paper", "-n", "-5", "-o", str(tmp_path / "out.npz")])
+    assert refused.value.code == 2
+    assert capsys.readouterr().err == (
+        "skin sim dataset: error: argument -n: must be in 1..1000000000000, got '-5' (see "
+        "skin sim dataset --help)\n")
     assert list(tmp_path.iterdir()) == []
 
 

@@ -29,15 +29,15 @@ from canbus.master.dataplane import ForceFrame
 from canbus.master.forcenode import forces_to_mN
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, load_host_config
-from canbus.master.known_nodes import known_nodes
 from canbus.tools.attribution import Attribution
-from canbus.tools.pdo_names import Dictionary
+from canbus.tools.pdo_dictionary import Dictionary
 from canbus.tools.recorder import Recorder
 from canbus.tools.replay import Recording, Replayer
 from canbus.tools.services import ServiceDecoder
 from skin.cli import main
+from skin.commands.common.known_nodes import known_nodes
 from skin.commands.view import moment_view
-from skin.commands.view_layout import Layout
+from skin.commands.view.layout import Layout
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 

@@ -12,7 +12,7 @@ import can
 import pytest
 
 from skin.cli import main
-from skin.commands.busopen import choose_bus
+from skin.commands.common.busopen import choose_bus
 
 
 @pytest.fixture(autouse=True)
@@ -104,7 +104,7 @@ def test_sniff_and_tare_say_which_bus_and_that_virtual_is_theirs_alone(
 def test_skin_run_takes_the_same_channel_default(monkeypatch: pytest.MonkeyPatch,
                                                  tmp_path: Path) -> None:
     from canbus.master.hostconfig import load_host_config
-    from skin.commands.hostbus import resolve
+    from skin.commands.common.hostbus import resolve
 
     path = tmp_path / "h.toml"
     path.write_text("[[patches]]\nnode_id = 1\n", encoding="utf-8")

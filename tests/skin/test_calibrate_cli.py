@@ -13,6 +13,7 @@ import canopen
 import numpy as np
 import pytest
 
+from bench.rigs.recording import scene
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.host import HostManager
@@ -24,7 +25,6 @@ from sim import generate_dataset, load_scene
 from skin.cli import main
 from skin.constants import DEFAULT_CONSTANTS
 from skin.dataset import Dataset, read_dataset, write_dataset
-from tests.canbus.recording_rig import scene
 
 FAST = ["--decoders", "analytic", "deconv"]
 
@@ -153,26 +153,29 @@ def test_write_node_sets_the_rest_an_active_host_reads(folder: Path, tmp_path: P
     try:
         with PatchServer(device, ArraySource(rest[None, None], (1,))) as server:
             assert main(["calibrate", str(folder / "d1.npz"), "-o", str(tmp_path / "m.msgpack"),
-                         *FAST, "--write-node", "-i", "virtual", "-c", channel]) == 0
+                         *FAST, "--write-node", "--store", "-i", "virtual",
+                         "-c", channel]) == 0
             assert "wrote 27 rest values to patch 1's 0x2002" in capsys.readouterr().out
+            saved = server.nodes[0].nv.content.objects  # 0x1010 sub 4 "save": R0 kept
+            assert sorted(s for i, s in saved if i == 0x2002) == list(range(1, 28))
             report = json.loads((folder / "r.json").read_text())
             want = np.array(report["tare"]["rest_ohm"])
             store = server.nodes[0].store
             got = np.array([store.value(0x2002, s) for s in range(1, 28)]).reshape(9, 3)
-            np.testing.assert_array_equal(got, np.float32(want))
+            np.testing.assert_array_equal(got, np.rint(want * 1000))  # mOhm counts
             # an active host reads them when it configures the patch: its rest is the tare
             with HostManager(bus, HostConfig(patches=(PatchConfig(1),), scan_ms=50)) as host:
                 assert host.wait_operational(timeout=10.0)
                 baseline = host.dataplane.channel(1).baseline
                 assert baseline is not None
                 np.testing.assert_array_equal(baseline.baseline, want)
-            raw = struct.pack("<f", float("nan"))
+            raw = struct.pack("<I", 0)  # 0 mOhm: below LowLimit
             master = canopen.Network(can.Bus(interface="virtual", channel=channel))
             master.connect()
             try:
                 od = server.nodes[0].store.object_dictionary
                 node = master.add_node(canopen.RemoteNode(1, od))
-                with pytest.raises(canopen.SdoAbortedError, match="0x06090030"):
+                with pytest.raises(canopen.SdoAbortedError, match="0x06090032"):
                     node.sdo.download(0x2002, 1, raw)
             finally:
                 master.disconnect()

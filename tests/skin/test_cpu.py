@@ -7,7 +7,7 @@ import threading
 
 import pytest
 
-from skin.commands.cpu import parse_cpus, pinned
+from skin.commands.common.cpu import parse_cpus, pinned
 from skin.errors import ConfigError
 
 needs_affinity = pytest.mark.skipif(not hasattr(os, "sched_setaffinity"),

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from skin.cli import main
-from skin.commands.signals import Stopped, stop_signals_interrupt, until_stopped
+from skin.commands.common.signals import Stopped, stop_signals_interrupt, until_stopped
 
 
 def _signal_self(sig: signal.Signals) -> None:

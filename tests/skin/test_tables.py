@@ -7,7 +7,7 @@ import io
 
 from rich.console import Console
 
-from skin.commands.tables import plain, show
+from skin.commands.common.tables import plain, show
 
 COLUMNS = ["decoder", "AveRelErr %", "floored %", "x oracle", "RMSE %FS", "max rel floored %",
            "train s", "patch-samples/s", "latency us"]

@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 
 from skin.cli import main
-from skin.commands.view_layout import Layout, layout_from_positions, parse_layout
-from skin.commands.view_term import INFERNO, arrow, colour, reason_code
+from skin.commands.view.layout import Layout, layout_from_positions, parse_layout
+from skin.commands.view.term import INFERNO, arrow, colour, reason_code
 
 FILES = Path(__file__).resolve().parents[1] / "files"
 
@@ -33,20 +33,22 @@ def recording(tmp_path: Path) -> Path:
     (["REC", "--at", "1"], "--at: goes with --png or --snapshot"),
     (["REC", "--from", "1"], "--from: goes with --gif, --mp4 or --plot"),
     (["REC", "--gif", "x.gif", "--from", "2", "--to", "1"], "--to: must be after --from (2 s)"),
-    (["REC", "--png", "x.png", "--at", "-1"], "--at: must be a time >= 0 s"),
-    (["REC", "--png", "x.png", "--at", "nan"], "--at: must be a time >= 0 s"),
+    (["REC", "--png", "x.png", "--at", "-1"], "USAGE argument --at: must be in 0..10000000000 s"),
+    (["REC", "--png", "x.png", "--at", "nan"], "USAGE argument --at: must be a finite number"),
     (["REC", "--plot", "x.png", "--patch", "1"], "--plot: needs --patch N and --taxel K"),
-    (["REC", "--plot", "x.png", "--patch", "1", "--taxel", "9"], "--taxel: must be 0..8"),
+    (["REC", "--plot", "x.png", "--patch", "1", "--taxel", "9"],
+     "USAGE argument --taxel: must be in 0..8"),
     (["REC", "--patch", "1"], "--patch: goes with --plot"),
     (["REC", "--raw"], "--raw: goes with --plot"),
     (["--decode"], "--decode: needs --config host.toml"),
     (["--scene", "indenter", "--config", "h.toml"], "--scene: give the layout by --scene or"),
-    (["--scale", "0"], "--scale: must be positive, got 0"),
-    (["--scale", "inf"], "--scale: must be positive, got inf"),
-    (["--refresh", "-1"], "--refresh: must be positive"),
+    (["--scale", "0"], "USAGE argument --scale: must be > 0 N"),
+    (["--scale", "inf"], "USAGE argument --scale: must be a finite number > 0 N"),
+    (["--refresh", "-1"], "USAGE argument --refresh: must be > 0 Hz"),
     (["REC", "--png", "x.jpg"], "--png: the file must end in .png, got 'x.jpg'"),
     (["REC", "--png", "x.png", "--at", "5"], "--at: 5 s is past the recording's end (0.000 s)"),
-    (["REC", "--layout", "1=0"], "--layout: expected NODE=X,Y (node-ID 1..127, metres), got"),
+    (["REC", "--layout", "1=0"], "--layout: expected NODE=X,Y (node-ID 1..127, metres within "
+     "±1000), got"),
     (["REC", "--layout", "1=0,0", "1=1,1"], "--layout: patch 1 is placed twice"),
     (["REC", "--plot", "x.png", "--patch", "9", "--taxel", "0"],
      "--patch: patch 9 has no force sample in"),
@@ -57,9 +59,16 @@ def test_bad_arguments_fail_in_one_line(args: list[str], message: str, recording
     monkeypatch.chdir(tmp_path)
     argv = ["view", *(str(recording) if a == "REC" else a for a in args),
             "-i", "virtual", "-c", "never-opened"]
-    assert main(argv) == 1
-    err = capsys.readouterr().err
-    assert err.startswith(f"skin: error: {message}"), err
+    if message.startswith("USAGE "):  # a value out of its range: argparse's one line
+        with pytest.raises(SystemExit) as usage:
+            main(argv)
+        assert usage.value.code == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"skin view: error: {message.removeprefix('USAGE ')}"), err
+    else:
+        assert main(argv) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f"skin: error: {message}"), err
     assert err.count("\n") == 1
     assert list(tmp_path.glob("x.*")) == []  # nothing half-written
 
@@ -106,7 +115,7 @@ def test_pictures_without_matplotlib_or_ffmpeg_say_what_is_missing(
 def test_a_bus_that_cannot_be_opened_is_named(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["view", "-i", "socketcan", "-c", "no-such-can9", "--seconds", "0.1"]) == 1
     err = capsys.readouterr().err
-    assert err.startswith("skin: error: cannot open the bus socketcan:no-such-can9 (from -i): ")
+    assert err.startswith("skin: error: cannot open the bus socketcan:no-such-can9: ")
     assert err.count("\n") == 1
 
 

@@ -19,8 +19,8 @@ from canbus.master.forcenode import ForceNode
 from canbus.tools.recorder import CandumpLogWriter
 from decoder.reasons import Reason
 from skin.cli import main
-from skin.commands.view_layout import Layout
-from skin.commands.view_term import SkinView
+from skin.commands.view.layout import Layout
+from skin.commands.view.term import SkinView
 
 GOLDEN = Path(__file__).resolve().parents[1] / "files" / "view"
 T0 = 1000.0
@@ -78,7 +78,7 @@ def test_the_snapshot_of_a_recording_is_exactly_the_golden_one(
     path = tmp_path / "golden.log"
     _recording(path)
     # just after patch 2's first PDO of cycle 98: its partial sample of cycle 97 is shown
-    code = main(["view", str(path), "--snapshot", "--at", "0.98085",
+    code = main(["view", str(path), "--snapshot", "--at", "0.98095",
                  "--layout", "1=0,0", "2=0.05,0", "3=0,0.05", "4=0.05,0.05"])
     assert code == 0
     _check("snapshot.txt", capsys.readouterr().out)

@@ -35,10 +35,10 @@ from canbus.master.host import HostManager, PatchHealth
 from canbus.master.hostconfig import HostConfig, PatchConfig
 from canbus.tools.forcereader import ForceReader
 from sim import Scene, Simulator
-from skin.commands.demo import _scene
-from skin.commands.view_layout import layout_from_positions
-from skin.commands.view_live import DEFAULT_REFRESH_HZ, LiveStats, LiveThread, draw_live
-from skin.commands.view_term import SkinView
+from skin.commands.demo import demo_scene
+from skin.commands.view.layout import layout_from_positions
+from skin.commands.view.live import DEFAULT_REFRESH_HZ, LiveStats, LiveThread, draw_live
+from skin.commands.view.term import SkinView
 
 PATCHES = 8
 SECONDS = 2.0
@@ -109,7 +109,7 @@ def _run(scene: Scene, resistance: np.ndarray, seconds: float, view: bool, k: in
 
 
 def test_the_live_view_of_8_patches_at_100_hz_costs_the_host_no_frame() -> None:
-    scene = _scene("indenter", PATCHES)
+    scene = demo_scene("indenter", PATCHES)
     resistance = Simulator(scene).run(int(SECONDS * scene.rate_hz) + 200).resistance_ohm
     alone = _run(scene, resistance, 1.5, view=False, k=0)
     if any(alone.losses().values()):

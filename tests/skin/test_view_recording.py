@@ -19,28 +19,28 @@ import pytest
 from matplotlib import colormaps
 from PIL import Image
 
+from bench.rigs.view import HostRun, record_host_run, until
 from canbus.master.forcenode import forces_to_mN
 from canbus.tools.replay import Recording
 from sim import Simulator
 from skin.cli import main
-from skin.commands.demo import _scene
+from skin.commands.demo import demo_scene
 from skin.commands.view import moment_view, title
-from skin.commands.view_layout import Layout
-from skin.commands.view_plot import moment_picture
-from skin.commands.view_sources import (
+from skin.commands.view.layout import Layout
+from skin.commands.view.plot import moment_picture
+from skin.commands.view.sources import (
     force_specs,
     recorded_resistances,
     recorded_samples,
     recording_times,
 )
-from tests.skin.view_rig import HostRun, record_host_run, until
 
 CYCLES = 80
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> HostRun:
-    scene = _scene("indenter", 2)
+    scene = demo_scene("indenter", 2)
     simulated = Simulator(scene).run(CYCLES + 40)
     path = tmp_path_factory.mktemp("view") / "indenter.log"
     return record_host_run(path, simulated.resistance_ohm, scene.node_ids, cycles=CYCLES,
@@ -163,7 +163,10 @@ def test_the_snapshot_reads_the_same_from_the_force_pdos_and_decoding_the_patche
     assert [line for line in bus[1:] if " Hz " not in line] == \
         [line for line in decoded[1:] if " Hz " not in line]
     row = ["│ " in line for line in bus].index(True) + 2 - pressed // 3  # +y up
-    assert f"{round(fz, 1):5.1f}" in bus[row][2 + 6 * (pressed % 3):8 + 6 * (pressed % 3)]
+    cell = bus[row][2 + 6 * (pressed % 3):8 + 6 * (pressed % 3)]
+    assert f"{round(fz, 1):5.1f}" in cell.replace("◆", " ")  # ◆: the CoP's nearest taxel
+    assert sum(line.count("◆") for line in bus) >= 1 and any(
+        line.startswith("CoP") for line in bus)  # the contact lines are there
 
 
 def test_a_gif_animates_the_span(run: HostRun, tmp_path: Path,

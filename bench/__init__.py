@@ -1,0 +1,10 @@
+"""Benchmarks and rigs: how fast and how well canskin does its work, measured.
+
+Kept out of the product packages (they may use every package, as the ``skin`` command
+does, and no product module imports them). ``skin bench decoders|cross|sim|dataplane|server``
+runs ``decoders``, ``sim``, ``dataplane`` and ``server``; the other benchmarks are
+scripts, each run as ``python -m bench.NAME`` (its docstring says how). ``bench.rigs``
+holds the set-ups that tests and benchmarks share: simulated patches and the host on a
+bus, recorders stopped mid-stream, independent canopen masters in processes of their own.
+``bench.publish`` runs hosts publishing on Zenoh and one reader (``skin bench publish``).
+"""

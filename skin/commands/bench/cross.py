@@ -1,0 +1,57 @@
+"""``skin bench cross``: every decoder trained on one scene and tested on the others.
+
+z-only: ``paper``, ``paper-noisy`` and ``indenter`` read through pillar z (their loads are
+pure presses, which is what a z-only reading can decode). 3-axis: those three and
+``slide`` and ``grasp`` (which shear the taxels, so they are read in 3-axis mode only).
+Each cell: the share of taxels the decoder flags EXTRAPOLATED, its floored AveRelErr on
+the taxels it does not flag, and the oracle's on the same taxels. The run is
+:func:`bench.runs.run_cross`; this module prints it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
+def print_cross(result: dict[str, Any]) -> None:
+    from bench.runs import XYZ_SCENES, Z_SCENES
+    from skin.commands.common.tables import show
+
+    oracle = {(o["mode"], o["test"]): o for o in result["oracle"]}
+    for mode, scenes in (("z", Z_SCENES), ("xyz", XYZ_SCENES)):
+        title = (f"{'z-only' if mode == 'z' else '3-axis'}: floored AveRelErr % on the taxels "
+                 "not flagged / the oracle's on the same taxels (share flagged EXTRAPOLATED)")
+        caption = (f"{result['train_samples']} training, {result['test_samples']} test "
+                   "samples per scene")
+        table = [["oracle", "", *[_pct(oracle[mode, t]["ave_rel_err_floored_pct"])
+                                  for t in scenes]]]
+        rows: dict[tuple[str, str | None], dict[str, str]] = {}
+        for c in result["cells"]:
+            if c["mode"] != mode:
+                continue
+            text = (f"{_pct(c['ave_rel_err_floored_pct'])}/"
+                    f"{_pct(c['oracle_same_taxels_floored_pct'])} "
+                    f"{100 * c['flagged_share']:.0f}%")
+            rows.setdefault((c["decoder"], c["train"]), {})[c["test"]] = text
+        for (decoder, train), cells in rows.items():
+            table.append([decoder, train or "(untrained)", *[cells.get(t, "") for t in scenes]])
+        show(title, ["decoder", "trained on", *scenes], table, caption=caption, labels=2)
+    bars = result["bars"]
+    for key, label in (("hybrid_vs_deconv", "hybrid <= 1.2x deconv"),
+                       ("unflagged_vs_oracle", "unflagged <= 2x the oracle")):
+        checked = [b for b in bars[key] if b["met"] is not None]
+        missed = [b for b in checked if not b["met"]]
+        exact = len(bars[key]) - len(checked)
+        print(f"{label} on unseen scenes: met in {len(checked) - len(missed)} of "
+                      f"{len(checked)} cells" + (f" ({exact} more on a noise-free test set, "
+                                                 "where the oracle is exact)" if exact else ""))
+        for b in missed:
+            who = b.get("decoder", "hybrid")
+            print(f"  not met: {who} {b['mode']} {b['train']} -> {b['test']}: "
+                          f"{_pct(b.get('error', b.get('hybrid')))} % against "
+                          f"{_pct(b.get('oracle', b.get('deconv')))} %, ratio {_pct(b['ratio'])}"
+                          + (f" on {b['compared']} components" if "compared" in b else ""))

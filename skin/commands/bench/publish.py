@@ -1,0 +1,76 @@
+"""``skin bench publish``: hosts publishing on Zenoh and one reader, on loopback
+(:mod:`bench.publish`); the command line and the printed figures."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from typing import Any
+
+from skin.commands.common import argtypes
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("publish", "skin bench publish (--patches, --seconds "
+                                                 "as above; defaults 32 and 10)")
+    group.add_argument("--hosts", type=argtypes.count("hosts", 1, 16), default=None, metavar="H",
+                       help="host processes, each with its patches on its own "
+                            "udp_multicast bus (default 4)")
+    group.add_argument("--express", action="store_true",
+                       help="force samples with Zenoh's express flag (never batched; "
+                            "default: zenoh.express's default, off)")
+
+
+def run_publish(args: argparse.Namespace,
+                write_json: Callable[[str, dict[str, Any]], None]) -> int:
+    from bench.publish import (
+        DEFAULT_HOSTS,
+        DEFAULT_PATCHES,
+        DEFAULT_SECONDS,
+        run_publish_benchmark,
+    )
+    from canbus.zenoh.config import require_zenoh
+    from skin.errors import ConfigError
+
+    require_zenoh("skin bench publish")
+    hosts = args.hosts if args.hosts is not None else DEFAULT_HOSTS
+    patches = args.patches if args.patches is not None else DEFAULT_PATCHES
+    seconds = args.seconds if args.seconds is not None else \
+        (3.0 if args.quick else DEFAULT_SECONDS)
+    if not 1 <= hosts <= 16:
+        raise ConfigError("--hosts", f"must be in 1..16, got {hosts}")
+    if not hosts <= patches <= 127:
+        raise ConfigError("--patches", f"must be in {hosts}..127 (one patch or more per "
+                          f"host), got {patches}")
+    if not seconds > 0:
+        raise ConfigError("--seconds", f"must be > 0, got {seconds}")
+    result = run_publish_benchmark(hosts, patches, seconds, express=args.express)
+    print_publish(result)
+    if args.json:
+        write_json(args.json, result)
+    return 0
+
+
+def print_publish(r: dict[str, Any]) -> None:
+    lat, pdo = r["latency_ms"], r["pdo_latency_ms"]
+    load = r["load_average"]
+    print(f"{r['hosts']} hosts, {r['patches']} patches (3-axis, 100 Hz), {r['cycles']} SYNC "
+          f"cycles in {r['seconds']:g} s; Zenoh on loopback, express "
+          f"{'on' if r['express'] else 'off'}")
+    print(f"reader got {r['reader_complete_pct']:.3f} % of {r['samples_expected']:,} samples "
+          f"complete (the hosts made {r['host_complete_pct']:.3f} % complete)")
+    print(f"SYNC -> reader    p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms, "
+          f"max {lat['max']:.2f} ms")
+    print(f"SYNC -> force PDO p50 {pdo['p50']:.2f} ms, p99 {pdo['p99']:.2f} ms, "
+          f"max {pdo['max']:.2f} ms; Zenoh adds {r['zenoh_added_p99_ms']:.2f} ms to the p99")
+    parts = ", ".join(f"{k} {v:.1f}" for k, v in r["publish_cpu_us_per_sample_parts"].items())
+    print(f"host CPU per sample {r['host_cpu_us_per_sample']:.1f} us, of which publishing "
+          f"{r['publish_cpu_us_per_sample']:.1f} us ({r['publish_share_pct']:.1f} %: {parts})")
+    print(f"reader CPU {r['reader_cpu_pct']:.1f} % of a core, "
+          f"{r['reader_cpu_us_per_sample']:.1f} us per sample")
+    codec = r["codec"]
+    print("encodings: " + "; ".join(
+        f"{k} {v['bytes']:.0f} B, encode {v['encode_us']:.1f} us, decode {v['decode_us']:.1f} us"
+        for k, v in codec.items()))
+    print(f"load average {load['before'][0]:.2f} before, {load['after'][0]:.2f} after, on "
+          f"{r['cpu_count']} CPUs")

@@ -1,0 +1,80 @@
+"""The buses a host command opens: the config's ``[bus]`` / ``[[buses]]`` with python-can's
+command-line bus flags over the one bus, the same defaults every command uses, and one
+clear line when there is no bus at all."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from contextlib import ExitStack
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import can
+
+    from canbus.master.hostconfig import HostConfig
+
+logger = logging.getLogger("skin.commands")
+
+_FLAGS = ("interface", "channel", "bitrate", "fd", "data_bitrate", "timing")
+
+
+def bus_flags(args: argparse.Namespace) -> dict[str, Any]:
+    """The bus flags given on the command line (python-can's names)."""
+    flags = {key: getattr(args, key) for key in _FLAGS if key in args}
+    flags.update(getattr(args, "bus_kwargs", None) or {})
+    return flags
+
+
+def resolve(config: HostConfig, args: argparse.Namespace) -> HostConfig:
+    """``config`` with the command line's bus flags over its one bus and the commands'
+    default channel; ConfigError for flags given to a config with several buses, BusError
+    when no interface is named anywhere."""
+    from canbus.busopen import configured_interface
+    from canbus.master.busconfig import with_flags
+    from skin.errors import BusError, ConfigError
+
+    flags = bus_flags(args)
+    if len(config.buses) > 1:
+        if flags:
+            raise ConfigError("bus flags", f"{config.source} has {len(config.buses)} buses "
+                              "([[buses]]): set each one in its table, not on the command "
+                              "line")
+        return config
+    bus = with_flags(config.buses[0], flags)
+    if bus.interface is None and not configured_interface():
+        raise BusError(f"no bus: {config.source} has no [bus] table and no -i IFACE was "
+                       "given (nor python-can's configuration); say which bus, e.g. "
+                       "-i socketcan -c can0")
+    if bus.channel is None and bus.interface is not None:
+        from skin.commands.common.busopen import default_channel_for
+
+        channel = default_channel_for(bus.interface)  # python-can's, else canskin's
+        if channel is not None:
+            bus = replace(bus, channel=channel)
+    if bus.interface in ("virtual", "timed"):
+        logger.warning("bus %s: %s reaches only this process; use udp_multicast to meet "
+                       "patches in another process", bus.name, bus.interface)
+    return replace(config, buses=(bus,))
+
+
+def open_all(config: HostConfig, stack: ExitStack) -> dict[str, can.BusABC]:
+    """Open every bus of ``config``; each is shut down when ``stack`` closes."""
+    from canbus.master.busconfig import open_bus
+    from skin.commands.common.logs import held_back
+
+    opened: dict[str, can.BusABC] = {}
+    for bus in config.buses:
+        with held_back("can"):
+            handle = open_bus(bus)
+        stack.callback(handle.shutdown)
+        opened[bus.name] = handle
+    return opened
+
+
+def describe(config: HostConfig) -> str:
+    """``interface:channel`` of each bus, for messages."""
+    if len(config.buses) == 1:
+        return config.buses[0].described
+    return ", ".join(f"{b.name} ({b.described})" for b in config.buses)

@@ -1,0 +1,101 @@
+"""Recordings (.log, .asc, .blf, .pcap) damaged on purpose: the replay stops at the first
+bad frame with one line naming the file and the frame; a BLF object of size 0 ends, a
+BLF container that inflates without bound is refused."""
+
+from __future__ import annotations
+
+import io
+import struct
+import zlib
+from pathlib import Path
+
+import can
+import pytest
+from can.io import blf
+from hypothesis import given
+from hypothesis import strategies as st
+
+from tests.inputs.conftest import examples
+from tests.inputs.hostile import answered, fingerprint, mutate_bytes, refused, run
+
+RECORDINGS = Path(__file__).resolve().parents[1] / "files" / "recordings"
+GOOD = sorted(RECORDINGS.glob("good.*"))
+
+
+def _replay(path: Path) -> None:
+    folder = path.parent
+    before = fingerprint(folder)
+    result = run("replay", path, "--fast", "-c", f"hostile{id(path)}")
+    answered(result)
+    if result.code:
+        assert str(path) in result.lines[0]
+    assert fingerprint(folder) == before
+
+
+@examples(60)
+@given(data=st.data(), source=st.sampled_from(GOOD))
+def test_a_recording_damaged_in_its_bytes(tmp_path_factory: pytest.TempPathFactory,
+                                          data: st.DataObject, source: Path) -> None:
+    path = tmp_path_factory.mktemp("recording") / source.name
+    path.write_bytes(mutate_bytes(source.read_bytes(), data.draw))
+    _replay(path)
+
+
+def _blf(inner: bytes, declared: int | None = None, method: int = blf.ZLIB_DEFLATE) -> bytes:
+    """A .blf file of one container holding ``inner`` (declaring ``declared`` bytes)."""
+    good = (RECORDINGS / "good.blf").read_bytes()
+    packed = zlib.compress(inner) if method == blf.ZLIB_DEFLATE else inner
+    body = blf.LOG_CONTAINER_STRUCT.pack(method, len(inner) if declared is None else
+                                         declared) + packed
+    size = blf.OBJ_HEADER_BASE_STRUCT.size + len(body)
+    obj = blf.OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", 16, 1, size, blf.LOG_CONTAINER) + body
+    out = bytearray(good[:144] + obj + bytes(size % 4))
+    header = list(blf.FILE_HEADER_STRUCT.unpack_from(out, 0))
+    header[10] = len(out)
+    out[:blf.FILE_HEADER_STRUCT.size] = blf.FILE_HEADER_STRUCT.pack(*header)
+    return bytes(out)
+
+
+def _can_objects(count: int) -> bytes:
+    buffer = io.BytesIO()
+    writer = can.BLFWriter(buffer, compression_level=0)  # type: ignore[arg-type]
+    for k in range(count):
+        writer.on_message_received(can.Message(timestamp=1.0 + k, arbitration_id=0x181,
+                                               data=bytes(8)))
+    writer._flush()
+    data = buffer.getvalue()[144:]
+    return data[blf.OBJ_HEADER_BASE_STRUCT.size + blf.LOG_CONTAINER_STRUCT.size:]
+
+
+@examples(40)
+@given(data=st.data())
+def test_a_blf_object_of_any_declared_size(tmp_path_factory: pytest.TempPathFactory,
+                                           data: st.DataObject) -> None:
+    inner = bytearray(_can_objects(3))
+    at = data.draw(st.sampled_from((0, 48, 96)))  # an object's header in the container
+    struct.pack_into("<L", inner, at + 8, data.draw(st.sampled_from(
+        (0, 1, 15, 16, 31, 2**31 - 1, 2**32 - 1, 40, 48, 47))))
+    path = tmp_path_factory.mktemp("blf") / "r.blf"
+    path.write_bytes(_blf(bytes(inner)))
+    _replay(path)
+
+
+@pytest.mark.parametrize(("declared", "inflated"), [(1 << 30, 1 << 24), (1000, 1 << 26)])
+def test_a_blf_decompression_bomb_is_refused(tmp_path: Path, declared: int,
+                                             inflated: int) -> None:
+    zeros = zlib.compressobj(9)
+    packed = b"".join(zeros.compress(bytes(1 << 24)) for _ in range(inflated >> 24))
+    packed += zeros.flush()
+    path = tmp_path / "bomb.blf"
+    data = bytearray(_blf(b"", declared))
+    body_at = 144 + blf.OBJ_HEADER_BASE_STRUCT.size + blf.LOG_CONTAINER_STRUCT.size
+    data = data[:body_at] + packed
+    size = len(data) - 144
+    struct.pack_into("<L", data, 144 + 8, size)
+    header = list(blf.FILE_HEADER_STRUCT.unpack_from(data, 0))
+    header[10] = len(data) + size % 4
+    data[:blf.FILE_HEADER_STRUCT.size] = blf.FILE_HEADER_STRUCT.pack(*header)
+    path.write_bytes(bytes(data) + bytes(size % 4))
+    result = run("replay", path, "--fast", "-c", "bomb")
+    refused(result)
+    assert "container" in result.lines[0] and str(path) in result.lines[0]
