@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from skin.commands.common import argtypes
+
 NO_RESULT = 3
 _CSV_COLUMNS = ("cycle", "sync_counter", "time_s", "patch", "force_node", "taxel", "fx_N",
                 "fy_N", "fz_N", "valid", "reason", "complete")
@@ -48,16 +50,18 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("forces", metavar="FORCES", help="skin decode's output (.csv, .npz)")
     parser.add_argument("--reference", required=True, metavar="REF",
                         help="reference forces (.csv or .npz, docs/calibrate.md)")
-    parser.add_argument("--node", type=int, action="append", metavar="N",
+    parser.add_argument("--node", type=argtypes.node_id, action="append", metavar="N",
                         help="compare only patch N (repeatable; default: every patch in both)")
     parser.add_argument("--join", choices=("sync", "time"), default=None,
                         help="by SYNC counter (default when both have one) or by time")
-    parser.add_argument("--clock-offset-ms", type=float, default=None, metavar="MS",
+    parser.add_argument("--clock-offset-ms", default=None, metavar="MS",
+                        type=argtypes.number("milliseconds", low=-1e13, high=1e13, unit="ms"),
                         help="reference time + offset = the decode's time (default: estimated)")
     parser.add_argument("--mode", choices=("auto", "z", "xyz"), default="auto",
                         help="compare Fz only (z) or all three (xyz); auto: z for a patch "
                              "decoded without shear, else xyz")
-    parser.add_argument("--json", metavar="FILE", help="write the figures as JSON")
+    parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
+                        help="write the figures as JSON")
     parser.set_defaults(func=_compare)
 
 

@@ -55,7 +55,6 @@ def _replay(args: argparse.Namespace) -> int:
     result = replayer.result()  # what was sent, however it ended
     pacing = ", as fast as possible" if rate is None else f", paced to {rate:,.0f} frames/s"
     achieved = result.frames_sent / result.seconds if result.seconds > 0 else 0.0
-    print(f"bus {described}")
     print(f"sent {result.frames_sent:,} frames in {result.seconds:.2f} s ({achieved:,.0f} "
           "frames/s, "
           f"{result.passes} pass{'es' if result.passes != 1 else ''}"

@@ -46,7 +46,7 @@ def _tare(args: argparse.Namespace) -> int:
                                f"{err}") from err
         finally:
             network.disconnect()
-    print(f"force node {args.node}: tared (bus {described})")
+    print(f"force node {args.node}: tared")
     return 0
 
 

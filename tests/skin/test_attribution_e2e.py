@@ -142,8 +142,11 @@ def test_sniff_lines_show_every_pdo_under_its_sender_or_under_nobody(run: Run,
         true = truth.decode(msg)
         match = LINE.fullmatch(line)
         assert match is not None, line
-        cob, service, node, label, text = (int(match[2], 16), match[5].strip(),
-                                           match[6].strip(), match[7], match[8])
+        cob, service, node, rest = (int(match[2], 16), match[5].strip(), match[6].strip(),
+                                    f"{match[7]} {match[8]}")
+        label, text = rest.split(" ", 1)
+        if label.startswith("TPDO") and text.startswith("contact "):  # "TPDO8 contact"
+            label, text = f"{label} contact", text.removeprefix("contact ")
         assert cob == msg.arbitration_id
         if service != "pdo":
             continue

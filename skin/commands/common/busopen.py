@@ -16,16 +16,17 @@ back on a bus inside its own process where a user expects a real one (``skin sni
 --record`` would record an empty bus in silence). A channel left unset is python-can's
 configuration's when it names one for the same interface, else canskin's default for
 ``virtual``, ``timed`` (``skin``) and ``udp_multicast`` (python-can's IPv4 group). The
-command says which bus it opened (an INFO line of ``skin.commands``, shown by default) and
-warns that ``virtual`` and ``timed`` reach only its own process (:func:`announce`).
+command says which bus it opened, and that ``virtual`` and ``timed`` reach only its own
+process, in the first line of its output (:func:`announce`, on stdout: a failure after it
+is still one line on stderr).
 """
 
 from __future__ import annotations
 
 import argparse
 import ipaddress
-import logging
-from typing import TYPE_CHECKING, Any
+import sys
+from typing import TYPE_CHECKING, Any, TextIO
 
 if TYPE_CHECKING:
     import can
@@ -84,8 +85,6 @@ def open_bus(args: argparse.Namespace, **extra: Any) -> can.BusABC:
     with held_back("can"):  # a missing driver's warnings, a half-built bus's complaint
         return open_can_bus(config, describe(config))
 
-
-logger = logging.getLogger("skin.commands")
 
 IN_PROCESS = ("virtual", "timed")
 """Interfaces whose bus lives inside one process."""
@@ -165,22 +164,27 @@ def _from_config(args: argparse.Namespace, config: HostConfig) -> None:
         args.bus_kwargs = {**bus.options, **(getattr(args, "bus_kwargs", None) or {})}
 
 
-def announce(command: str, described: str, *, sends: bool = False) -> None:
-    """Say which bus ``command`` uses; warn when it reaches only this process."""
-    logger.info("%s: bus %s", command, described)
+def announce(command: str, described: str, *, sends: bool = False,
+             out: TextIO | None = None) -> None:
+    """Say which bus ``command`` uses, and that ``virtual`` reaches only this process: one
+    line of the command's output (stdout), so that an error after it is still one line on
+    stderr."""
+    note = ""
     interface = described.split(":", 1)[0]
     if interface in IN_PROCESS:
         verb = "sends to and hears" if sends else "hears"
-        logger.warning("%s: %s is a bus inside this process: it %s nothing of another "
-                       "process (skin sim run, skin run); use -i udp_multicast, or a real "
-                       "bus (-i socketcan -c can0)", command, interface, verb)
+        note = (f"; note: {interface} is a bus inside this process: it {verb} nothing of "
+                "another process (skin sim run, skin run); use -i udp_multicast, or a real "
+                "bus (-i socketcan -c can0)")
+    print(f"{command}: bus {described}{note}", file=out or sys.stdout, flush=True)
 
 
 def open_command_bus(args: argparse.Namespace, *, command: str,
-                     config: HostConfig | None = None, sends: bool = False) -> tuple[Any, str]:
+                     config: HostConfig | None = None, sends: bool = False,
+                     out: TextIO | None = None) -> tuple[Any, str]:
     """:func:`choose_bus`, then the bus (:func:`open_bus`), then :func:`announce`; the bus and
     its description."""
     described = choose_bus(args, command=command, config=config)
     bus = open_bus(args)  # one line naming the bus when it cannot be opened
-    announce(command, described, sends=sends)  # after: a failure is one line, naming it
+    announce(command, described, sends=sends, out=out)  # after: a failure is one line, naming it
     return bus, described

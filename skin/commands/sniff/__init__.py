@@ -93,8 +93,9 @@ def _sniff(args: argparse.Namespace) -> int:
     switch = sys.getswitchinterval()
     try:
         sys.setswitchinterval(min(switch, _SWITCH_S))
-        bus, args.described = open_command_bus(args, command="skin sniff", config=config,
-                                               sends=args.ask_by_sdo)
+        bus, args.described = open_command_bus(  # lines mode: stdout is the frames
+            args, command="skin sniff", config=config, sends=args.ask_by_sdo,
+            out=sys.stderr if view == "lines" else sys.stdout)
         with bus:
             if args.rcvbuf:
                 enlarge_receive_buffer(bus, args.rcvbuf)
@@ -163,7 +164,6 @@ def _report(snap: Snapshot, capture: Capture, stats: ViewStats, view: str,
     from skin.atomic import atomic_write
 
     out = sys.stderr if view == "lines" else sys.stdout  # lines mode: stdout is the frames
-    print(f"bus {args.described}", file=out)
     for line in summary_lines(snap, capture.seconds, stats):
         print(line, file=out)
     if silent and snap.anomalies.unattributed_frames:
