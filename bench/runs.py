@@ -11,11 +11,14 @@ from bench import decoders as benchmark
 from decoder.metrics import evaluate
 from decoder.protocol import BaseDecoder
 from decoder.registry import available_decoders, create_decoder, decoder_class
-from decoder.speed import decode_speed
+from decoder.speed import decode_speed, flagged_latency
 
 SCENES = ("paper", "paper-noisy")
 """The paper's protocol as published (noise-free), and the noise study (read noise, ADC)."""
 TABLE1_SCENES = ("paper", "paper-noisy", "indenter")
+TABLE1_SEEDS = 10
+TABLE1_QUICK_SEEDS = 3
+"""Table 1 over seed pairs 1/2, 3/4, ... 19/20 (``--quick``: 1/2, 3/4, 5/6)."""
 Z_SCENES = ("paper", "paper-noisy", "indenter")
 """skin bench cross, z-only: pure presses, which is what a z-only reading can decode."""
 XYZ_SCENES = ("paper", "paper-noisy", "indenter", "slide", "grasp")
@@ -56,8 +59,11 @@ def run_decoders(quick: bool, goal_units: str = "N",
                  stage: Callable[[str], None] = lambda label: None) -> dict[str, Any]:
     """Every figure of ``skin bench``; ``stage(label)`` as each long part starts."""
     seeds, batch, repeats = (1, 20_000, 2) if quick else (3, 200_000, 5)
+    table_seeds = TABLE1_QUICK_SEEDS if quick else TABLE1_SEEDS
     params = mlp_params(goal_units)
-    result: dict[str, Any] = {"goal_units": goal_units, "seeds": seeds, "scenes": []}
+    result: dict[str, Any] = {"goal_units": goal_units, "seeds": seeds, "scenes": [],
+                              "table1_seed_pairs": [[2 * s + 1, 2 * s + 2]
+                                                    for s in range(table_seeds)]}
     splits: dict[str, list[tuple[Any, ...]]] = {}
     for name in SCENES:
         stage(f"decoders on {name}")
@@ -73,8 +79,8 @@ def run_decoders(quick: bool, goal_units: str = "N",
     table = []
     for name in TABLE1_SCENES:
         stage(f"Table 1 on {name}")
-        table += benchmark.table1(splits.get(name) or scene_splits(name, seeds),
-                                  sim.load_scene(name).mode, name, params=params["lm-mlp"])
+        table += benchmark.table1(scene_splits(name, table_seeds), sim.load_scene(name).mode,
+                                  name, params=params["lm-mlp"])
     result["table1"] = table
     stage("--hidden auto")
     result["hidden_auto"] = hidden_auto(splits["paper"][0], "z", params["lm-mlp"])
@@ -83,12 +89,13 @@ def run_decoders(quick: bool, goal_units: str = "N",
         "xyz": benchmark.analytic_throughput(3, 5 * batch, repeats)}
     stage("3-axis speed")
     r_xyz, f_xyz, r_xyz_test, _ = scene_splits("indenter", 1)[0]
-    result["xyz_speed"] = [
-        dict(zip(("name", "decode_samples_per_s", "latency_us"),
-                 (name, *decode_speed(
-                     create_decoder(name, **params.get(name, {})).fit(r_xyz, f_xyz),
-                     r_xyz_test, batch, repeats)), strict=True))
-        for name in available_decoders()]
+    result["xyz_speed"] = []
+    for name in available_decoders():
+        fitted = create_decoder(name, **params.get(name, {})).fit(r_xyz, f_xyz)
+        rate, latency = decode_speed(fitted, r_xyz_test, batch, repeats)
+        result["xyz_speed"].append({
+            "name": name, "decode_samples_per_s": rate, "latency_us": latency,
+            "latency_flagged_us": flagged_latency(fitted, r_xyz_test, repeats)})
     stage("LM against SciPy")
     r_train, f_train = splits["paper"][0][0], splits["paper"][0][1]
     result["lm_vs_scipy"] = benchmark.lm_vs_scipy(
@@ -108,7 +115,7 @@ def _untrained(names: tuple[str, ...]) -> list[str]:
             and issubclass(cls, BaseDecoder) and not cls.needs_fitting]
 
 
-def run_cross(quick: bool, params: dict[str, dict[str, Any]]) -> dict[str, Any]:
+def run_cross(quick: bool, params: dict[str, dict[str, Any]], random: int = 0) -> dict[str, Any]:
     """Every decoder trained on one scene and tested on the others (``skin bench cross``)."""
     n_train, n_test = (500, 200) if quick else (1000, 500)
     names = available_decoders()
@@ -127,4 +134,9 @@ def run_cross(quick: bool, params: dict[str, dict[str, Any]]) -> dict[str, Any]:
         result["oracle"] += part["oracle"]
         result["cells"] += part["cells"]
     result["bars"] = benchmark.cross_bars(result["cells"])
+    from bench.cross import promise_rows, run_pairs, summary
+
+    result["promise"] = promise_rows(result["cells"])
+    result["pairs"] = run_pairs(quick, params, random)
+    result["summary"] = summary([*result["promise"], *result["pairs"]["rows"]])
     return result

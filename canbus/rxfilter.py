@@ -49,7 +49,9 @@ _UDP_HEADER = 8  # a UDP socket's filter sees the datagram from its UDP header o
 
 
 def echoes_own_frames(bus: can.BusABC) -> bool:
-    """Whether ``bus`` hands its process its own frames back without being asked."""
+    """Whether ``bus`` hands its process its own frames back without being asked (a
+    ``canbus.busio.ResilientBus``: whether the bus it wraps does)."""
+    bus = getattr(bus, "wrapped", None) or bus
     try:
         from can.interfaces.udp_multicast import UdpMulticastBus
     except ImportError:  # pragma: no cover - msgpack missing: no udp_multicast either
@@ -111,6 +113,11 @@ class ReceiveFilter:
                                  for c in sorted(ids)])
             self._update()
 
+    def reinstall(self) -> None:
+        """Filter again in the kernel: the bus's socket is new (it was opened again)."""
+        with self._lock:
+            self._update()
+
     def is_own(self, msg: can.Message) -> bool:
         """``msg`` is the echo of a claimed frame (always False on a bus that does not echo)."""
         return (self.echoes and msg.arbitration_id in self.cob_ids and not msg.is_extended_id
@@ -146,6 +153,14 @@ def receive_filter(bus: can.BusABC) -> ReceiveFilter:
         if found is None:
             found = _REGISTRY[bus] = ReceiveFilter(bus)
         return found
+
+
+def refresh(bus: can.BusABC) -> None:
+    """Put the bus's kernel filter on its socket again (a bus opened again has a new one)."""
+    with _REGISTRY_LOCK:
+        found = _REGISTRY.get(bus)
+    if found is not None:
+        found.reinstall()
 
 
 class OwnFrameGate(can.Listener):

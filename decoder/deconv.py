@@ -9,8 +9,9 @@ Invalid taxels enter the deconvolution as 0 N; their neighbours still decode.
 
 The training domain is the box of the calibration set's analytic forces and of
 its decoded forces (:class:`decoder.domain.Box`, widened by ``range_margin``
-of the largest span): a taxel whose analytic force or decoded force leaves it
-is EXTRAPOLATED.
+of the largest span, or by what held-out blocks of the calibration rows need if
+that is more: :func:`decoder.patchcheck.block_margin`): a taxel whose analytic
+force or decoded force leaves it is EXTRAPOLATED.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from decoder.domain import Box, Domain, check_margin, domain_reasons, per_taxel
+from decoder.patchcheck import block_margin
 from decoder.physics import features, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
@@ -61,7 +63,8 @@ class DeconvDecoder(BaseDecoder):
         self.pillars_ = pillars
         x = features(effective, pillars)
         y = features(self._unmix(x if pillars == 1 else effective), pillars)
-        self.domain_ = Domain(Box.fit(x, self.range_margin), Box.fit(y, self.range_margin))
+        self.domain_ = Domain(Box.fit(x, max(self.range_margin, block_margin(x))),
+                              Box.fit(y, max(self.range_margin, block_margin(y))))
         return self
 
     def meta(self) -> dict[str, Any]:

@@ -31,7 +31,7 @@ to taxel ``f // k``: :func:`per_taxel` turns a feature mask into a taxel mask.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.linalg
@@ -40,6 +40,9 @@ from numpy.typing import NDArray
 from decoder.reasons import Reason
 from skin.constants import TAXELS_PER_PATCH
 from skin.errors import DecodeError, ModelFileError
+
+if TYPE_CHECKING:
+    from decoder.patchcheck import DepartureCheck, PatternCheck
 
 F64 = NDArray[np.float64]
 Mask = NDArray[np.bool_]
@@ -298,21 +301,27 @@ class TaxelBand:
         return cls(mean, whiten, float(limit))
 
 
+OPTIONAL = ("density", "band", "taxel_band", "pattern", "departure")
+
+
 @dataclass(frozen=True)
 class Domain:
     """What a decoder saw in training: its inputs' and outputs' boxes, and optionally the
-    inputs' ellipsoid and bands on a learned quantity, per output and per taxel."""
+    inputs' ellipsoid and bands on a learned quantity, per output and per taxel (model files
+    of version 3 and before), or the checks of the whole patch (:mod:`decoder.patchcheck`)."""
 
     inputs: Box
     outputs: Box
     density: Ellipsoid | None = None
     band: Band | None = None
     taxel_band: TaxelBand | None = None
+    pattern: PatternCheck | None = None
+    departure: DepartureCheck | None = None
 
     def to_state(self) -> dict[str, Any]:
         state: dict[str, Any] = {"inputs": self.inputs.to_state(),
                                  "outputs": self.outputs.to_state()}
-        for key in ("density", "band", "taxel_band"):
+        for key in OPTIONAL:
             part = getattr(self, key)
             if part is not None:
                 state[key] = part.to_state()
@@ -320,15 +329,21 @@ class Domain:
 
     @classmethod
     def from_state(cls, state: Any, field: str, n_in: int, n_out: int) -> Domain:
-        keys = {"inputs", "outputs", "density", "band", "taxel_band"}
-        if not isinstance(state, dict) or not {"inputs", "outputs"} <= set(state) <= keys:
+        from decoder.patchcheck import DepartureCheck, PatternCheck
+
+        if not isinstance(state, dict) or not {"inputs", "outputs"} <= set(state) \
+                <= {"inputs", "outputs", *OPTIONAL}:
             raise ModelFileError(f"{field}: expected a map with keys 'inputs', 'outputs' "
-                                 f"and optionally 'density', 'band', 'taxel_band'")
-        density, band, taxel = (state.get(k) for k in ("density", "band", "taxel_band"))
+                                 f"and optionally {', '.join(repr(k) for k in OPTIONAL)}")
+        density, band, taxel, pattern, departure = (state.get(k) for k in OPTIONAL)
         return cls(
             Box.from_state(state["inputs"], f"{field}.inputs", n_in),
             Box.from_state(state["outputs"], f"{field}.outputs", n_out),
             None if density is None else Ellipsoid.from_state(density, f"{field}.density", n_in),
             None if band is None else Band.from_state(band, f"{field}.band", n_out),
             None if taxel is None else TaxelBand.from_state(taxel, f"{field}.taxel_band", n_out),
+            None if pattern is None
+            else PatternCheck.from_state(pattern, f"{field}.pattern", n_out),
+            None if departure is None
+            else DepartureCheck.from_state(departure, f"{field}.departure", n_out),
         )

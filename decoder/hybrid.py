@@ -40,7 +40,7 @@ crosstalk inverse is linear and transfers between load distributions, where
 the plain analytic inverse is off by the whole crosstalk (tens of percent).
 
 Taxels are flagged as ``deconv`` flags them: EXTRAPOLATED when the analytic
-force or the physics force leaves the training box.
+force or the physics force leaves the training box (widened as deconv's).
 """
 
 from __future__ import annotations
@@ -52,6 +52,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from decoder.domain import Box, Domain, Ellipsoid, check_margin, domain_reasons, per_taxel
 from decoder.lm import LMOptions
+from decoder.patchcheck import block_margin
 from decoder.physics import features, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
@@ -112,8 +113,9 @@ class HybridDecoder(MLPDecoderBase):
         self.unmix_info_ = fit_unmix(*unmix_rows(effective, force, pillars), self.alpha)
         self.unmix_ = self.unmix_info_.matrix
         physics = features(apply_unmix(self.unmix_, effective), pillars)
-        self.domain_ = Domain(Box.fit(features(effective, pillars), self.range_margin),
-                              Box.fit(physics, self.range_margin))
+        analytic = features(effective, pillars)
+        self.domain_ = Domain(Box.fit(analytic, max(self.range_margin, block_margin(analytic))),
+                              Box.fit(physics, max(self.range_margin, block_margin(physics))))
         wanted = features(force, pillars) - physics
         val = self._fit_scaled(physics, wanted, pillars, progress)
         residual = self._net(physics)

@@ -2,7 +2,7 @@
 
 Layout::
 
-    {"schema": "canskin.decoder", "version": 3, "name": str,
+    {"schema": "canskin.decoder", "version": 4, "name": str,
      "params": {str: value}, "state": {str: value}, "meta": {str: value}}
 
 where a value is None, bool, int, float, str, a map of values (depth-limited)
@@ -13,9 +13,12 @@ names the field: a corrupt, truncated or hostile file never becomes a model.
 ``meta`` (version 2) is what training reports and decoding does not need: how
 the hidden nodes were chosen, the validation curve, where training stopped.
 Version 3 adds hybrid's residual threshold (``residual_threshold_``) and, for
-lm-mlp in 3-axis mode, the per-taxel band of its training domain. Files of
-versions 1 (no ``meta``, no training domain) and 2 are still read; each decoder
-class says how an older state is upgraded (``BaseDecoder._upgrade``).
+lm-mlp in 3-axis mode, the per-taxel band of its training domain. Version 4
+replaces lm-mlp's ellipsoid and bands by the checks of the whole patch
+(``domain_.pattern`` and ``domain_.departure``, :mod:`decoder.patchcheck`). Files of
+versions 1 (no ``meta``, no training domain), 2 and 3 are still read and decode as
+they did; each decoder class says how an older state is upgraded
+(``BaseDecoder._upgrade``).
 """
 
 from __future__ import annotations
@@ -33,8 +36,8 @@ from skin.errors import ModelFileError
 from skin.inputs.fields import short
 
 SCHEMA = "canskin.decoder"
-VERSION = 3
-READABLE_VERSIONS = (1, 2, 3)
+VERSION = 4
+READABLE_VERSIONS = (1, 2, 3, 4)
 MAX_FILE_BYTES = 64 * 1024 * 1024
 MAX_ARRAY_ELEMENTS = 4_000_000
 MAX_DIMS = 4
@@ -45,7 +48,8 @@ DTYPES: dict[str, np.dtype[Any]] = {
 }
 TOP_KEYS = {1: frozenset({"schema", "version", "name", "params", "state"}),
             2: frozenset({"schema", "version", "name", "params", "state", "meta"}),
-            3: frozenset({"schema", "version", "name", "params", "state", "meta"})}
+            3: frozenset({"schema", "version", "name", "params", "state", "meta"}),
+            4: frozenset({"schema", "version", "name", "params", "state", "meta"})}
 
 
 @dataclass(frozen=True)

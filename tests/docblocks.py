@@ -27,6 +27,8 @@ A block may carry a marker, an HTML comment on the line before its fence:
 - ``timeout=S``: the block's time limit (default 120 s);
 - ``makes="f g"``: files the block must have made;
 - ``tools="tshark ffmpeg"``: programs it needs; without them it is skipped, saying so;
+- ``long="why"``: a block that takes minutes whatever its flags (a full benchmark): run
+  when ``SKIN_DOCS_LONG=1`` (a nightly run), else skipped, saying so;
 - ``output=exact``: a transcript's output is compared with what its commands print.
 
 The blocks of one document run in order in one working folder (with ``examples/`` and an
@@ -149,6 +151,13 @@ def bus_env(block: Block, base: dict[str, str]) -> dict[str, str]:
         env["CAN_CHANNEL"] = f"239.74.{200 + pid % 50}.{n % 250 + 1}"
         env["CAN_CONFIG"] = json.dumps({"port": 32000 + (pid % 500) * 8 + n % 8})
     return env
+
+
+def held_back(block: Block) -> str | None:
+    """Why a ``long`` block is not run now (None: run it)."""
+    if "long" not in block.marker or os.environ.get("SKIN_DOCS_LONG") == "1":
+        return None
+    return f"long ({block.marker['long']}): SKIN_DOCS_LONG=1 runs it"
 
 
 def missing_tools(block: Block) -> list[str]:

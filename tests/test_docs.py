@@ -78,6 +78,10 @@ def _run_document(document: Path, tmp: Path) -> Result:
         if missing:
             skipped.append(f"{block.where}: needs {', '.join(missing)}")
             continue
+        if docblocks.held_back(block) is not None:  # the document's other blocks still count
+            if not block.marker["long"].strip():
+                failures.append(f"{block.where}: long without a reason")
+            continue
         problem = _run_block(block, where)
         if problem:
             failures.append(f"{block.where} [{block.lang or 'sh'}]: {problem}")

@@ -53,6 +53,7 @@ class Rig:
     bus: can.BusABC  # the host's bus
     patch_bus: can.BusABC  # the patches' bus: frames sent here reach the host
     channel: str  # the virtual channel: another bus on it sees both sides
+    server: PatchServer  # the simulated patches (stopped: they fall silent, the host loses them)
     frames: list[ForceFrame] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -86,7 +87,8 @@ def publishing_host(patches: tuple[int, ...] = (1, 2), *, period_ms: float = 20.
     assert network.bus is not None
     try:
         with server, HostManager(bus, config) as host:
-            rig = Rig(host, ZenohPublisher(host, settings), endpoint, bus, network.bus, channel)
+            rig = Rig(host, ZenohPublisher(host, settings), endpoint, bus, network.bus, channel,
+                      server)
 
             def keep(frame: ForceFrame) -> None:
                 with rig.lock:

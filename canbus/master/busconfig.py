@@ -185,11 +185,16 @@ def with_flags(bus: BusConfig, flags: Mapping[str, Any]) -> BusConfig:
     return merged
 
 
+BUS_WAYS = ("give one on the command line (-i IFACE -c CHANNEL, e.g. -i socketcan -c can0), "
+            "in the config's [bus] table (interface = ..., channel = ...), or in python-can's "
+            "configuration (~/.canrc, $CAN_INTERFACE)")
+"""The three ways to name a bus, for the one line that says none was given."""
+
+
 def open_bus(bus: BusConfig) -> can.BusABC:
     """Open ``bus`` with python-can; a :class:`~skin.errors.BusError` naming it if that fails."""
-    if bus.interface is None and not configured_interface():
-        raise BusError(f"bus {bus.name!r}: no interface: give one (-i IFACE, or interface = "
-                       "... in the config's bus table, or python-can's configuration)")
+    if bus.interface is None and configured_interface() is None:
+        raise BusError(f"bus {bus.name!r} has no interface: {BUS_WAYS}")
     what = f"the bus {bus.described}" if bus.name == DEFAULT_BUS else \
         f"bus {bus.name!r} ({bus.described})"
     return open_can_bus(bus.kwargs(), what)

@@ -6,6 +6,12 @@ its own whose one listener is a :class:`~canbus.master.pdo_router.PdoRouter`) or
 ``canopen.Network`` the caller already runs (an application that is itself a CANopen
 master): then the data plane and the SYNC follower are added to that network's notifier
 and canopen's own listener keeps seeing every frame, as it did.
+
+A link's own notifier is a :class:`~canbus.receiveloop.ReceiveLoop`: whatever the bus's ``recv``
+or a listener raises is counted, logged and survived; a bus that the caller gave as a
+:class:`~canbus.busio.ResilientBus` is opened again when it keeps failing, and when it is
+gone for good :attr:`BusLink.gone` says why (a joined network keeps its own notifier:
+give it a ``ReceiveLoop`` too, :func:`canbus.receiveloop.connect`).
 """
 
 from __future__ import annotations
@@ -16,12 +22,14 @@ from collections.abc import Callable, Iterable
 import can
 import canopen
 
+from canbus.busio import ResilientBus
 from canbus.master.busconfig import BusConfig
 from canbus.master.dataplane import DataPlane
-from canbus.master.discovery import BootListener
+from canbus.master.discovery import BootListener, bound_lss_answers
 from canbus.master.liveness import HeartbeatMonitor
 from canbus.master.pdo_router import PdoRouter
 from canbus.master.sync_producer import SyncFollower, SyncProducer
+from canbus.receiveloop import ReceiveLoop
 from canbus.rxfilter import OwnFrameGate, ReceiveFilter, receive_filter
 from skin.errors import BusError
 
@@ -48,6 +56,7 @@ class BusLink:
             self.bus, self.joined = bus, False
             self.network = canopen.Network(bus)
             self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
+            bound_lss_answers(self.network)
         self.monitor = HeartbeatMonitor(self.network, heartbeat_ms, on_boot=on_boot,
                                         on_lost=on_lost, on_return=on_return,
                                         on_change=on_change,
@@ -56,6 +65,7 @@ class BusLink:
         self.boots = BootListener(self.network, lambda node_id: on_any_boot(self, node_id))
         self.dataplane: DataPlane | None = None
         self.sync: SyncProducer | SyncFollower | None = None
+        self.gone: str | None = None  # why receiving ended for good on this bus
         self._added: list[can.Listener] = []
         self._gated = False  # our listeners sit behind an OwnFrameGate
 
@@ -84,9 +94,22 @@ class BusLink:
                 notifier.add_listener(listener)
             self._added = listeners
         else:  # what Network.connect() builds on a given bus, with our listeners first
-            self.network.notifier = can.Notifier(self.bus, listeners,
-                                                 timeout=self.network.NOTIFIER_CYCLE)
+            self.network.notifier = ReceiveLoop(self.bus, listeners,
+                                                timeout=self.network.NOTIFIER_CYCLE,
+                                                name=self.name, on_gone=self._on_gone)
         self.monitor.start()
+
+    def _on_gone(self, err: BaseException) -> None:
+        self.gone = str(err)
+
+    def receive_report(self) -> dict[str, object]:
+        """What receiving from this bus survived (``canbus.busio.ReceiveStats``)."""
+        notifier = self.network.notifier
+        if isinstance(notifier, ReceiveLoop):
+            return dict(notifier.report())
+        if isinstance(self.bus, ResilientBus):
+            return self.bus.stats.as_dict()
+        return {}
 
     def claim_own(self, cob_ids: Iterable[int]) -> None:
         """The COB-IDs only this host sends on the bus (replacing an earlier claim). Where

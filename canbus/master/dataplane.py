@@ -67,9 +67,8 @@ from canbus.master.channel import (
     Subscriber,
     rest_payload,
 )
-from canbus.master.forcenode import batch_frames
 from canbus.master.frame_kinds import SERVICE_COB_IDS
-from canbus.master.publisher import Publisher, by_decoder
+from canbus.master.publisher import Publisher
 from skin.constants import TAXELS_PER_PATCH
 from skin.errors import ConfigError
 
@@ -104,7 +103,7 @@ class DataPlane(can.Listener):
         self._start, self._end = math.inf, -math.inf  # no cycle open
         self._held: list[tuple[_Entry, bytes, float]] = []
         self._queue: list[SampleJob] = []
-        self._publisher = Publisher(bus, self.stats, self._slots)
+        self._publisher = Publisher(bus, self.stats)
         self._wake = threading.Event()
         self._stopping = False
         self._thread: threading.Thread | None = None
@@ -298,14 +297,12 @@ class DataPlane(can.Listener):
     # -- publishing -------------------------------------------------------------------------
 
     def subscribe(self, callback: Subscriber) -> None:
-        """Call ``callback(frames)`` with each published batch (from the publishing thread)."""
-        with self._lock:
-            self._publisher.subscribers = (*self._publisher.subscribers, callback)
+        """Call ``callback(frames)`` with each published batch (from the publishing thread;
+        see :mod:`canbus.master.publisher`)."""
+        self._publisher.subscribe(callback)
 
     def unsubscribe(self, callback: Subscriber) -> None:
-        with self._lock:
-            self._publisher.subscribers = tuple(c for c in self._publisher.subscribers
-                                                if c != callback)
+        self._publisher.unsubscribe(callback)
 
     def tare(self, node_id: int) -> None:
         """Re-zero patch ``node_id``'s baseline at its last complete sample.
@@ -313,17 +310,14 @@ class DataPlane(can.Listener):
         Raises :class:`~canbus.master.baseline.PatchLoadedError` while it is loaded (or
         before its first complete sample), ConfigError if it has no channel or baseline.
         """
-        baseline = self.channel(node_id).baseline
-        if baseline is None:
+        channel = self.channel(node_id)
+        if channel.baseline is None:
             raise ConfigError("node_id", f"patch {node_id} has no baseline to tare")
-        last = self._publisher.last_complete.get(node_id)
-        baseline.tare(self.raw_sample(node_id), None if last is None else last.force_N,
-                      None if last is None else last.valid, node_id=node_id)
+        self._publisher.tare(channel)
 
     def raw_sample(self, node_id: int) -> NDArray[np.float64] | None:
         """The last complete ``(9, P)`` resistances of a patch in ohm, before ``scale``."""
-        sample = self._publisher.raw_samples.get(node_id)
-        return None if sample is None else sample.copy()
+        return self._publisher.raw_sample(node_id)
 
     def publish_pending(self) -> None:
         """Decode and publish every queued sample, in the order they were queued."""
@@ -337,20 +331,10 @@ class DataPlane(can.Listener):
         """Run every channel's publishing path once on a sample at rest, sending nothing,
         so that the first cycle does not pay for code and tables run the first time."""
         with self._publish_lock:
-            jobs = [SampleJob(slot, (0, 0, 0.0), rest_payload(slot), 0, False)
-                    for slot in list(self._slots.values())]
-            if not jobs:
-                return
-            resistance = self._publisher.resistances(
-                jobs, np.zeros((len(jobs), TAXELS_PER_PATCH), bool))
-            for rows, decoder in by_decoder(jobs):
-                pillars = jobs[rows[0]].slot.channel.pillars
-                result = decoder.decode(resistance[rows, :, :pillars])
-                nodes = [jobs[i].slot.channel.force_node for i in rows]
-                batch_frames(nodes, result.force_N, result.valid, np.zeros(len(rows), bool),
-                             result.reason, 0)
-                for node in nodes:
-                    node.clear_sample()  # an SDO read shows "no value" until the first one
+            with self._lock:
+                slots = list(self._slots.values())
+            self._publisher.warm_up([SampleJob(slot, (0, 0, 0.0), rest_payload(slot), 0, False)
+                                     for slot in slots])
 
     def stop(self) -> None:
         """Stop the publishing thread after it published what is queued (``can.Listener``)."""

@@ -23,10 +23,18 @@ What it does with the patches is its policy's:
   decodes what another master runs (or a recording ``skin replay`` sends), following the
   NMT commands, boot-ups, heartbeats and SYNCs on the bus.
 
+Each patch's state is derived in one place (:mod:`canbus.master.patchstate`) from what
+the policy records (heartbeats, boot-ups, NMT, set-up results); the facade puts the
+patch's channel online or offline with each change. The policies get the narrow
+:class:`~canbus.master.policy.HostParts`, never the facade.
+
 Several buses: ``HostManager({"skin-a": bus_a, "arm": bus_b}, config)`` with the config's
 ``[[buses]]``; each patch is on its bus, each force node on its own (``force_bus``). A
-``canopen.Network`` the caller already runs may stand for a bus: the host joins it.
+``canopen.Network`` the caller already runs may stand for a bus: the host joins it. A
+bus given as a :class:`canbus.busio.ResilientBus` is opened again when it keeps failing;
+:meth:`HostManager.bus_gone` says when one is gone for good.
 """
+
 
 from __future__ import annotations
 
@@ -34,53 +42,45 @@ import logging
 import os
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Iterator
 from dataclasses import replace
-from typing import Any, Self, cast
+from typing import Any, Self
 
 import can
 import canopen
 import numpy as np
 from canopen.emcy import EmcyError
-from numpy.typing import NDArray
 
 from canbus.master.active import ActiveMaster
-from canbus.master.baseline import Baseline, PatchLoadedError
+from canbus.master.baseline import PatchLoadedError
 from canbus.master.buslink import BusLink
-from canbus.master.contactconfig import patch_contact, take_pitch
-from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
+from canbus.master.contactconfig import patch_contact
+from canbus.master.dataplane import DataPlane, ForceFrame
 from canbus.master.decoders import DecoderCache
-from canbus.master.discovery import UnknownNode
+from canbus.master.discovery import UnknownNode, haltable_sdo, log_unknown
+from canbus.master.emcy import BoundedEmcyConsumer
 from canbus.master.events import EmcyEvent, EventCallback, EventHooks, StateEvent
 from canbus.master.fanout import FrameCallback, FrameFanout
 from canbus.master.follower import ListenOnly
 from canbus.master.forcenode import ForceNode
 from canbus.master.frame_kinds import bus_cob_ids
-from canbus.master.hostconfig import HostConfig, load_host_config
+from canbus.master.hostconfig import HostConfig, PatchConfig, load_host_config
+from canbus.master.hoststats import Buses, buses_by_name, per_bus_stats, summed_stats
 from canbus.master.lss_assign import Assignment, assign_at_start, force_node_store
-from canbus.master.patch_setup import PatchSetup
-from canbus.master.records import STATES, PatchHealth, PatchRecord
+from canbus.master.patchchannels import PatchChannels
+from canbus.master.patchstate import STATES, Facts, PatchStates, Transition
+from canbus.master.policy import HostParts, Policy
+from canbus.master.records import PatchHealth, PatchRecord
 from canbus.master.sync_producer import SyncFollower, SyncProducer
 from canbus.master.taxel_log import TaxelLog
 from canbus.od import load_od
-from skin.constants import TAXELS_PER_PATCH
 from skin.errors import BusError
 
 __all__ = ["STATES", "ForceFrame", "HostManager", "PatchHealth", "PatchLoadedError"]
 
 logger = logging.getLogger(__name__)
 
-EMCY_LOG_KEPT = 256
 ANSWER_POLL_S = 0.0005  # on stop, how often the last cycle's answers are looked at
-"""EMCYs of a patch kept in canopen's ``EmcyConsumer.log`` (trimmed to this many once it
-holds twice as many): a long-running host with a flapping taxel must not grow without
-bound. ``emcy.active`` is canopen's own, cleared by each error reset."""
-DEVICE_HARDWARE, ERROR_RESET = 0x5000, 0x0000
-EMCY_TEXT = {DEVICE_HARDWARE: "taxel fault (device hardware)", ERROR_RESET: "taxel recovered"}
-TAXEL_FAULTS = {1: "open", 2: "short", 3: "saturated"}  # 0x2004 two bits per pillar
-
-Buses = can.BusABC | canopen.Network | Mapping[str, can.BusABC | canopen.Network]
 
 
 class HostManager:
@@ -94,7 +94,7 @@ class HostManager:
     decode what another master runs and send nothing. ``clock`` (default: real time,
     checked by each heartbeat consumer's thread) times the heartbeats and leaves the
     checks to the caller (``link.monitor.check()``): a recording's clock when one is
-    decoded offline (``canbus.offline.decode``).
+    decoded offline (``canbus.master.offline``).
     """
 
     def __init__(self, bus: Buses, config: HostConfig, *,
@@ -112,33 +112,54 @@ class HostManager:
         self.fanout = FrameFanout()
         self.events = EventHooks()
         self.taxel_log = TaxelLog()
-        self._lock = threading.RLock()
-        self._changed = threading.Condition(self._lock)  # notified on every state change
-        self._running = False
-        self.executor: ThreadPoolExecutor | None = None
+        self._lifecycle = threading.RLock()  # start and stop, one at a time
+        self._stopping = threading.Event()  # a stop was asked for: start's waits end
+        self._running = threading.Event()
         self.links: dict[str, BusLink] = {}
-        for name, given in _by_name(bus, config).items():
+        for name, given in buses_by_name(bus, config).items():
             self.links[name] = BusLink(
                 config.bus(name), given, heartbeat_ms=config.heartbeat_ms,
                 on_boot=self._on_patch_boot, on_lost=self._on_lost, on_return=self._on_return,
                 on_change=self._on_change if self.listen_only else None,
                 on_any_boot=self._on_any_boot, clock=clock)
         self.patches: dict[int, PatchRecord] = {}
+        self.channels = PatchChannels(config, self.patches, self.decoders, self._running)
         for patch in config.patches:
-            node = canopen.RemoteNode(patch.node_id, load_od("skin-patch", patch.node_id))
-            node.sdo.RESPONSE_TIMEOUT = config.sdo_timeout_ms / 1000.0
-            force = ForceNode(patch.force_node, patch.node_id,
-                              heartbeat_ms=config.force_heartbeat_ms,
-                              contact=patch_contact(patch, config),
-                              nv=force_node_store(config.state_dir, patch.force_node))
-            record = PatchRecord(patch, self.links[patch.bus], self.links[patch.force_bus],
-                                 node, force)
-            self.patches[patch.node_id] = record
-            node.emcy.add_callback(self._emcy_handler(record))
+            self.patches[patch.node_id] = record = self._record(patch)
+            record.node.emcy.add_callback(self.channels.emcy_handler(record))
+            record.node.emcy.add_callback(self._emcy_event(record))  # after the mask
         self.force_ids = {p.force_node: p.node_id for p in config.patches}
         self.lss_assignments: list[Assignment] = []
-        self.policy: ActiveMaster | ListenOnly = \
-            ListenOnly(self) if self.listen_only else ActiveMaster(self)
+        self.states = PatchStates({n: p.link.monitor for n, p in self.patches.items()},
+                                  listen_only=self.listen_only, apply=self._on_transition)
+        parts = HostParts(config, self.patches, self.links, self.force_ids, self.decoders,
+                          self.states, self._stopping, self.report_unknown, self.tare)
+        self.policy: Policy = ListenOnly(parts) if self.listen_only else ActiveMaster(parts)
+
+    def _record(self, patch: PatchConfig) -> PatchRecord:
+        node = canopen.RemoteNode(patch.node_id, load_od("skin-patch", patch.node_id))
+        haltable_sdo(node).RESPONSE_TIMEOUT = self.config.sdo_timeout_ms / 1000.0
+        node.emcy = BoundedEmcyConsumer()
+        force = ForceNode(patch.force_node, patch.node_id,
+                          heartbeat_ms=self.config.force_heartbeat_ms,
+                          contact=patch_contact(patch, self.config),
+                          nv=force_node_store(self.config.state_dir, patch.force_node))
+        return PatchRecord(patch, self.links[patch.bus], self.links[patch.force_bus], node,
+                           force)
+
+    def _on_transition(self, transition: Transition, facts: Facts) -> None:
+        """A patch changed state (the states' lock held): its channel follows, then the
+        event hooks hear it."""
+        self.channels.apply(transition, facts)
+        link = self.patches[transition.node_id].link.name
+        self.events.emit(StateEvent(transition.node_id, link, transition.new, transition.old,
+                                    transition.reason, transition.time))
+
+    def _emcy_event(self, patch: PatchRecord) -> Callable[[EmcyError], None]:
+        def on_emcy(entry: EmcyError) -> None:
+            self.events.emit(EmcyEvent(patch.node_id, patch.link.name, entry.code,
+                                       entry.register, bytes(entry.data), time.time()))
+        return on_emcy
 
     @classmethod
     def from_config(cls, path: str | os.PathLike[str], bus: Buses, **kwargs: Any) -> Self:
@@ -158,53 +179,74 @@ class HostManager:
         """Start every bus and the policy: discover and configure the patches present, boot
         the force nodes, start SYNC (listen-only: start following).
 
-        Returns when the patches that answered the scan are configured (or failed). Raises
+        Returns when the patches that answered the scan are configured (or their first
+        set-up failed: it is retried while they beat), or at once when :meth:`stop` is
+        called meanwhile (from another thread, or a signal's handler). Raises
         :class:`~skin.errors.BusError` if a node on a bus would collide with a force node;
         the host is then stopped again.
         """
-        if self._running:
-            raise BusError("the host is already running")
-        self._running = True
-        try:
-            self.policy.prepare()
-            self.policy.subscribe()  # before any notifier runs: frames queued count too
-            window_s = self.config.sync_window_ms / 1000.0
-            patch_buses = {p.link.name for p in self.patches.values()}
-            for link in self.links.values():
-                if link.name in patch_buses:
-                    link.dataplane = DataPlane(link.bus, sync_window_s=window_s)
-                    link.dataplane.bus_traffic = bus_cob_ids(self.config, link.name)
-                    link.dataplane.subscribe(self._on_frames)
-            for patch in self.patches.values():  # one sample per SYNC from the first
-                self.add_placeholder(patch, patch.setup or self.policy.planned(patch))
-            for link in self.links.values():
-                dataplane = link.dataplane
-                follower = (SyncFollower(dataplane.on_sync)
-                            if dataplane is not None and self.config.sync_following else None)
-                link.listen(dataplane, follower)
-            if not self.listen_only:  # node-IDs by serial number (LSS) before the scan
-                self.lss_assignments = assign_at_start(self.config, self.patches)
-            self.policy.start()
-        except BaseException:
-            self.stop()
-            raise
+        with self._lifecycle:
+            if self._running.is_set():
+                raise BusError("the host is already running")
+            self._running.set()
+            self._stopping.clear()
+            try:
+                self._start()
+            except BaseException:
+                self._stop()
+                raise
+
+    def _start(self) -> None:
+        self.policy.prepare()
+        self.policy.subscribe()  # before any notifier runs: frames queued count too
+        window_s = self.config.sync_window_ms / 1000.0
+        patch_buses = {p.link.name for p in self.patches.values()}
+        for link in self.links.values():
+            if link.name in patch_buses:
+                link.dataplane = DataPlane(link.bus, sync_window_s=window_s)
+                link.dataplane.bus_traffic = bus_cob_ids(self.config, link.name)
+                link.dataplane.subscribe(self._on_frames)
+        for patch in self.patches.values():  # one sample per SYNC from the first
+            self.channels.placeholder(patch, self.policy.planned(patch))
+        self.states.announce()
+        for link in self.links.values():
+            dataplane = link.dataplane
+            follower = (SyncFollower(dataplane.on_sync)
+                        if dataplane is not None and self.config.sync_following else None)
+            link.listen(dataplane, follower)
+        if not self.listen_only:  # node-IDs by serial number (LSS) before the scan
+            self.lss_assignments = assign_at_start(self.config, self.patches)
+        self.policy.start()
 
     def stop(self) -> None:
-        """Stop SYNC, publish what is pending, stop consumers and force nodes, end iterators."""
-        if not self._running:
+        """Stop SYNC, publish what is pending, stop consumers and force nodes, end iterators.
+
+        Prompt whatever the host is doing: a start in progress (scan, set-ups) ends at
+        once, SDO transfers are cut short; what waits is the last cycle's answers (one
+        SYNC period at most) and publishing what is in flight. Any thread may call it."""
+        self._stopping.set()
+        with self._lifecycle:
+            self._stop()
+
+    def _stop(self) -> None:
+        if not self._running.is_set():
             return
-        self._running = False
+        self._running.clear()
+        self._stopping.set()
+        # Each step on its own: a stop (a signal) may come at any point of a start, and
+        # what one step finds half done must not leave the others undone.
         for link in self.links.values():
-            link.stop_sync()
+            _step("stopping SYNC", link.stop_sync)
         if any(link.sync is not None and link.sync.cycle for link in self.links.values()):
             self._await_last_answers()
         for link in self.links.values():
             if link.dataplane is not None:
-                link.dataplane.flush()
-        self.policy.stop()
+                _step("publishing the last samples", link.dataplane.flush)
+        _step("stopping the policy", self.policy.stop)
         for link in self.links.values():
-            link.close()
+            _step(f"closing bus {link.name!r}", link.close)
         self.taxel_log.flush()
+        self.channels.emcy_log.flush()
         self.fanout.close()
 
     def _await_last_answers(self) -> None:
@@ -220,7 +262,16 @@ class HostManager:
 
     @property
     def running(self) -> bool:
-        return self._running
+        return self._running.is_set()
+
+    def bus_gone(self) -> str | None:
+        """Why receiving ended for good on a bus (a :class:`canbus.busio.ResilientBus`
+        that could not be opened again); None while every bus is heard. The host cannot
+        hear its patches then: a service should stop (``skin run`` exits with status 1)."""
+        for link in self.links.values():
+            if link.gone is not None:
+                return link.gone
+        return None
 
     # -- the public API ----------------------------------------------------------------
 
@@ -296,19 +347,22 @@ class HostManager:
         and counted in :attr:`api_dropped`, never blocking the data plane.
         """
         return self.fanout.iterate(maxsize or self.config.queue_size, timeout,
-                                   lambda: self._running)
+                                   self._running.is_set)
 
     def health(self) -> dict[int, PatchHealth]:
         """Every configured patch's state, by node-ID."""
         out = {}
-        with self._lock:
-            for node_id, p in self.patches.items():
-                out[node_id] = PatchHealth(
-                    state=p.state, lost=p.state == "lost",
-                    faulty_taxels=tuple(int(k) for k in np.flatnonzero(p.masked)),
-                    last_heartbeat_unix_s=p.link.monitor.last_heartbeat(node_id),
-                    samples=p.samples, incomplete=p.incomplete, error=p.error,
-                    bus=p.link.name)
+        for node_id, p in self.patches.items():
+            view = self.states.view(node_id)
+            out[node_id] = PatchHealth(
+                state=view.state, lost=view.state == "lost",
+                faulty_taxels=tuple(int(k) for k in np.flatnonzero(p.masked)),
+                last_heartbeat_unix_s=p.link.monitor.last_heartbeat(node_id),
+                samples=p.samples, incomplete=p.incomplete, error=view.reason,
+                bus=p.link.name, setup_failures=view.setup_failures,
+                state_changes=view.changes,
+                history=tuple((t.time, t.new, t.reason) for t in view.history),
+                emcys=getattr(p.node.emcy, "received", 0), force_conflict=p.force_conflict)
         return out
 
     def tare(self, node_id: int) -> None:
@@ -318,11 +372,11 @@ class HostManager:
         patch reads more than ``host.tare_threshold_N`` (or before its first sample), and
         :class:`~skin.errors.BusError` if the patch is not operational.
         """
-        with self._lock:
-            patch = self.patch(node_id)
-            channel = patch.channel
-            if patch.state != "operational" or channel is None:
-                raise BusError(f"patch {node_id} is {patch.state}: nothing to tare")
+        patch = self.patch(node_id)
+        with self.states.changed:
+            state = self.states.state(node_id)
+            if state != "operational" or patch.channel is None:
+                raise BusError(f"patch {node_id} is {state}: nothing to tare")
             dataplane = patch.link.dataplane
         assert dataplane is not None
         dataplane.tare(node_id)
@@ -332,46 +386,21 @@ class HostManager:
         """Wait until the patches (default: all configured) are operational; False on
         time-out."""
         wanted = list(self.patches) if node_ids is None else node_ids
-        with self._changed:
-            return self._changed.wait_for(
-                lambda: all(self.patch(n).state == "operational" for n in wanted), timeout)
+        for node_id in wanted:
+            self.patch(node_id)
+        return self.states.wait_for(wanted, "operational", timeout)
 
     def stats(self) -> dict[str, int]:
         """Data plane counters summed over the buses, plus SYNC cycles (the most of any bus),
         overruns, API drops and callback errors."""
-        out: dict[str, int] = {}
-        cycles = overruns = 0
-        for link in self.links.values():
-            if link.dataplane is not None:
-                for key, value in link.dataplane.stats.snapshot().items():
-                    out[key] = out.get(key, 0) + value
-            if link.sync is not None:
-                cycles = max(cycles, link.sync.cycle)
-                overruns += link.sync.overruns if isinstance(link.sync, SyncProducer) else 0
-        out.update(sync_cycles=cycles, sync_overruns=overruns, api_dropped=self.api_dropped,
-                   callback_errors=self.callback_errors)
-        return out
+        return summed_stats(self.links.values(), api_dropped=self.api_dropped,
+                            callback_errors=self.callback_errors)
 
     def bus_stats(self) -> dict[str, dict[str, Any]]:
-        """Per bus: its data plane's counters, SYNC cycles and overruns, and what the bus
+        """Per bus: its data plane's counters, SYNC cycles and overruns, what receiving
+        survived (``receive``: errors, re-opens, the last error, ``gone``), and what the bus
         itself counts when it can (the timed bus's wire statistics)."""
-        out: dict[str, dict[str, Any]] = {}
-        for name, link in self.links.items():
-            entry: dict[str, Any] = dict(link.dataplane.stats.snapshot()
-                                         if link.dataplane is not None else {})
-            sync = link.sync
-            entry["sync_cycles"] = sync.cycle if sync is not None else 0
-            entry["sync_overruns"] = sync.overruns if isinstance(sync, SyncProducer) else 0
-            entry["patches"] = sorted(n for n, p in self.patches.items() if p.link is link)
-            entry["force_nodes"] = sorted(p.config.force_node for p in self.patches.values()
-                                          if p.force_link is link)
-            wire = getattr(link.bus, "wire_stats", None)
-            if callable(wire):
-                entry["wire"] = _plain(wire())
-            out[name] = entry
-        return out
-
-    # -- what both policies use --------------------------------------------------------
+        return per_bus_stats(self.links, self.patches.values())
 
     def patch(self, node_id: int) -> PatchRecord:
         try:
@@ -379,78 +408,9 @@ class HostManager:
         except KeyError:
             raise BusError(f"node {node_id} is not a configured patch") from None
 
-    def set_state(self, patch: PatchRecord, state: str, error: str | None = None) -> None:
-        with self._changed:
-            previous = patch.state
-            if previous != state:
-                logger.info("patch %d: %s -> %s%s", patch.node_id, patch.state, state,
-                            f" ({error})" if error else "")
-            patch.state, patch.error = state, error
-            self._changed.notify_all()
-        if previous != state:
-            self.events.emit(StateEvent(patch.node_id, patch.link.name, state, previous, error,
-                                        time.time()))
-
-    def take_offline(self, patch: PatchRecord, state: str) -> None:
-        """Stop decoding the patch: from now on its samples are all-invalid (``MISSING``),
-        one per SYNC, so that no consumer keeps its last forces and every cycle counts."""
-        dataplane = patch.link.dataplane
-        if patch.channel is not None and dataplane is not None:
-            dataplane.set_online(patch.node_id, False)
-            patch.channel = None
-        self.set_state(patch, state)
-
-    def add_placeholder(self, patch: PatchRecord, setup: PatchSetup) -> None:
-        """An offline channel for a patch not decoded yet: its all-invalid sample per SYNC."""
-        dataplane = patch.link.dataplane
-        assert dataplane is not None
-        decoder, _ = self.decoders.get(patch.config, setup)
-        dataplane.add_channel(PatchChannel(
-            node_id=patch.node_id, codec=setup.codec, pillars=setup.pillars,
-            lsb_ohm=setup.info.lsb_ohm, decoder=decoder, force_node=patch.force_node,
-            masked=patch.masked, answer_order=patch.config.answer_order), online=False)
-
-    def go_online(self, patch: PatchRecord, setup: PatchSetup) -> None:
-        """Decode the patch from now on (lock held by the caller)."""
-        decoder, r0_ref = self.decoders.get(patch.config, setup)
-        p = setup.pillars
-        drift = self.config.drift
-        baseline = Baseline(
-            r0_ref, setup.info.r0_ohm[:, :p], loaded_N=self.config.tare_threshold_N,
-            time_constant_s=None if drift is None else drift.time_constant_s,
-            contact_N=0.1 if drift is None else drift.contact_N)
-        channel = PatchChannel(
-            node_id=patch.node_id, codec=setup.codec, pillars=p, lsb_ohm=setup.info.lsb_ohm,
-            decoder=decoder, force_node=patch.force_node, masked=patch.masked,
-            baseline=baseline, answer_order=patch.config.answer_order)
-        patch.setup, patch.channel = setup, channel
-        take_pitch(patch.force_node.contact, setup.info.constants)
-        dataplane = patch.link.dataplane
-        assert dataplane is not None, "the patch's bus is listening"
-        dataplane.add_channel(channel)
-        patch.link.monitor.judge(patch.node_id, True)
-        self.set_state(patch, "operational")
-
-    def set_mask(self, patch: PatchRecord, taxels: NDArray[np.bool_], masked: bool) -> None:
-        """Mask (or unmask) ``taxels`` for the samples completed from now on.
-
-        The data plane reads a patch's mask when it publishes, which may be after the
-        next cycle's frames arrived; so the samples already complete are published
-        first, with the mask they were completed under: an EMCY (or boot-up) applies
-        from its place on the bus, live and in a replay alike. Never under ``_lock``:
-        publishing runs the force callbacks, which may call the API.
-        """
-        if bool(np.all(patch.masked[taxels] == masked)):
-            return
-        dataplane = patch.link.dataplane
-        if dataplane is not None:
-            dataplane.publish_pending()
-        patch.masked[taxels] = masked
-
     def report_unknown(self, unknown: UnknownNode) -> None:
-        with self._lock:
-            self.unknown_nodes[unknown.node_id] = unknown
-        logger.warning("node %d: %s; left alone", unknown.node_id, unknown.reason)
+        self.unknown_nodes[unknown.node_id] = unknown
+        log_unknown(unknown)
         if self.on_unknown is not None:
             try:
                 self.on_unknown(unknown)
@@ -476,7 +436,7 @@ class HostManager:
         patch = self.patches.get(node_id)
         if patch is None:
             return
-        self.set_mask(patch, np.ones(TAXELS_PER_PATCH, dtype=bool), False)
+        self.channels.booted(patch)
         self.policy.on_patch_boot(patch)
 
     def _on_return(self, node_id: int, state: int) -> None:
@@ -495,73 +455,17 @@ class HostManager:
             self.policy.on_change(patch, state)
 
     def _on_any_boot(self, link: BusLink, node_id: int) -> None:
-        # Patches: the heartbeat monitor reports their boot-ups. Force node-IDs: buses that
-        # echo our own frames (udp_multicast) show our force nodes booting; a foreign node
-        # at such an ID is caught by the scan at start.
+        # Patches: the heartbeat monitor reports their boot-ups. Force node-IDs: the active
+        # policy watches them (a foreign node there is reported; ours echo on udp_multicast).
         if node_id in self.patches or node_id in self.force_ids:
             return
         if node_id in self.config.other_nodes:
             return
         self.policy.on_unknown_boot(link, node_id)
 
-    def _emcy_handler(self, patch: PatchRecord) -> Callable[[EmcyError], None]:
-        consumer = patch.node.emcy
 
-        def on_emcy(entry: EmcyError) -> None:
-            with consumer.emcy_received:  # canopen logs every EMCY: keep the newest only
-                if len(consumer.log) > 2 * EMCY_LOG_KEPT:
-                    del consumer.log[:-EMCY_LOG_KEPT]
-            taxel = entry.data[0] if entry.data else TAXELS_PER_PATCH
-            _log_emcy(patch.node_id, entry)
-            if taxel < TAXELS_PER_PATCH and entry.code in (DEVICE_HARDWARE, ERROR_RESET):
-                which = np.zeros(TAXELS_PER_PATCH, dtype=bool)
-                which[taxel] = True
-                self.set_mask(patch, which, entry.code == DEVICE_HARDWARE)
-            # after the mask: the samples completed before the EMCY went out first
-            self.events.emit(EmcyEvent(patch.node_id, patch.link.name, entry.code,
-                                       entry.register, bytes(entry.data), time.time()))
-        return on_emcy
-
-
-def _log_emcy(node_id: int, entry: EmcyError) -> None:
-    text = EMCY_TEXT.get(entry.code, entry.get_desc() or "error")
-    data = bytes(entry.data)
-    if entry.code == DEVICE_HARDWARE and len(data) >= 2:
-        status = data[1]
-        pillars = ", ".join(f"{axis} {TAXEL_FAULTS[status >> (2 * k) & 3]}"
-                            for k, axis in enumerate("zxy") if status >> (2 * k) & 3)
-        logger.warning("patch %d: EMCY 0x%04X %s: taxel %d (%s); masked", node_id,
-                       entry.code, text, data[0], pillars or "status 0")
-    elif entry.code == ERROR_RESET and data:
-        logger.info("patch %d: EMCY 0x%04X %s: taxel %d", node_id, entry.code, text, data[0])
-    else:
-        logger.warning("patch %d: EMCY 0x%04X %s (register 0x%02X, data %s)", node_id,
-                       entry.code, text, entry.register, data.hex())
-
-
-def _by_name(bus: Buses, config: HostConfig) -> dict[str, can.BusABC | canopen.Network]:
-    names = [b.name for b in config.buses]
-    if isinstance(bus, can.BusABC | canopen.Network):
-        if len(names) != 1:
-            raise BusError(f"the config has {len(names)} buses ({', '.join(names)}): give the "
-                           "host a mapping from each name to its bus")
-        return {names[0]: bus}
-    given = dict(cast(Mapping[str, can.BusABC | canopen.Network], bus))
-    if sorted(given) != sorted(names):
-        raise BusError(f"the config's buses are {', '.join(names)}; given "
-                       f"{', '.join(given) or 'none'}")
-    return given
-
-
-def _plain(value: Any) -> Any:
-    """A dataclass (a bus's statistics) as plain JSON-able values."""
-    import dataclasses
-
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {k: _plain(v) for k, v in dataclasses.asdict(value).items()}
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    return value
-
+def _step(what: str, step: Callable[[], object]) -> None:
+    try:
+        step()
+    except Exception:
+        logger.exception("host stop: %s failed", what)

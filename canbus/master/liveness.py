@@ -36,6 +36,7 @@ CHECKS_PER_PERIOD = 4
 @dataclass
 class _Watch:
     alive: bool = False
+    lost: bool = False  # marked lost by a check, no heartbeat since
     state: int | None = None  # NMT state byte of the last heartbeat
     last_seen: float = 0.0  # monotonic
     last_heartbeat: float | None = None  # time.time() of the last heartbeat
@@ -94,13 +95,20 @@ class HeartbeatMonitor:
         with self._lock:
             watch = self._watches.get(node_id)
             if watch is not None:
-                watch.alive, watch.last_seen = True, self.clock()
+                watch.alive, watch.lost, watch.last_seen = True, False, self.clock()
                 watch.lost_after_s = self.lost_after_s
 
     def alive(self, node_id: int) -> bool:
         with self._lock:
             watch = self._watches.get(node_id)
             return watch is not None and watch.alive
+
+    def lost(self, node_id: int) -> bool:
+        """The node was found overdue and has not been heard since (its latest fact: read
+        it when deciding, never trust an ``on_lost`` that may be older than a heartbeat)."""
+        with self._lock:
+            watch = self._watches.get(node_id)
+            return watch is not None and watch.lost
 
     def state(self, node_id: int) -> int | None:
         """The NMT state byte of the node's last heartbeat (None: never heard)."""
@@ -126,7 +134,7 @@ class HeartbeatMonitor:
             returned = not watch.alive and state != BOOTUP
             changed = (watch.alive and watch.state is not None
                        and (watch.state == OPERATIONAL) != (state == OPERATIONAL))
-            watch.alive, watch.state = True, state
+            watch.alive, watch.lost, watch.state = True, False, state
             watch.last_seen, watch.last_heartbeat = self.clock(), time.time()
         if state == BOOTUP:
             self.on_boot(node_id)
@@ -143,6 +151,7 @@ class HeartbeatMonitor:
                     and w.lost_after_s is not None and now - w.last_seen > w.lost_after_s]
             for node_id in lost:
                 self._watches[node_id].alive = False
+                self._watches[node_id].lost = True
         for node_id in lost:
             self.on_lost(node_id)
         return lost

@@ -37,6 +37,7 @@ from canbus.patch_constants import (
 )
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM, TPDO_MAP, MappedEntry, PdoCodec, TpdoLayout
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
+from skin.errors import SkinError
 
 logger = logging.getLogger(__name__)
 
@@ -45,6 +46,10 @@ HEARTBEAT_TIME = 0x1017
 SYNCHRONOUS = 1  # transmission type: every SYNC
 ENTRIES_PER_TPDO = 4  # 4 x UNSIGNED16 = 8 bytes
 _U8, _U16, _U32 = struct.Struct("<B"), struct.Struct("<H"), struct.Struct("<I")
+
+
+class ReportedValueError(SkinError, ValueError):
+    """A patch reports a value the host cannot decode with (an R0 of 0, NaN, -1 ...)."""
 
 
 @dataclass(frozen=True)
@@ -164,6 +169,23 @@ def setup_patch(node: canopen.RemoteNode, mode: str, *, heartbeat_ms: int,
     write_tpdo_mapping(node.sdo, node_id, setup.layouts)
     node.sdo.download(HEARTBEAT_TIME, 0, _U16.pack(heartbeat_ms))
     return setup
+
+
+def check_reported(info: PatchInfo, pillars: int = 3) -> None:
+    """Refuse an LSB or an R0 (of the pillars decoded) that is not positive and finite,
+    naming the object, sub-index, taxel and pillar (ReportedValueError)."""
+    if not (np.isfinite(info.lsb_ohm) and info.lsb_ohm > 0):
+        raise ReportedValueError(f"patch {info.node_id} reports 0x{LSB:04X} (resistance LSB) "
+                                 f"= {info.lsb_ohm!r} ohm: it must be positive and finite")
+    r0 = info.r0_ohm[:, :pillars]
+    bad = np.argwhere(~(np.isfinite(r0) & (r0 > 0)))
+    if len(bad):
+        taxel, pillar = (int(v) for v in bad[0])
+        raise ReportedValueError(
+            f"patch {info.node_id} reports 0x{NOMINAL:04X} sub {3 * taxel + pillar + 1} (R0 "
+            f"of taxel {taxel}, pillar {'zxy'[pillar]}) = {float(r0[taxel, pillar])!r} ohm"
+            f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}: R0 must be positive and "
+            "finite")
 
 
 def configured_info(patch: PatchConfig) -> PatchInfo:

@@ -1,10 +1,22 @@
-"""The data plane's second half: queued samples decoded in numpy batches (one unpack per
-PDO layout, one ``decode`` per decoder object), the force nodes' TPDOs sent with
-``bus.send``, the API's frames handed to subscribers, baselines followed."""
+"""The data plane's second half, publishing: queued samples decoded in numpy batches (one
+unpack per PDO layout, one ``decode`` per decoder object), the force nodes' TPDOs sent
+with ``bus.send``, the API's frames handed to the subscribers, each patch's last complete
+sample kept (raw and decoded) for tare and drift tracking, and the warm-up that runs
+this same path once before the first cycle.
+
+Subscribers (:meth:`Publisher.subscribe`) are how anything else hooks into the forces:
+``callback(frames)`` gets each published batch, a list of
+:class:`~canbus.master.channel.ForceFrame` in the order they were published, on the
+publishing thread, after the batch's force TPDOs went onto the bus. Keep it short (the
+next batch waits for it) and do not block: a slow consumer should queue and drop, as
+``canbus.master.fanout`` does. An exception is logged and counted
+(``callback_errors``); the other subscribers still get the batch.
+"""
 
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Sequence
 
 import can
@@ -13,9 +25,9 @@ from numpy.typing import NDArray
 
 from canbus.codes import code_to_resistance
 from canbus.master.channel import (
-    AnswerSlot,
     DataPlaneStats,
     ForceFrame,
+    PatchChannel,
     SampleJob,
     Subscriber,
 )
@@ -31,18 +43,68 @@ logger = logging.getLogger(__name__)
 
 class Publisher:
     """Publishes batches of :class:`SampleJob` (one caller at a time: the data plane's
-    publishing lock); remembers each patch's last complete sample, raw and decoded."""
+    publishing lock); keeps each patch's last complete sample, raw and decoded."""
 
-    def __init__(self, bus: can.BusABC, stats: DataPlaneStats,
-                 slots: dict[int, AnswerSlot]) -> None:
+    def __init__(self, bus: can.BusABC, stats: DataPlaneStats) -> None:
         self.bus = bus
         self.stats = stats
-        self.subscribers: tuple[Subscriber, ...] = ()
-        self.raw_samples: dict[int, NDArray[np.float64]] = {}
-        self.last_complete: dict[int, ForceFrame] = {}
-        self._slots = slots  # the data plane's channels by node-ID, kept current by it
+        self._subscribers: tuple[Subscriber, ...] = ()  # replaced, never mutated
+        self._subscribing = threading.Lock()
+        self._raw: dict[int, NDArray[np.float64]] = {}
+        self._last_complete: dict[int, ForceFrame] = {}
+
+    # -- subscribers, tare state --------------------------------------------------------
+
+    def subscribe(self, callback: Subscriber) -> None:
+        """Call ``callback(frames)`` with every published batch (module docstring)."""
+        with self._subscribing:
+            self._subscribers = (*self._subscribers, callback)
+
+    def unsubscribe(self, callback: Subscriber) -> None:
+        with self._subscribing:
+            self._subscribers = tuple(c for c in self._subscribers if c != callback)
+
+    def raw_sample(self, node_id: int) -> NDArray[np.float64] | None:
+        """The last complete ``(9, P)`` resistances of a patch in ohm, before its scale."""
+        sample = self._raw.get(node_id)
+        return None if sample is None else sample.copy()
+
+    def tare(self, channel: PatchChannel) -> None:
+        """Re-zero the channel's baseline at the patch's last complete sample (raises
+        ``PatchLoadedError`` while it is loaded or before its first complete sample)."""
+        baseline = channel.baseline
+        assert baseline is not None, "the data plane checks it"
+        last = self._last_complete.get(channel.node_id)
+        baseline.tare(self.raw_sample(channel.node_id), None if last is None else last.force_N,
+                      None if last is None else last.valid, node_id=channel.node_id)
+
+    # -- publishing ---------------------------------------------------------------------
 
     def publish(self, jobs: list[SampleJob]) -> None:
+        """Decode the jobs, send their force TPDOs, hand the frames to the subscribers."""
+        force, valid, reason, decoded = self._decode(jobs, errors=True)
+        if decoded.all():
+            self._send(jobs, force, valid, reason)
+        else:
+            kept = np.flatnonzero(decoded)
+            self._send([jobs[i] for i in kept], force[kept], valid[kept], reason[kept])
+
+    def warm_up(self, jobs: list[SampleJob]) -> None:
+        """Run the publishing path once on these samples (at rest), sending nothing and
+        keeping nothing, so that the first cycle does not pay for code and tables run the
+        first time; a decoder that fails here raises."""
+        if not jobs:
+            return
+        force, valid, reason, _ = self._decode(jobs, errors=False)
+        nodes = [job.slot.channel.force_node for job in jobs]
+        batch_frames(nodes, force, valid, np.zeros(len(jobs), bool), reason, 0)
+        for node in nodes:
+            node.clear_sample()  # an SDO read shows "no value" until the first sample
+
+    def _decode(self, jobs: list[SampleJob], *, errors: bool) -> tuple[
+            NDArray[np.float64], NDArray[np.bool_], NDArray[np.uint8], NDArray[np.bool_]]:
+        """Forces, validity, reasons and which rows decoded; ``errors``: a failing decoder
+        is logged and counted (else it raises)."""
         n = len(jobs)
         missing = np.zeros((n, TAXELS_PER_PATCH), dtype=bool)
         masked = np.zeros((n, TAXELS_PER_PATCH), dtype=bool)
@@ -50,7 +112,7 @@ class Publisher:
             if job.missing:
                 missing[i] = job.slot.taxels_of(job.missing)
             masked[i] = job.slot.channel.masked
-        resistance = self.resistances(jobs, missing | masked)
+        resistance = self._resistances(jobs, missing | masked, keep=errors)
         force = np.zeros((n, TAXELS_PER_PATCH, 3))
         reason = np.zeros((n, TAXELS_PER_PATCH), dtype=np.uint8)
         decoded = np.zeros(n, dtype=bool)
@@ -59,6 +121,8 @@ class Publisher:
                 pillars = jobs[rows[0]].slot.channel.pillars
                 result = decoder.decode(resistance[rows, :, :pillars])
             except Exception:
+                if not errors:
+                    raise
                 logger.exception("data plane: %r failed on patches %s", decoder,
                                  [jobs[i].slot.channel.node_id for i in rows])
                 self.stats.decode_errors += len(rows)
@@ -70,14 +134,10 @@ class Publisher:
         reason[masked] = Reason.FAULTY
         valid = reason == 0
         force[~valid] = 0.0
-        if decoded.all():
-            self._send(jobs, force, valid, reason)
-        else:
-            kept = np.flatnonzero(decoded)
-            self._send([jobs[i] for i in kept], force[kept], valid[kept], reason[kept])
+        return force, valid, reason, decoded
 
-    def resistances(self, jobs: Sequence[SampleJob],
-                     undecodable: NDArray[np.bool_]) -> NDArray[np.float64]:
+    def _resistances(self, jobs: Sequence[SampleJob], undecodable: NDArray[np.bool_], *,
+                     keep: bool) -> NDArray[np.float64]:
         """``(n, 9, 3)``: each job's ``(9, P)`` ohms in ``[:, :, :P]``, scaled, NaN where
         ``undecodable``; one unpack per layout.
 
@@ -106,8 +166,8 @@ class Publisher:
                 raw = code_to_resistance(codes, 1.0) * np.array(
                     [channel.lsb_ohm for channel in channels])[:, None, None]
             for m, i in enumerate(rows):
-                if jobs[i].complete:
-                    self.raw_samples[channels[m].node_id] = raw[m]
+                if keep and jobs[i].complete:
+                    self._raw[channels[m].node_id] = raw[m]
             shape = raw.shape[1:]
             scales = [channel.scale if channel.baseline is None else channel.baseline.scale
                       for channel in channels]
@@ -141,29 +201,28 @@ class Publisher:
             out.append(ForceFrame(job.slot.channel.node_id, nodes[i].node_id, cycle, counter,
                                   timestamp, force[i], valid[i], reason[i], job.complete,
                                   published[i], summaries[i]))
-        self._follow_baselines(out)
+        self._follow_baselines(jobs, out)
         stats = self.stats
         stats.samples += len(out)
         stats.batches += 1
         stats.complete_samples += sum(complete)
         stats.incomplete_samples += len(out) - sum(complete)
-        for callback in self.subscribers:
+        for callback in self._subscribers:
             try:
                 callback(out)
             except Exception:
                 stats.callback_errors += 1
                 logger.exception("data plane: subscriber %r failed", callback)
 
-    def _follow_baselines(self, frames: list[ForceFrame]) -> None:
+    def _follow_baselines(self, jobs: list[SampleJob], frames: list[ForceFrame]) -> None:
         """Remember each patch's last complete sample (for tare) and track drift on it."""
-        for out in frames:
+        for job, out in zip(jobs, frames, strict=True):
             if not out.complete:
                 continue
-            previous = self.last_complete.get(out.patch)
-            self.last_complete[out.patch] = out
-            baseline = self._slots[out.patch].channel.baseline if out.patch in self._slots \
-                else None
-            raw = self.raw_samples.get(out.patch)
+            previous = self._last_complete.get(out.patch)
+            self._last_complete[out.patch] = out
+            baseline = job.slot.channel.baseline
+            raw = self._raw.get(out.patch)
             if baseline is None or baseline.time_constant_s is None or raw is None:
                 continue
             dt = out.timestamp - previous.timestamp if previous is not None else 0.0

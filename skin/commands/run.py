@@ -5,8 +5,14 @@ with one line naming the field. The buses are the config's (``[bus]``, or severa
 ``[[buses]]``); python-can's bus flags (``-i``, ``-c``, ``-b``, ``--fd`` ...) go over the
 one bus of a config (:mod:`skin.commands.common.hostbus`); with no bus anywhere, one line says so.
 While running, every change of a patch's state and every unknown node is printed on a
-line, and ``--status-every S`` prints a health line every S seconds; Ctrl-C, SIGTERM or
-SIGHUP (or ``--seconds``) stops the host and prints a summary.
+line (the host's own log record of it, printed once, on stdout), and ``--status-every S``
+prints a health line every S seconds; Ctrl-C, SIGTERM or SIGHUP (or ``--seconds``) stops
+the host, whatever it is doing (a scan, a set-up, an SDO transfer), and prints a summary.
+
+Each bus is a ``canbus.busio.ResilientBus``: what its ``recv`` raises is survived, a bus
+that keeps failing is opened again; one that cannot be had back ends the run with exit
+status 1 and one line (the summary and ``--json`` first), so that a service manager
+restarts it.
 
 ``--listen-only`` (or ``host.listen_only = true``): decode what another master runs, or a
 recording ``skin replay`` sends, and transmit nothing. ``--cpu 3`` runs every thread of
@@ -17,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import gc
 import json
 import logging
@@ -31,33 +36,25 @@ from skin.commands.common import argtypes
 if TYPE_CHECKING:
     import can
 
-    from canbus.master.discovery import UnknownNode
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig
     from canbus.zenoh.publisher import ZenohPublisher
 
 POLL_S = 0.1
+SHOWN_ON_STDOUT = ("canbus.master.patchstate", "canbus.master.discovery")
+"""The host's loggers of patch states and unknown nodes: their lines go to stdout, once."""
 
 
-def _report_unknown(node: UnknownNode) -> None:
-    print(f"node {node.node_id}: {node.reason}; left alone", flush=True)
-
-
-def _follow(host: HostManager, seconds: float | None, status_every: float | None) -> None:
-    """Print each patch's state when it changes, and a status line every ``status_every``
-    seconds, until ``seconds`` or Ctrl-C."""
-    started = time.monotonic()
-    deadline = None if seconds is None else started + seconds
-    shown: dict[int, str] = {}
+def _follow(host: HostManager, deadline: float | None, status_every: float | None) -> None:
+    """Print a status line every ``status_every`` seconds until ``deadline``, Ctrl-C, or a
+    bus that is gone for good."""
     tick = threading.Event()
     status = _Status(host)
+    started = time.monotonic()
     next_status = None if status_every is None else started + status_every
     while deadline is None or time.monotonic() < deadline:
-        for node_id, health in sorted(host.health().items()):
-            if shown.get(node_id) != health.state:
-                shown[node_id] = health.state
-                detail = f" ({health.error})" if health.error else ""
-                print(f"patch {node_id}: {health.state}{detail}", flush=True)
+        if host.bus_gone() is not None:
+            return
         now = time.monotonic()
         if next_status is not None and status_every is not None and now >= next_status:
             print(status.line(), flush=True)
@@ -124,23 +121,18 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     from contextlib import ExitStack
 
     from canbus.master.host import HostManager
-    from canbus.tools.recorder import enlarge_receive_buffer
-    from skin.atomic import atomic_write
     from skin.commands.common.hostbus import describe, open_all
     from skin.commands.common.signals import until_stopped
 
     started = time.monotonic()
     with ExitStack() as stack:
-        buses = open_all(config, stack)
-        if args.rcvbuf:
-            for bus in buses.values():
-                enlarge_receive_buffer(bus, args.rcvbuf)
-        host = HostManager(buses, config, on_unknown=_report_unknown,
-                           listen_only=True if args.listen_only else None)
+        buses = open_all(config, stack, rcvbuf=args.rcvbuf)
+        host = HostManager(buses, config, listen_only=True if args.listen_only else None)
         gc.collect()  # the object dictionaries are long-lived: keep the collector off them
         gc.freeze()
         stack.callback(gc.unfreeze)
         stack.enter_context(_host_events_shown())
+        stack.enter_context(_lines_on_stdout())
         publisher = _zenoh_publisher(host, config, args)
         if publisher is not None:  # closed after the host stops: its last samples go out
             stack.enter_context(publisher)
@@ -148,16 +140,46 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
         # run as --seconds does: the summary and --json follow.
         with until_stopped() as stopped:
             _print_banner(host.listen_only, config, describe(config))
-            with host:
-                _hint_if_nobody_answered(host, config)
-                _follow(host, args.seconds, args.status_every)
+            # --seconds S: S seconds once started; a start still going then (a long scan,
+            # set-ups waiting out SDO time-outs) is cut short at S.
+            with _stops_at(args.seconds, host) as cut:
+                host.start()
+            try:
+                if not cut.is_set():
+                    _hint_if_nobody_answered(host, config)
+                    _follow(host, None if args.seconds is None else
+                            time.monotonic() + args.seconds, args.status_every)
+            finally:
+                host.stop()
         if stopped.signal is not None:
             print(f"stopped by {stopped.signal}", flush=True)
         stats = host.stats()
         health = host.health()
         buses_stats = host.bus_stats()
+        gone = host.bus_gone()
     elapsed = time.monotonic() - started
-    verb = "decoded" if host.listen_only else "published"
+    _print_summary(host.listen_only, stats, elapsed, publisher)
+    if args.json:
+        record: dict[str, Any] = {
+            "config": config.source, "listen_only": host.listen_only,
+            "seconds": round(elapsed, 3), "stopped_by": stopped.signal, "stats": stats,
+            "buses": buses_stats,
+            "patches": {str(n): h.as_json() for n, h in health.items()},
+            "unknown_nodes": sorted(host.unknown_nodes),
+            "bus_gone": gone,
+            "zenoh": None if publisher is None else publisher.counters(),
+        }
+        _write_json(args.json, record)
+    if gone is not None:
+        from skin.errors import BusError
+
+        raise BusError(f"{gone}: the host cannot hear its patches")
+    return 0
+
+
+def _print_summary(listen_only: bool, stats: dict[str, int], elapsed: float,
+                   publisher: ZenohPublisher | None) -> None:
+    verb = "decoded" if listen_only else "published"
     print(f"{verb} {stats['samples']} samples ({stats['complete_samples']} complete, "
           f"{stats['incomplete_samples']} incomplete) in {elapsed:.1f} s; frames in "
           f"{stats['frames_in']}, out {stats['frames_out']}, late {stats['late_frames']}, "
@@ -166,18 +188,13 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
         z = publisher.counters()
         print(f"zenoh: {z['sent']} samples sent on {publisher.settings.prefix}/"
               f"{publisher.host_name}/**, {z['dropped']} dropped, {z['events_sent']} events")
-    if args.json:
-        record: dict[str, Any] = {
-            "config": config.source, "listen_only": host.listen_only,
-            "seconds": round(elapsed, 3), "stopped_by": stopped.signal, "stats": stats,
-            "buses": buses_stats,
-            "patches": {str(n): dataclasses.asdict(h) for n, h in health.items()},
-            "unknown_nodes": sorted(host.unknown_nodes),
-            "zenoh": None if publisher is None else publisher.counters(),
-        }
-        with atomic_write(args.json) as handle:
-            handle.write(json.dumps(record, indent=2).encode() + b"\n")
-    return 0
+
+
+def _write_json(path: str, record: dict[str, Any]) -> None:
+    from skin.atomic import atomic_write
+
+    with atomic_write(path) as handle:
+        handle.write(json.dumps(record, indent=2).encode() + b"\n")
 
 
 def _print_banner(listen_only: bool, config: HostConfig, bus_text: str) -> None:
@@ -231,6 +248,64 @@ def _host_events_shown() -> Iterator[None]:
         host.setLevel(before)
 
 
+@contextlib.contextmanager
+def _lines_on_stdout() -> Iterator[None]:
+    """The host's lines of patch states and unknown nodes (:data:`SHOWN_ON_STDOUT`) on
+    stdout as ``patch 1: operational``: the log record is the one path, not also a line
+    on stderr."""
+    handler = _StdoutHandler()
+    saved = []
+    for name in SHOWN_ON_STDOUT:
+        logger = logging.getLogger(name)
+        saved.append((logger, logger.level, logger.propagate))
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
+        logger.propagate = False
+    try:
+        yield
+    finally:
+        for logger, level, propagate in saved:
+            logger.removeHandler(handler)
+            logger.setLevel(level)
+            logger.propagate = propagate
+
+
+class _StdoutHandler(logging.Handler):
+    """The record's message alone, on whatever ``sys.stdout`` is at the time."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        import sys
+
+        try:
+            print(record.getMessage(), file=sys.stdout, flush=True)
+        except Exception:
+            self.handleError(record)
+
+
+@contextlib.contextmanager
+def _stops_at(seconds: float | None, host: HostManager) -> Iterator[threading.Event]:
+    """Stop the host in ``seconds`` if the block (its start) still runs then; the event
+    yielded is set if it did."""
+    cut = threading.Event()
+
+    def stop() -> None:
+        cut.set()
+        host.stop()
+
+    timer = None
+    if seconds is not None:
+        timer = threading.Timer(max(0.0, seconds), stop)
+        timer.daemon = True
+        timer.start()
+    try:
+        yield cut
+    finally:
+        if timer is not None:
+            timer.cancel()
+            if cut.is_set():
+                timer.join()  # its stop() has run: the host is stopped
+
+
 def _hint_if_nobody_answered(host: HostManager, config: HostConfig) -> None:
     """One line when no configured patch answered the scan: the bus, and what to check."""
     if host.listen_only or not config.scan:
@@ -253,7 +328,9 @@ def add_subparser(subparsers: Any) -> None:
                              "$SKIN_HOST_CONFIG, ./host.toml, ~/.config/canskin/host.toml, "
                              "/etc/canskin/host.toml")
     parser.add_argument("--seconds", type=argtypes.seconds, default=None, metavar="S",
-                        help="stop after S seconds (default: run until Ctrl-C)")
+                        help="run S seconds once started; a start still going at S (a "
+                             "long scan, set-ups waiting on SDO) is cut short there "
+                             "(default: run until Ctrl-C)")
     parser.add_argument("--listen-only", action="store_true",
                         help="decode what another master runs (or `skin replay` sends) and "
                              "transmit nothing: no scan, SDO, NMT, SYNC or force node "

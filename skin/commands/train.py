@@ -66,6 +66,9 @@ def _report(decoder: Any) -> list[str]:
                      f"{crosstalk['kernel_side']:.4f}, diagonal {crosstalk['kernel_diagonal']:.4f}"
                      f"; held-out MSE kernel {crosstalk['val_mse_kernel_N2']:.3e}, full "
                      f"{crosstalk['val_mse_full_N2']:.3e} N²)")
+    domain = meta.get("domain")
+    if domain is not None:
+        lines.append(_domain_line(domain))
     residual = meta.get("residual")
     if residual is not None:
         used = int(residual["used"].sum())
@@ -81,6 +84,20 @@ def _report(decoder: Any) -> list[str]:
                          f"errors of its own fit: {1e3 * median:.2f} mN (median over the "
                          f"outputs used)")
     return lines
+
+
+def _domain_line(domain: dict[str, Any]) -> str:
+    """lm-mlp's checks of the whole patch, in one line (a warning where the departure check
+    could not be calibrated)."""
+    ratio = domain["exchangeable_ratio"]
+    if domain["departure_check"] == "validation rows":
+        return (f"domain: pattern and departure checks calibrated on held-out rows (held-out "
+                f"blocks {ratio:.2f}x as unfamiliar as held-out rows; readings' box margin "
+                f"{100 * domain['input_margin']:.0f} %)")
+    return (f"domain: warning: held-out blocks of the training data are {ratio:.3g}x as "
+            f"unfamiliar as held-out rows (a few long episodes): the departure check is off "
+            f"and the pattern check alone decides; off this scene the network may be wrong "
+            f"without a flag (train on more episodes, or use hybrid)")
 
 
 def run(args: argparse.Namespace) -> int:

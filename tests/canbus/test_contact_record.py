@@ -129,8 +129,8 @@ def test_the_sniffer_names_the_contact_pdo_and_its_values() -> None:
     force[4] = (0.0, 0.0, 1.0)
     frames = dict(node.frames(force, np.ones(9, bool), True))
     told = Attribution(Dictionary(), [KnownNode(65, "skin-forces")])  # as --config tells it
-    decoded = ServiceDecoder(attribution=told).decode(can.Message(arbitration_id=0x541, data=frames[0x541],
-                                                  is_extended_id=False))
+    decoded = ServiceDecoder(attribution=told).decode(
+        can.Message(arbitration_id=0x541, data=frames[0x541], is_extended_id=False))
     assert decoded.label == "TPDO8 contact"
     assert decoded.text == ("Fz=+3.00 N CoPx=+10.00 mm CoPy=+0.00 mm state=contact,onset "
                             "taxels=2")

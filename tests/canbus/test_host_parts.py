@@ -397,7 +397,8 @@ def test_a_listen_only_host_plans_the_setup_the_host_writes_and_reads(
 
 
 def test_the_emcy_log_of_a_long_running_host_stays_bounded() -> None:
-    from canbus.master.host import EMCY_LOG_KEPT, HostManager
+    from canbus.master.emcy import EMCY_LOG_KEPT
+    from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig, PatchConfig
 
     with can.Bus(interface="virtual", channel="emcy-log-bound") as bus:

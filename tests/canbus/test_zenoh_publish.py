@@ -84,8 +84,8 @@ def test_state_changes_emcys_and_statistics_arrive_as_events() -> None:
                                data=[0x00, 0x50, 0x81, 4, 0x01, 0, 0, 0])
             rig.patch_bus.send(emcy)
             _wait_for(lambda: any("/emcy/" in k for k, _ in events))
-            rig.host.take_offline(rig.host.patch(1), "lost")
-            _wait_for(lambda: any(f.get("state") == "lost" for _, f in events))
+            rig.server.stop()  # the patch falls silent: lost after two heartbeat periods
+            _wait_for(lambda: any(f.get("state") == "lost" for _, f in events), 10.0)
             _wait_for(lambda: any(k.endswith("/stats") for k, _ in events), 3.0)
         finally:
             session.close()

@@ -36,7 +36,9 @@ def test_contract(name: str, data: str, request: pytest.FixtureRequest, tmp_path
     assert decoder.fit(r_train, f_train) is decoder
     out = decoder.decode(r_test)
     _check(out, r_test.shape[0])
-    assert out.valid.all()
+    # On its own scene a trained decoder refuses few taxels (lm-mlp's checks are calibrated
+    # on held-out rows to flag about 1 %; the promise is at most 5 %).
+    assert out.valid.mean() >= 0.95
     rms = np.sqrt(np.mean(f_test**2))
     assert np.sqrt(np.mean((out.force_N - f_test) ** 2)) < 0.5 * rms  # a real decoder
     path = tmp_path / f"{name}.msgpack"

@@ -75,9 +75,11 @@ def test_skin_train_writes_a_loadable_model(tmp_path: Path, synth: Any, capsys: 
     model = tmp_path / "m.msgpack"
     assert main(["train", "lm-mlp", "--data", str(tmp_path / "d.npz"), "--hidden", "9",
                  "-o", str(model)]) == 0
-    assert "trained lm-mlp on 300 samples" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "trained lm-mlp on 300 samples" in out
+    assert "domain: pattern and departure checks calibrated on held-out rows" in out
     decoder = load_decoder(model)
-    assert decoder.decode(r).valid.all()
+    assert decoder.decode(r).valid.mean() >= 0.95
     assert main(["train", "analytic", "--data", str(tmp_path / "d.npz"), "--hidden", "3",
                  "-o", str(model)]) == 1
     assert "--hidden" in capsys.readouterr().err

@@ -44,7 +44,10 @@ def test_flag_fires_outside_the_training_range_and_not_inside(light: Any, synth:
     decoder = light[name]
     r_in, _ = synth(200, seed=12, fz_max=3.0)
     inside = decoder.decode(r_in)
-    assert inside.valid.all() and not (inside.reason == Reason.EXTRAPOLATED).any()
+    # deconv and hybrid flag nothing inside; lm-mlp's patch checks are calibrated on held-out
+    # rows to flag about 1 % of its own scene (the promise: at most 5 %).
+    assert (inside.reason == Reason.EXTRAPOLATED).mean() <= (0.05 if name == "lm-mlp" else 0.0)
+    assert (inside.valid == (inside.reason == 0)).all()
     r_out, _ = synth(200, seed=13, fz_min=4.5, fz_max=5.0)
     outside = decoder.decode(r_out)
     assert (outside.reason == Reason.EXTRAPOLATED).mean() > 0.9
@@ -59,7 +62,7 @@ def test_lm_mlp_flags_a_load_pattern_it_never_saw(synth: Any) -> None:
     r, f = synth(600, seed=21, same=True)
     decoder = _fit("lm-mlp", r, f)
     r_same, _ = synth(200, seed=22, same=True)
-    assert decoder.decode(r_same).valid.all()
+    assert decoder.decode(r_same).valid.mean() >= 0.95
     r_mixed, _ = synth(200, seed=23, fz_min=0.5, fz_max=4.5)
     x = r_mixed.reshape(200, 9)
     assert decoder.domain_.inputs.inside(x).all()
@@ -71,12 +74,12 @@ def test_lm_mlp_in_3_axis_mode_flags_beyond_its_training_range_and_hardly_inside
         synth: Any) -> None:
     r, f = synth(600, seed=14, pillars=3, fz_max=3.0)
     decoder = _fit("lm-mlp", r, f)
-    assert decoder.domain_.taxel_band is not None
+    assert decoder.domain_.pattern is not None and decoder.domain_.departure is not None
     r_in, _ = synth(200, seed=15, pillars=3, fz_max=3.0)
     inside = decoder.decode(r_in)
     # Each check lets a fresh sample of the training distribution through with probability
-    # above 1 - 1/(n + 1); over 1800 taxels a few may be flagged, not more.
-    assert (inside.reason == Reason.EXTRAPOLATED).mean() <= 0.005
+    # at least its held-out quantile (99-99.5 %): a few taxels are flagged, not more.
+    assert (inside.reason == Reason.EXTRAPOLATED).mean() <= 0.05
     r_out, _ = synth(200, seed=16, pillars=3, fz_min=4.5, fz_max=5.0)
     assert (decoder.decode(r_out).reason == Reason.EXTRAPOLATED).mean() > 0.9
 

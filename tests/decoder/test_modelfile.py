@@ -1,8 +1,9 @@
-"""Model files: round trip (with the training domain and the metadata), version-1 and -2 files, and
-every corrupt or hostile file refused with a named field."""
+"""Model files: round trip (with the training domain and the metadata), version-1, -2 and -3
+files, and every corrupt or hostile file refused with a named field."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -98,7 +99,7 @@ def saved(tmp_path_factory: pytest.TempPathFactory, synth: Any) -> dict[str, Pat
 def test_the_training_domain_and_metadata_round_trip(saved: dict[str, Path], synth: Any,
                                                      name: str) -> None:
     doc = _doc(saved[name])
-    assert doc["version"] == 3 and "domain_" in doc["state"] and isinstance(doc["meta"], dict)
+    assert doc["version"] == 4 and "domain_" in doc["state"] and isinstance(doc["meta"], dict)
     loaded = load_decoder(saved[name])
     r, _ = synth(60, seed=72, fz_max=5.0)  # some taxels beyond the 3 N of training
     out = loaded.decode(r)
@@ -138,17 +139,27 @@ def test_version_1_files_still_load(saved: dict[str, Path], synth: Any, tmp_path
     assert old.meta() == {}  # type: ignore[attr-defined]
 
 
-@pytest.fixture(scope="module")
-def lm_xyz(tmp_path_factory: pytest.TempPathFactory, synth: Any) -> Path:
-    """lm-mlp in 3-axis mode (whose domain has the per-taxel band), saved."""
-    r, f = synth(300, seed=74, pillars=3, fz_max=3.0)
-    path = tmp_path_factory.mktemp("xyz") / "lm-mlp.msgpack"
-    create_decoder("lm-mlp", max_epochs=30).fit(r, f).save(path)
-    return path
+V3 = {mode: (FILES / f"model_lm_mlp_v3_{mode}.msgpack",
+             FILES / f"model_lm_mlp_v3_{mode}_decoded.npz") for mode in ("z", "xyz")}
+"""lm-mlp files written by version 3 (z-only and 3-axis, trained on presses up to 3 N), and what
+they decoded then: resistances of presses up to 4.5 N, forces and reasons."""
+
+
+@pytest.mark.parametrize("mode", ["z", "xyz"])
+def test_version_3_files_still_load_and_decode_as_they_did(mode: str) -> None:
+    model, decoded = V3[mode]
+    old = load_decoder(model)
+    then = np.load(decoded, allow_pickle=False)
+    out = old.decode(then["resistance_ohm"])
+    np.testing.assert_array_equal(out.reason, then["reason"])
+    np.testing.assert_array_equal(out.force_N, then["force_N"])
+    assert (out.reason == Reason.EXTRAPOLATED).any() and out.valid.any()
+    domain = old.domain_  # type: ignore[attr-defined]
+    assert domain.density is not None and domain.pattern is None and domain.departure is None
 
 
 def test_version_2_files_still_load_and_decode_as_they_did(saved: dict[str, Path], synth: Any,
-                                                           lm_xyz: Path, tmp_path: Path) -> None:
+                                                           tmp_path: Path) -> None:
     """Version 3 added hybrid's residual threshold and lm-mlp's per-taxel band: a version-2
     hybrid adds its residual as it is, a version-2 lm-mlp has only the per-component band."""
     doc = _doc(saved["hybrid"])
@@ -161,36 +172,71 @@ def test_version_2_files_still_load_and_decode_as_they_did(saved: dict[str, Path
     now._prepare()  # type: ignore[attr-defined]
     r, _ = synth(40, seed=76, fz_max=3.0)
     np.testing.assert_array_equal(old.decode(r).force_N, now.decode(r).force_N)
-    doc = _doc(lm_xyz)
+    doc = _doc(V3["xyz"][0])
     doc["version"] = 2
     del doc["state"]["domain_"]["taxel_band"]
     old = load_decoder(_put(tmp_path / "lm-v2.msgpack", doc))
     assert old.domain_.taxel_band is None  # type: ignore[attr-defined]
     r, _ = synth(60, seed=75, pillars=3, fz_max=5.0)
-    then, now_out = old.decode(r), load_decoder(lm_xyz).decode(r)
+    then, now_out = old.decode(r), load_decoder(V3["xyz"][0]).decode(r)
     np.testing.assert_array_equal(then.force_N[now_out.valid], now_out.force_N[now_out.valid])
     assert not (now_out.valid & ~then.valid).any()  # the band only adds flags
 
 
-def test_the_per_taxel_band_round_trips_and_is_checked(lm_xyz: Path, synth: Any,
-                                                       tmp_path: Path) -> None:
-    doc = _doc(lm_xyz)
+def test_the_per_taxel_band_of_version_3_is_checked(tmp_path: Path) -> None:
+    path = V3["xyz"][0]
+    doc = _doc(path)
     assert set(doc["state"]["domain_"]) == {"inputs", "outputs", "density", "band", "taxel_band"}
-    r, _ = synth(60, seed=75, pillars=3, fz_max=5.0)
-    out = load_decoder(lm_xyz).decode(r)
-    again = load_decoder(_put(tmp_path / "copy.msgpack", doc))
-    np.testing.assert_array_equal(again.decode(r).reason, out.reason)
     for damage, field in (
             (lambda b: b.__setitem__("limit", 0.0), "state.domain_.taxel_band.limit"),
             (lambda b: b.__setitem__("whiten", b["mean"]), "state.domain_.taxel_band.whiten"),
             (lambda b: b.__setitem__("extra", 1), "state.domain_.taxel_band")):
-        bad = _doc(lm_xyz)
+        bad = _doc(path)
         damage(bad["state"]["domain_"]["taxel_band"])
         with pytest.raises(ModelFileError, match=field.replace(".", r"\.")):
             load_decoder(_put(tmp_path / "bad.msgpack", bad))
-    bad = _doc(lm_xyz)
+    bad = _doc(path)
     bad["state"]["unmix_"] = None
     with pytest.raises(ModelFileError, match=r"state\.domain_\.band: needs state\.unmix_"):
+        load_decoder(_put(tmp_path / "bad.msgpack", bad))
+
+
+@pytest.fixture(scope="module")
+def lm_xyz(tmp_path_factory: pytest.TempPathFactory, synth: Any) -> Path:
+    """lm-mlp in 3-axis mode, saved (version 4: the checks of the whole patch)."""
+    r, f = synth(300, seed=74, pillars=3, fz_max=3.0)
+    path = tmp_path_factory.mktemp("xyz") / "lm-mlp.msgpack"
+    create_decoder("lm-mlp", max_epochs=30).fit(r, f).save(path)
+    return path
+
+
+def test_the_patch_checks_round_trip_and_are_checked(lm_xyz: Path, synth: Any,
+                                                     tmp_path: Path) -> None:
+    doc = _doc(lm_xyz)
+    assert set(doc["state"]["domain_"]) == {"inputs", "outputs", "pattern", "departure"}
+    domain = doc["meta"]["domain"]
+    assert domain["departure_check"] == "validation rows" and domain["exchangeable_ratio"] < 2
+    r, _ = synth(60, seed=75, pillars=3, fz_max=5.0)
+    out = load_decoder(lm_xyz).decode(r)
+    assert (out.reason == Reason.EXTRAPOLATED).any()
+    again = load_decoder(_put(tmp_path / "copy.msgpack", doc))
+    np.testing.assert_array_equal(again.decode(r).reason, out.reason)
+    for part, damage, field in (
+            ("pattern", lambda b: b.__setitem__("limit", 0.0), "pattern.limit"),
+            ("pattern", lambda b: b.__setitem__("limit", True), "pattern.limit"),
+            ("pattern", lambda b: b.__setitem__("whiten", b["mean"]), "pattern.whiten"),
+            ("departure", lambda b: b.__setitem__("taxel_limit", -1.0), "departure.taxel_limit"),
+            ("departure", lambda b: b.__setitem__("floor_N", "0.25"), "departure.floor_N"),
+            ("departure", lambda b: b.__setitem__("mean", b["whiten"]), "departure.mean"),
+            ("departure", lambda b: b.pop("patch_limit"), "departure"),
+            ("departure", lambda b: b.__setitem__("extra", 1), "departure")):
+        bad = _doc(lm_xyz)
+        damage(bad["state"]["domain_"][part])
+        with pytest.raises(ModelFileError, match=re.escape(f"state.domain_.{field}")):
+            load_decoder(_put(tmp_path / "bad.msgpack", bad))
+    bad = _doc(lm_xyz)
+    bad["state"]["unmix_"] = None
+    with pytest.raises(ModelFileError, match=r"state\.domain_\.pattern: needs state\.unmix_"):
         load_decoder(_put(tmp_path / "bad.msgpack", bad))
 
 
@@ -199,10 +245,10 @@ BROKEN = [
         "lo", d["state"]["domain_"]["inputs"]["hi"] | {"data": b"\x7f" * 8 * 9}),
      "state.domain_.inputs"),
     ("no outputs", lambda d: d["state"]["domain_"].pop("outputs"), "state.domain_"),
-    ("density limit", lambda d: d["state"]["domain_"]["density"].__setitem__("limit", -1.0),
-     "state.domain_.density.limit"),
-    ("whiten shape", lambda d: d["state"]["domain_"]["density"].__setitem__(
-        "whiten", d["state"]["domain_"]["inputs"]["lo"]), "state.domain_.density.whiten"),
+    ("pattern limit", lambda d: d["state"]["domain_"]["pattern"].__setitem__("limit", -1.0),
+     "state.domain_.pattern.limit"),
+    ("whiten shape", lambda d: d["state"]["domain_"]["departure"].__setitem__(
+        "whiten", d["state"]["domain_"]["inputs"]["lo"]), "state.domain_.departure.whiten"),
     ("hidden_", lambda d: d["state"].__setitem__("hidden_", 3), "state.hidden_"),
     ("meta", lambda d: d.__setitem__("meta", 5), "meta"),
     ("extra key", lambda d: d.__setitem__("notes", {}), "unknown key"),

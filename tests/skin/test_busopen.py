@@ -5,10 +5,8 @@ from __future__ import annotations
 
 import argparse
 import threading
-import time
 from pathlib import Path
 
-import can
 import pytest
 
 from skin.cli import main
@@ -71,6 +69,8 @@ def test_sniff_and_tare_say_which_bus_and_that_virtual_is_theirs_alone(
                             "inside this process: it hears nothing of another process")
     assert captured.err == ""  # an error after it would be the one line on stderr
 
+    ready, done = threading.Event(), threading.Event()
+
     def answer() -> None:  # a force node that takes the tare
         import canopen
 
@@ -82,18 +82,17 @@ def test_sniff_and_tare_say_which_bus_and_that_virtual_is_theirs_alone(
         node = ForceNode(65, 1)
         node.on_tare = lambda: None
         node.attach(net)
-        time.sleep(3.0)
+        ready.set()
+        done.wait(30.0)
         net.disconnect()
 
     worker = threading.Thread(target=answer)
     worker.start()
     try:
-        deadline = time.monotonic() + 5
-        while "said-tare" not in can.interfaces.virtual.channels:
-            assert time.monotonic() < deadline
-            time.sleep(0.01)
+        assert ready.wait(30.0)
         assert main(["tare", "65", "-i", "virtual", "-c", "said-tare"]) == 0
     finally:
+        done.set()
         worker.join()
     captured = capsys.readouterr()
     said, result = captured.out.splitlines()

@@ -1,8 +1,8 @@
-"""``skin bench [decoders|cross|sim|dataplane|server|publish|contact]``: decoders' speed
-against error and the paper's Table 1, decoders trained on one scene and tested on others, the
-simulator's speed, the CAN data plane against canopen's PdoMap callbacks, the patch server
-against python-can's own send, hosts publishing on Zenoh, or the contact summary against the
-simulator's truth."""
+"""``skin bench [decoders|cross|paper|sim|dataplane|server|publish|contact]``: decoders'
+speed against error and the paper's Table 1, decoders trained on one scene and tested on
+others, the paper's figures, the simulator's speed, the CAN data plane against canopen's
+PdoMap callbacks, the patch server against python-can's own send, hosts publishing on
+Zenoh, or the contact summary against the simulator's truth."""
 
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ def add_subparser(subparsers: Any) -> None:
                     "5..14 (the paper's Table 1) on `paper`, `paper-noisy` and `indenter`, "
                     "and choose the hidden layer by the paper's method (--hidden auto). "
                     "cross: every decoder trained on one scene and tested on the others. "
+                    "paper: the paper's Figures 8, 9 and 10 with its claims beside ours. "
                     "sim: the simulator's speed. dataplane: 16 patches' TPDOs absorbed, "
                     "decoded and republished as force TPDOs, against the same work through "
                     "canopen's PdoMap callbacks. server: N simulated patches served on "
@@ -34,8 +35,8 @@ def add_subparser(subparsers: Any) -> None:
                     "against the simulator's truth on indenter, slide, grasp and stick-slip, "
                     "and its cost in the data plane.")
     parser.add_argument("target", nargs="?",
-                        choices=("decoders", "cross", "sim", "dataplane", "server", "publish",
-                                 "contact"),
+                        choices=("decoders", "cross", "paper", "sim", "dataplane", "server",
+                                 "publish", "contact"),
                         default="decoders")
     parser.add_argument("--quick", action="store_true",
                         help="one seed, smaller batches and sets (about a minute or less)")
@@ -45,6 +46,11 @@ def add_subparser(subparsers: Any) -> None:
                              "function) or on the mapminmax-scaled outputs")
     parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
                         help="write the figures as JSON")
+    parser.add_argument("--random", type=argtypes.count("pairs", 0, 1000), default=0,
+                        metavar="N", help="cross: N more scene pairs drawn at random "
+                                          "(bench.pairs)")
+    parser.add_argument("--png", type=argtypes.output_file, metavar="FILE.png",
+                        help="paper: draw the paper's Figures 8, 9 and 10 as ours")
     parser.add_argument("--no-contact", action="store_true",
                         help="dataplane: the force nodes publish no contact summary")
     parser.add_argument("--plot", type=argtypes.output_file, metavar="FILE.png",
@@ -151,8 +157,15 @@ def _cross(args: argparse.Namespace) -> dict[str, Any]:
     from bench.runs import mlp_params, run_cross
     from skin.commands.bench.cross import print_cross
 
-    result = run_cross(args.quick, mlp_params(args.goal_units))
+    result = run_cross(args.quick, mlp_params(args.goal_units), args.random)
     print_cross(result)
+    return result
+
+
+def _paper(args: argparse.Namespace) -> dict[str, Any]:
+    from bench.paper_view import run_command
+
+    result: dict[str, Any] = run_command(args.quick, args.goal_units, args.json, args.png)
     return result
 
 
@@ -175,5 +188,5 @@ def _decoders(args: argparse.Namespace) -> dict[str, Any]:
 
 _RUNNERS: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
     "sim": _sim, "dataplane": _dataplane, "server": _server, "contact": _contact,
-    "cross": _cross, "decoders": _decoders,
+    "cross": _cross, "paper": _paper, "decoders": _decoders,
 }

@@ -14,12 +14,11 @@ def _f(value: float | None, digits: int = 3) -> str:
 
 
 def uncovered(result: dict[str, Any]) -> list[str]:
-    """The figures of a ``skin bench`` run that cover no taxel: ``lm-mlp on paper``."""
-    out = [f"{d['name']} on {part['scene']}" for part in result["scenes"]
-           for d in part["decoders"] if not d["covered_pct"]]
-    out += [f"lm-mlp ({r['hidden']} hidden) on {r['scene']}" for r in result["table1"]
-            if not r["covered_pct"]]
-    return out
+    """The figures of a ``skin bench`` run that cover no taxel: ``lm-mlp on paper``.
+    (Table 1 scores every test component, flagged or not, as the paper does: it always
+    covers them all, and gives the share its checks flag beside.)"""
+    return [f"{d['name']} on {part['scene']}" for part in result["scenes"]
+            for d in part["decoders"] if not d["covered_pct"]]
 
 
 def _scene_table(part: dict[str, Any], seeds: int) -> None:
@@ -30,7 +29,7 @@ def _scene_table(part: dict[str, Any], seeds: int) -> None:
     columns = ["decoder", "covers %", "AveRelErr %", "floored %", "x oracle", "RMSE %FS",
                "max rel floored %", "train s"]
     if speed:
-        columns += ["patch-samples/s", "latency us"]
+        columns += ["patch-samples/s", "latency us", "flagged us"]
     o = part["oracle"]
     rows = [["oracle", _f(o["covered_pct"], 2), _f(o["ave_rel_err_pct"]),
              _f(o["ave_rel_err_floored_pct"]), "", _f(o["rmse_pct_fs"]),
@@ -42,7 +41,8 @@ def _scene_table(part: dict[str, Any], seeds: int) -> None:
                  _f(d["ave_rel_err_floored_pct"]), _f(ratio, 3), _f(d["rmse_pct_fs"]),
                  _f(d["max_rel_err_floored_pct"], 2), _f(d["train_s"])]
         if speed:
-            cells += [f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}"]
+            cells += [f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}",
+                      _f(d.get("latency_flagged_us"), 1)]
         rows.append(cells)
     show(title, columns, rows)
     print(f"best: {part['best']}")
@@ -51,27 +51,34 @@ def _scene_table(part: dict[str, Any], seeds: int) -> None:
 def _table1(result: dict[str, Any]) -> None:
     scenes = list(dict.fromkeys(r["scene"] for r in result["table1"]))
     by = {(r["scene"], r["hidden"]): r for r in result["table1"]}
+    pairs = result.get("table1_seed_pairs") or []
     title = (f"Table 1: lm-mlp AveRelErr % by hidden nodes (goal MSE 1e-4 in "
-             f"{'N' if result['goal_units'] == 'N' else 'scaled units'})")
-    columns = ["hidden", "article", "covers %"]
+             f"{'N' if result['goal_units'] == 'N' else 'scaled units'}), median over "
+             f"{len(pairs)} seed pairs")
+    columns = ["hidden", "article"]
     for scene in scenes:
         columns.append(scene)
         if scene == "paper":
-            columns.append("<= article")
+            columns += ["range", "seeds <= article"]
         columns.append(f"{scene} floored")
     rows = []
     for h in sorted({r["hidden"] for r in result["table1"]}):
         paper_ref = by[(scenes[0], h)]["paper_ave_rel_err_pct"]
-        cover = min(by[(scene, h)]["covered_pct"] for scene in scenes)
-        cells = [str(h), _f(paper_ref, 2), _f(cover, 2)]
+        cells = [str(h), _f(paper_ref, 2)]
         for scene in scenes:
             row = by[(scene, h)]
-            cells.append(_f(row["ave_rel_err_pct"]))
+            cells.append(_f(row["median_ave_rel_err_pct"]))
             if scene == "paper":
-                cells.append({True: "yes", False: "no", None: ""}[row["at_most_paper"]])
-            cells.append(_f(row["ave_rel_err_floored_pct"]))
+                cells.append(f"{row['min_ave_rel_err_pct']:.3g} .. "
+                             f"{row['max_ave_rel_err_pct']:.3g}")
+                count = row["seeds_at_most_paper"]
+                cells.append("" if count is None else
+                             f"{count} of {len(row['per_seed_ave_rel_err_pct'])}")
+            cells.append(_f(row["median_ave_rel_err_floored_pct"]))
         rows.append(cells)
-    show(title, columns, rows)
+    show(title, columns, rows,
+         caption="seed pairs " + ", ".join(f"{a}/{b}" for a, b in pairs)
+         + "; every test component scored, as the paper scores it")
 
 
 def print_decoders(result: dict[str, Any]) -> None:
@@ -95,8 +102,9 @@ def print_decoders(result: dict[str, Any]) -> None:
     speed = result["analytic_taxel_samples_per_s"]
     lm = result["lm_vs_scipy"]
     show("3-axis decode speed ('indenter' scene, 27 pillars per patch)",
-         ["decoder", "patch-samples/s", "latency us"],
-         [[d["name"], f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}"]
+         ["decoder", "patch-samples/s", "latency us", "flagged us"],
+         [[d["name"], f"{d['decode_samples_per_s']:,.0f}", f"{d['latency_us']:.1f}",
+           _f(d.get("latency_flagged_us"), 1)]
           for d in result["xyz_speed"]])
     print(f"analytic: {speed['z']:,.0f} taxel-samples/s z-only, "
           f"{speed['xyz']:,.0f} 3-axis")
@@ -107,19 +115,19 @@ def print_decoders(result: dict[str, Any]) -> None:
                   f"{lm['scipy_mse']:.2e}); {lm['speedup_per_iteration']:.0f}x per iteration")
 
 
-def check_plot(path: str) -> None:
-    """Refuse ``--plot`` before any work: matplotlib missing, or nowhere to write."""
+def check_plot(path: str, flag: str = "--plot") -> None:
+    """Refuse ``flag`` (``--plot``) before any work: matplotlib missing, or nowhere to write."""
     import os
 
     try:
         import matplotlib  # noqa: F401
     except ModuleNotFoundError as err:
-        raise ConfigError("--plot", "needs matplotlib: pip install 'canskin[plot]'") from err
+        raise ConfigError(flag, "needs matplotlib: pip install 'canskin[plot]'") from err
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
-        raise ConfigError("--plot", f"cannot write in {folder!r}")
+        raise ConfigError(flag, f"cannot write in {folder!r}")
     if not path.lower().endswith(".png"):
-        raise ConfigError("--plot", f"writes a PNG: name it .png, got {path!r}")
+        raise ConfigError(flag, f"writes a PNG: name it .png, got {path!r}")
 
 
 class Stages:

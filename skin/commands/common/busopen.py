@@ -181,10 +181,24 @@ def announce(command: str, described: str, *, sends: bool = False,
 
 def open_command_bus(args: argparse.Namespace, *, command: str,
                      config: HostConfig | None = None, sends: bool = False,
-                     out: TextIO | None = None) -> tuple[Any, str]:
+                     out: TextIO | None = None, resilient: bool = False,
+                     rcvbuf: int = 0) -> tuple[Any, str]:
     """:func:`choose_bus`, then the bus (:func:`open_bus`), then :func:`announce`; the bus and
-    its description."""
+    its description. ``resilient``: a ``canbus.busio.ResilientBus`` (what recv raises is
+    survived, a bus that keeps failing is opened again), ``rcvbuf`` its socket's receive
+    buffer each time it is opened."""
+    from functools import partial
+
     described = choose_bus(args, command=command, config=config)
-    bus = open_bus(args)  # one line naming the bus when it cannot be opened
+    if resilient:
+        from canbus.busio import ResilientBus
+        from canbus.tools.recorder import enlarge_receive_buffer
+
+        bus: Any = ResilientBus(partial(open_bus, args),
+                                name=f"{args.interface}:{getattr(args, 'channel', None)}",
+                                prepare=partial(enlarge_receive_buffer, size=rcvbuf)
+                                if rcvbuf else None)
+    else:
+        bus = open_bus(args)  # one line naming the bus when it cannot be opened
     announce(command, described, sends=sends, out=out)  # after: a failure is one line, naming it
     return bus, described

@@ -32,7 +32,7 @@ def resolve(config: HostConfig, args: argparse.Namespace) -> HostConfig:
     default channel; ConfigError for flags given to a config with several buses, BusError
     when no interface is named anywhere."""
     from canbus.busopen import configured_interface
-    from canbus.master.busconfig import with_flags
+    from canbus.master.busconfig import BUS_WAYS, with_flags
     from skin.errors import BusError, ConfigError
 
     flags = bus_flags(args)
@@ -43,10 +43,8 @@ def resolve(config: HostConfig, args: argparse.Namespace) -> HostConfig:
                               "line")
         return config
     bus = with_flags(config.buses[0], flags)
-    if bus.interface is None and not configured_interface():
-        raise BusError(f"no bus: {config.source} has no [bus] table and no -i IFACE was "
-                       "given (nor python-can's configuration); say which bus, e.g. "
-                       "-i socketcan -c can0")
+    if bus.interface is None and configured_interface() is None:
+        raise BusError(f"no bus: {config.source} names none; {BUS_WAYS}")
     if bus.channel is None and bus.interface is not None:
         from skin.commands.common.busopen import default_channel_for
 
@@ -59,15 +57,25 @@ def resolve(config: HostConfig, args: argparse.Namespace) -> HostConfig:
     return replace(config, buses=(bus,))
 
 
-def open_all(config: HostConfig, stack: ExitStack) -> dict[str, can.BusABC]:
-    """Open every bus of ``config``; each is shut down when ``stack`` closes."""
+def open_all(config: HostConfig, stack: ExitStack, *,
+             rcvbuf: int = 0) -> dict[str, can.BusABC]:
+    """Open every bus of ``config``, each a ``canbus.busio.ResilientBus`` (opened again
+    when it keeps failing; ``rcvbuf``: its socket's receive buffer, each time); each is
+    shut down when ``stack`` closes."""
+    from functools import partial
+
+    from canbus.busio import ResilientBus
     from canbus.master.busconfig import open_bus
+    from canbus.tools.recorder import enlarge_receive_buffer
     from skin.commands.common.logs import held_back
 
     opened: dict[str, can.BusABC] = {}
     for bus in config.buses:
         with held_back("can"):
-            handle = open_bus(bus)
+            handle = ResilientBus(partial(open_bus, bus),
+                                  name=f"{bus.name} ({bus.described})",
+                                  prepare=partial(enlarge_receive_buffer, size=rcvbuf)
+                                  if rcvbuf else None)
         stack.callback(handle.shutdown)
         opened[bus.name] = handle
     return opened

@@ -132,6 +132,7 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     import numpy as np
 
     from bench.rigs.demo import Record
+    from canbus.receiveloop import disconnect
     from sim import Simulator
     from skin.commands.demo import summary as demo_summary
 
@@ -149,11 +150,11 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
         for name in (b.name for b in config.buses):
             group = tuple(p.node_id for p in config.patches if p.bus == name)
             opened.append(_open_bus(args, name, group, live, simulated, truth, known))
-        seconds, stats = _run_host(args, scene, config, cpus, opened, live)
+        seconds, stats, gone = _run_host(args, scene, config, cpus, opened, live)
     finally:
         gc.unfreeze()
         for bus in opened:
-            bus.network.disconnect()
+            disconnect(bus.network)
             bus.host_bus.shutdown()
     record = demo_summary.summary(args, scene, plan, opened, live, stats, seconds, truth,
                                   known, cpus)
@@ -163,6 +164,10 @@ def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
 
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
+    if gone is not None:
+        from skin.errors import BusError
+
+        raise BusError(f"{gone}: the host cannot hear its patches")
     return 0
 
 
@@ -189,17 +194,24 @@ def _open_bus(args: argparse.Namespace, name: str, group: tuple[int, ...], live:
               simulated: Any, truth: Any, known: Any) -> DemoBus:
     """One bus of the demo: the host's end, and the patches of ``group`` served from the
     precomputed simulation on a canopen Network of their own, with the bus clock."""
+    from functools import partial
+
     import canopen
 
     from bench.rigs.demo import BusClock, Replay
+    from canbus.busio import ResilientBus
     from canbus.device.patch_server import PatchServer
+    from canbus.receiveloop import connect
     from skin.commands.demo.summary import DemoBus
 
     channel = f"demo-{os.getpid()}-{name}"
-    host_bus = _open(args.bus, channel, args)  # first: the patches' frames need it
-    patch_net = canopen.Network(_open(args.bus, channel, args))
+    # Each opened again when it keeps failing (canbus.busio); the host's first: the
+    # patches' frames need it.
+    host_bus = ResilientBus(partial(_open, args.bus, channel, args), name=name)
+    patch_net = canopen.Network(ResilientBus(partial(_open, args.bus, channel, args),
+                                             name=f"{name} (patches)"))
     patch_net.NOTIFIER_CYCLE = 0.05
-    patch_net.connect()
+    connect(patch_net)
     timed = args.bus == "timed"
     clock = BusClock.for_patches(group, fd=args.fd, bitrate=args.bitrate if timed else None,
                                  data_bitrate=args.data_bitrate if timed and args.fd else None)
@@ -214,9 +226,9 @@ def _open_bus(args: argparse.Namespace, name: str, group: tuple[int, ...], live:
 
 def _run_host(args: argparse.Namespace, scene: Scene, config: HostConfig,
               cpus: set[int] | None, opened: list[DemoBus],
-              live: Record) -> tuple[float, dict[str, int]]:
+              live: Record) -> tuple[float, dict[str, int], str | None]:
     """The host on the demo's buses, the patches served, for ``--seconds`` (or until a stop
-    signal): the run's length and the host's counters."""
+    signal): the run's length, the host's counters and the bus it lost for good if any."""
     from canbus.master.host import HostManager
     from skin.commands.common.signals import until_stopped
     from skin.errors import BusError
@@ -247,7 +259,8 @@ def _run_host(args: argparse.Namespace, scene: Scene, config: HostConfig,
                 _watch(host, live, args.seconds, scene)
             for bus in opened:
                 bus.wire_end = _wire(bus.host_bus)
-        return time.monotonic() - started, host.stats()  # the host stopped: its last counts
+        # the host stopped: its last counts
+        return time.monotonic() - started, host.stats(), host.bus_gone()
     finally:
         for bus in opened:
             bus.server.stop()
@@ -303,12 +316,13 @@ def _watch(host: HostManager, live: Record, seconds: float, scene: Scene) -> Non
             return f"{time.monotonic() - started:4.1f} / {seconds:g} s"
 
         with LiveThread(view, refresh_hz=1 / REFRESH_S, label=label):
-            stop.wait(seconds)
+            while time.monotonic() - started < seconds and host.bus_gone() is None:
+                stop.wait(min(REFRESH_S, seconds - (time.monotonic() - started)))
         host.remove_callback(view.update)
         return
     next_line = 1.0
-    while (elapsed := time.monotonic() - started) < seconds:
-        stop.wait(min(next_line, seconds) - elapsed)
+    while (elapsed := time.monotonic() - started) < seconds and host.bus_gone() is None:
+        stop.wait(min(next_line, seconds, elapsed + REFRESH_S) - elapsed)
         elapsed = time.monotonic() - started
         if elapsed >= next_line:
             print(_line(host, live, elapsed), flush=True)

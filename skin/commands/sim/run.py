@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     from sim import Scene
 
 _NOTIFIER_CYCLE_S = 0.05
+_POLL_S = 0.1  # how often a run looks at its buses
 SPACING_M = 0.05
 UDP_DEFAULT_PORT = 43113  # python-can's udp_multicast default
 NO_WIRE = ("virtual", "udp_multicast")
@@ -151,8 +152,12 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_pinned(args: argparse.Namespace) -> int:
+    from functools import partial
+
     import canopen
 
+    from canbus.busio import ResilientBus
+    from canbus.receiveloop import connect, disconnect
     from skin.commands.common.busopen import announce, choose_bus, open_bus
     from skin.errors import ConfigError
 
@@ -168,22 +173,24 @@ def _run_pinned(args: argparse.Namespace) -> int:
     flags = bus_namespaces(args, args.buses)
     networks: list[canopen.Network] = []
     try:
-        for each in flags:
-            network = canopen.Network(open_bus(each))
+        for each in flags:  # opened again when they keep failing (canbus.busio)
+            network = canopen.Network(ResilientBus(partial(open_bus, each),
+                                                   name=_describe(each)))
             # canopen's notifier blocks in recv() for up to NOTIFIER_CYCLE (1 s by default)
             # and disconnect() joins it: a short cycle makes --seconds S end after ~S.
             network.NOTIFIER_CYCLE = _NOTIFIER_CYCLE_S
-            network.connect()  # starts canopen's notifier on the bus it was given
+            connect(network)  # canopen's listeners on a notifier that survives the bus
             networks.append(network)
         announce("skin sim run", described, sends=True)
         return _serve(args, scene, networks, flags, planned)
     finally:
         for network in networks:
-            network.disconnect()
+            disconnect(network)
 
 
 def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Network],
            flags: list[argparse.Namespace], planned: Plan) -> int:
+    from canbus.busio import gone
     from canbus.device.patch_server import PatchServer
     from canbus.device.source import SimulatorSource
     from canbus.device.truth import TruthSource, truth_log
@@ -191,12 +198,12 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
     from skin.atomic import atomic_write
     from skin.commands.common.signals import until_stopped
     from skin.commands.sim.identity import patch_identities
+    from skin.errors import BusError
 
     simulator = Simulator(scene, seed=args.seed)
     truth = TruthSource(simulator) if args.truth else None
     ahead = max(1, round(AHEAD_S * scene.rate_hz))
     source = truth or SimulatorSource(simulator, ahead=ahead)
-    stop = threading.Event()
     # With --truth each SYNC reads its own step in the SYNC handler (no sample thread).
     server = PatchServer(networks, source, event_rate_hz=0.0 if truth else scene.rate_hz,
                          accept_only_consumed=True, **patch_identities(args, scene))
@@ -210,7 +217,7 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
                       else contextlib.nullcontext()) as log, until_stopped() as stopped:
             started, cpu0 = time.monotonic(), os.times()
             _announce(scene, server, flags)
-            stop.wait(args.seconds)
+            _until(args.seconds, started, networks)
     finally:
         gc.unfreeze()
     elapsed, cpu1 = time.monotonic() - started, os.times()
@@ -231,11 +238,28 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
     if args.json:
         record = _record(scene, server, flags, planned, elapsed, cpu)
         record["stopped_by"] = stopped.signal
+        record["bus_gone"] = gone(n.bus for n in networks)
         if log is not None:
             record.update(truth_samples=log.writer.samples, truth_late=log.late)
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
+    lost = gone(n.bus for n in networks)
+    if lost is not None:
+        raise BusError(f"{lost}: the patches cannot be heard")
     return 0
+
+
+def _until(seconds: float | None, started: float, networks: list[canopen.Network]) -> None:
+    """Wait out ``seconds`` from ``started`` (None: until a stop signal), or until a bus is
+    gone for good."""
+    from canbus.busio import gone
+
+    stop = threading.Event()
+    deadline = None if seconds is None else started + seconds
+    while (deadline is None or time.monotonic() < deadline) and \
+            gone(n.bus for n in networks) is None:
+        stop.wait(_POLL_S if deadline is None else
+                  max(0.0, min(_POLL_S, deadline - time.monotonic())))
 
 
 def _record(scene: Scene, server: Any, flags: list[argparse.Namespace], planned: Plan,

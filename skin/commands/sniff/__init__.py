@@ -52,12 +52,13 @@ class Capture:
     recorded: int
     error: BaseException | None
     stopped_by: str | None
+    receive: dict[str, Any] | None = None  # what receiving survived (canbus.busio)
 
 
 def _sniff(args: argparse.Namespace) -> int:
     from canbus.tools.attribution import Attribution
     from canbus.tools.pdo_dictionary import Dictionary, parse_assignment
-    from canbus.tools.recorder import check_channel_name, enlarge_receive_buffer, recording_format
+    from canbus.tools.recorder import check_channel_name, recording_format
     from canbus.tools.services import ServiceDecoder
     from canbus.tools.sniffer import FrameFilter, Sniffer
     from skin.commands.common.busopen import open_command_bus
@@ -95,11 +96,11 @@ def _sniff(args: argparse.Namespace) -> int:
         sys.setswitchinterval(min(switch, _SWITCH_S))
         bus, args.described = open_command_bus(  # lines mode: stdout is the frames
             args, command="skin sniff", config=config, sends=args.ask_by_sdo,
-            out=sys.stderr if view == "lines" else sys.stdout)
-        with bus:
-            if args.rcvbuf:
-                enlarge_receive_buffer(bus, args.rcvbuf)
+            out=sys.stderr if view == "lines" else sys.stdout, resilient=True,
+            rcvbuf=args.rcvbuf)
+        with bus:  # what recv raises is survived; a bus that keeps failing is opened again
             capture = _capture(bus, sniffer, shown, printer, stats, view, args)
+            capture.receive = bus.stats.as_dict()
     finally:
         sys.setswitchinterval(switch)
     _report(sniffer.snapshot(), capture, stats, view, args,
@@ -114,8 +115,7 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
              args: argparse.Namespace) -> Capture:
     """Receive until the end (Ctrl-C, SIGTERM, SIGHUP included); the recording is closed
     complete whatever ends it."""
-    import can
-
+    from canbus.receiveloop import ReceiveLoop
     from canbus.tools.recorder import Recorder, log_channel_name
     from skin.commands.common.signals import until_stopped
     from skin.commands.common.tool_config import asking
@@ -124,7 +124,7 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
     header = f"skin sniff {args.described}" + (f" → {args.record}" if args.record else "")
     started, cpu = time.monotonic(), time.process_time()
     recorder: Recorder | None = None
-    notifier: can.Notifier | None = None
+    notifier: ReceiveLoop | None = None
     try:
         with until_stopped() as stopped, contextlib.ExitStack() as stack:  # Ctrl-C: the end
             if args.record:
@@ -135,7 +135,7 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
             asker = asking(bus, sniffer.decoder.attribution, args)
             if asker is not None:
                 listeners.append(asker.listener)
-            notifier = can.Notifier(bus, listeners, timeout=_TICK_S)
+            notifier = ReceiveLoop(bus, listeners, timeout=_TICK_S, name=args.described)
             if asker is not None:
                 stack.callback(asker.stop)
                 asker.start()
@@ -181,6 +181,7 @@ def _report(snap: Snapshot, capture: Capture, stats: ViewStats, view: str,
             {"path": str(capture.saved), "frames": capture.recorded,
              "files": [str(p) for p in capture.files]},
             "stopped_by": capture.stopped_by, "silent_nodes": silent,
+            "receive": capture.receive,
             "view": {"mode": view, "redraws": stats.redraws,
                      "redraws_skipped": stats.redraws_skipped, "lines": stats.lines,
                      "lines_dropped": stats.lines_dropped}}

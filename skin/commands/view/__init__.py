@@ -188,13 +188,11 @@ def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) ->
     seconds = args.seconds
     if seconds is None and args.snapshot:
         seconds = SNAPSHOT_SECONDS
+    # opened again when it keeps failing (canbus.busio); the first open's failure is
+    # BusError "cannot open the bus IFACE:CHANNEL: ..." in one line
     bus, where = open_command_bus(args, command="skin view", config=config,
-                                  sends=args.ask_by_sdo)
+                                  sends=args.ask_by_sdo, resilient=True, rcvbuf=args.rcvbuf)
     with bus:
-        if args.rcvbuf:
-            from canbus.tools.recorder import enlarge_receive_buffer
-
-            enlarge_receive_buffer(bus, args.rcvbuf)
         source: BusForces | BusDecode = BusDecode(bus, config) if args.decode and config \
             else BusForces(bus, force_specs(config),
                            lambda reader: asking(bus, reader.attribution, args))

@@ -64,14 +64,14 @@ class BusForces:
         self._notifier: can.Notifier | None = None
 
     def start(self, view: SkinView) -> None:
-        import can
+        from canbus.receiveloop import ReceiveLoop
 
         self.reader.on_sample(view.update)
         self.reader.start()
         listeners: list[can.Listener] = [self.reader]
         if self.asker is not None:
             listeners.append(self.asker.listener)
-        self._notifier = can.Notifier(self.bus, listeners, timeout=0.05)
+        self._notifier = ReceiveLoop(self.bus, listeners, timeout=0.05)
         if self.asker is not None:
             self.asker.start()
 
