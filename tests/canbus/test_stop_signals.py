@@ -36,7 +36,7 @@ def _stop(proc: subprocess.Popen[str], sig: signal.Signals) -> tuple[str, str]:
 def test_sim_run(tmp_path: Path, sig: signal.Signals) -> None:
     out = tmp_path / "sim.json"
     proc = subprocess.Popen([sys.executable, "-m", "skin.cli", "sim", "run", "paper",
-                             "-c", f"stop-{sig.name}", "--json", str(out)],
+                             "-i", "virtual", "-c", f"stop-{sig.name}", "--json", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     _wait_for(proc.stdout, "Ctrl-C stops", proc)
@@ -50,7 +50,7 @@ def test_sim_run(tmp_path: Path, sig: signal.Signals) -> None:
 
 def test_replay(tmp_path: Path) -> None:
     out = tmp_path / "replay.json"
-    proc = subprocess.Popen([sys.executable, "-m", "skin.cli", "replay",
+    proc = subprocess.Popen([sys.executable, "-m", "skin.cli", "replay", "-i", "virtual",
                              str(FILES / "good.log"), "--loop", "--json", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stderr is not None
@@ -82,4 +82,6 @@ def test_run(tmp_path: Path, sig: signal.Signals) -> None:
     assert f"stopped by {sig.name}" in stdout and "(0 complete, " in stdout  # patch absent
     record = json.loads(out.read_text())
     assert record["stopped_by"] == sig.name and record["patches"]["1"]["state"] == "absent"
+    # a time says its clock and unit: never heard, so none
+    assert record["patches"]["1"]["last_heartbeat_unix_s"] is None
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp file
