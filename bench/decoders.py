@@ -17,7 +17,7 @@ import scipy.optimize
 
 from decoder.lm import LMOptions, train_lm
 from decoder.lmmlp import LMMLPDecoder
-from decoder.metrics import evaluate
+from decoder.metrics import ErrorReport, evaluate
 from decoder.mlp import F64, Layout, forward, jacobian, mapminmax, minmax_range, nguyen_widrow
 from decoder.oracle import oracle_decode
 from decoder.protocol import Decoded
@@ -45,6 +45,7 @@ def bench_decoders(
     out: dict[str, Any] = {"oracle": {
         key: float(np.mean([getattr(r, key) for r in reports]))
         for key in ("ave_rel_err_pct", "ave_rel_err_floored_pct", "rmse_pct_fs")}}
+    out["oracle"]["covered_pct"] = covered_pct(reports)
     rows = []
     for name in names:
         fits, errs, decoder = [], [], None
@@ -62,6 +63,7 @@ def bench_decoders(
             row[key] = float(np.mean([getattr(e, key) for e in errs]))
         row["per_seed_ave_rel_err_pct"] = [e.ave_rel_err_pct for e in errs]
         row["masked"] = int(sum(e.masked for e in errs))
+        row["covered_pct"] = covered_pct(errs)
         row["train_s"] = float(np.mean(fits))
         if speed:
             rate, latency = decode_speed(decoder, splits[0][2], batch, repeats)
@@ -71,6 +73,12 @@ def bench_decoders(
     out["decoders"] = rows
     out["best"] = min(rows, key=lambda r: r["ave_rel_err_pct"])["name"] if rows else None
     return out
+
+
+def covered_pct(reports: Sequence[ErrorReport]) -> float:
+    """The share of the taxels the reports' figures cover together, in %."""
+    taxels = sum(r.taxels for r in reports)
+    return 100.0 * sum(r.covered for r in reports) / taxels if taxels else 0.0
 
 
 def table1(splits: Sequence[Split], mode: str, scene: str,

@@ -3,7 +3,10 @@
 Eq. 22 averages |(F' - F)/F| over every tested force component, so a few
 forces near 0 N dominate it; the floored variant keeps only |F| >= 5 % of full
 scale. Components compared are Fz in z-only mode (the paper's) and all three
-in 3-axis mode. Taxels a decoder masked invalid are excluded and counted.
+in 3-axis mode. Taxels a decoder masked invalid are excluded and counted: every report
+says the share of the taxels its figures cover (``ErrorReport.covered_share``), and a
+figure over nothing (every taxel masked, or no force at or above the floor) is NaN, never
+0 %.
 """
 
 from __future__ import annotations
@@ -35,9 +38,20 @@ class ErrorReport:
     compared: int
     masked: int
     floored: int = 0  # components compared in the floored figures
+    taxels: int = 0  # taxels decoded, masked or not
+
+    @property
+    def covered(self) -> int:
+        """Taxels the figures cover: decoded and not masked."""
+        return self.taxels - self.masked
+
+    @property
+    def covered_share(self) -> float:
+        """The share of the taxels the figures cover, 0..1 (0 with no taxel)."""
+        return self.covered / self.taxels if self.taxels else 0.0
 
     def to_dict(self) -> dict[str, float | int]:
-        return asdict(self)
+        return asdict(self) | {"covered": self.covered, "covered_share": self.covered_share}
 
 
 def _components(force: NDArray[np.float64], mode: str) -> NDArray[np.float64]:
@@ -72,7 +86,8 @@ def evaluate(
     err = pv - tv
     fs = constants.full_scale_force_N
     floored = np.abs(tv) >= FLOOR_FRACTION * fs
-    rel_floor = np.abs(err[floored] / tv[floored]) if floored.any() else np.zeros(1)
+    # no component at or above the floor: no floored figure at all (NaN), never 0 %
+    rel_floor = np.abs(err[floored] / tv[floored]) if floored.any() else np.full(1, np.nan)
     edge = mask.copy()
     edge[:, CENTRE_TAXEL] = False
     centre = mask.copy()
@@ -89,6 +104,7 @@ def evaluate(
         compared=int(tv.size),
         masked=int(np.count_nonzero(~ok)),
         floored=int(np.count_nonzero(floored)),
+        taxels=int(ok.size),
     )
 
 

@@ -28,7 +28,7 @@ from skin.errors import SkinError
 
 SUBCOMMANDS = (
     "sim", "model", "train", "eval", "bench", "plan", "eds", "run", "demo", "sniff", "replay",
-    "tare", "decode", "view", "dataset", "calibrate", "lss",
+    "tare", "decode", "view", "dataset", "calibrate", "lss", "compare",
 )
 
 

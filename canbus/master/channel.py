@@ -70,7 +70,10 @@ class DataPlaneStats:
 
     frames_in: int = 0  # PDO frames of known channels
     frames_out: int = 0  # force TPDOs sent
-    unknown_frames: int = 0  # anything not a PDO of a channel (other services, lost patches)
+    unknown_frames: int = 0  # no node's traffic here: a PDO of no channel (a lost or removed
+    # patch's, a stranger's), 29-bit, remote, outside the predefined set (frame_kinds)
+    bus_frames: int = 0  # the bus's own traffic beside patch PDOs: SYNC, NMT, heartbeats,
+    # EMCY, SDO, LSS, TIME, the force nodes' and other_nodes' PDOs
     duplicate_frames: int = 0  # a PDO already seen in its cycle
     late_frames: int = 0  # before the window, after it, or the tail of an earlier answer
     out_of_order_frames: int = 0  # ahead of its place in the answer, or after the answer ended

@@ -67,6 +67,7 @@ from canbus.master.channel import (
     Subscriber,
     rest_payload,
 )
+from canbus.master.frame_kinds import SERVICE_COB_IDS
 from canbus.master.publisher import Publisher
 from skin.constants import TAXELS_PER_PATCH
 from skin.errors import ConfigError
@@ -90,6 +91,9 @@ class DataPlane(can.Listener):
         self.bus = bus
         self.sync_window_s = sync_window_s
         self.stats = DataPlaneStats()
+        self.bus_traffic: frozenset[int] = SERVICE_COB_IDS
+        """COB-IDs of the bus's own traffic beside the patches' PDOs: counted as
+        ``bus_frames``, not unknown (``canbus.master.frame_kinds``)."""
         self._lock = threading.Lock()  # cycle state: held briefly by every thread
         self._publish_lock = threading.Lock()  # one publisher at a time, in queue order
         self._table: dict[int, _Entry] = {}  # replaced, never mutated: read without the lock
@@ -178,7 +182,12 @@ class DataPlane(can.Listener):
         """Handle ``msg`` if it is a PDO of a channel; False (and counted unknown) if not."""
         entry = self._table.get(msg.arbitration_id)
         if entry is None or msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
-            self.stats.unknown_frames += 1  # only the notifier thread writes this counter
+            # only the notifier thread writes these counters
+            if msg.arbitration_id in self.bus_traffic and not msg.is_extended_id \
+                    and not msg.is_error_frame:
+                self.stats.bus_frames += 1  # SYNC, heartbeats, SDO, ... (frame_kinds)
+            else:
+                self.stats.unknown_frames += 1
             return False
         with self._lock:
             self.stats.frames_in += 1

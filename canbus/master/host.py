@@ -63,6 +63,7 @@ from canbus.master.events import EmcyEvent, EventCallback, EventHooks, StateEven
 from canbus.master.fanout import FrameCallback, FrameFanout
 from canbus.master.follower import ListenOnly
 from canbus.master.forcenode import ForceNode
+from canbus.master.frame_kinds import bus_cob_ids
 from canbus.master.hostconfig import HostConfig, PatchConfig, load_host_config
 from canbus.master.hoststats import Buses, buses_by_name, per_bus_stats, summed_stats
 from canbus.master.lss_assign import Assignment, assign_at_start, force_node_store
@@ -203,6 +204,7 @@ class HostManager:
         for link in self.links.values():
             if link.name in patch_buses:
                 link.dataplane = DataPlane(link.bus, sync_window_s=window_s)
+                link.dataplane.bus_traffic = bus_cob_ids(self.config, link.name)
                 link.dataplane.subscribe(self._on_frames)
         for patch in self.patches.values():  # one sample per SYNC from the first
             self.channels.placeholder(patch, self.policy.planned(patch))
@@ -355,7 +357,7 @@ class HostManager:
             out[node_id] = PatchHealth(
                 state=view.state, lost=view.state == "lost",
                 faulty_taxels=tuple(int(k) for k in np.flatnonzero(p.masked)),
-                last_heartbeat=p.link.monitor.last_heartbeat(node_id),
+                last_heartbeat_unix_s=p.link.monitor.last_heartbeat(node_id),
                 samples=p.samples, incomplete=p.incomplete, error=view.reason,
                 bus=p.link.name, setup_failures=view.setup_failures,
                 state_changes=view.changes,

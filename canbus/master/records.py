@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import canopen
 import numpy as np
@@ -35,7 +36,7 @@ class PatchHealth:
     state: str
     lost: bool
     faulty_taxels: tuple[int, ...]  # reported by EMCY, masked in the output
-    last_heartbeat: float | None  # time.time() of the last heartbeat
+    last_heartbeat_unix_s: float | None  # the last heartbeat, time.time() (Unix epoch), s
     samples: int  # force frames published for the patch
     incomplete: int  # of which incomplete
     error: str | None = None
@@ -48,6 +49,14 @@ class PatchHealth:
     force_conflict: str | None = None
     """Another node transmits at the force node's ID (its boot-up, heartbeat or EMCY was
     heard): the force node keeps publishing, but a master may read the other's frames."""
+
+    def as_json(self) -> dict[str, Any]:
+        """The record as ``--json`` writes it: every time named with its clock and unit
+        (``last_heartbeat_unix_s``; each state change ``{"unix_s", "state", "reason"}``)."""
+        out = asdict(self)
+        out["history"] = [{"unix_s": t, "state": state, "reason": reason}
+                          for t, state, reason in self.history]
+        return out
 
 
 @dataclass

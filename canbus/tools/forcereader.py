@@ -10,6 +10,12 @@ and of every mapping value a master writes or reads by SDO (as the sniffer does,
 and turns each node's TPDOs of one sample (:mod:`canbus.tools.pdo_samples`) into a
 :class:`ForceSample`.
 
+Which frames are a force node's: :mod:`canbus.tools.attribution` (the caller's
+:class:`ForceNodeSpec`, SDO transfers on the bus, or the node's defaults once its
+heartbeat and its whole set of PDOs are seen together); frames no node is known to send
+are counted (:attr:`~canbus.tools.pdo_samples.PdoSampleReader.unattributed`), never read
+as some node's forces.
+
 The source patch of a force node: the caller's (a host config's ``force_node``), else its
 0x2001 when an SDO transfer on the bus shows it, else node-ID - 64 (the host's default).
 
@@ -44,8 +50,10 @@ from numpy.typing import NDArray
 
 from canbus import contact_record
 from canbus.contact_record import BusContact
+from canbus.tools.attribution import KnownNode
+from canbus.tools.pdo_assembly import PdoAssembly, RawSample
 from canbus.tools.pdo_names import EdsChoice
-from canbus.tools.pdo_samples import PdoAssembly, PdoSampleReader, RawSample
+from canbus.tools.pdo_samples import PdoSampleReader
 from canbus.tools.sample_tracker import PatchStatus, SampleTracker
 from decoder.reasons import Reason
 
@@ -77,11 +85,15 @@ class ForceSample:
 
 @dataclass(frozen=True)
 class ForceNodeSpec:
-    """What the caller knows about a force node: its patch and TPDO COB-IDs (1..7)."""
+    """What the caller knows about a force node: its patch, its TPDO COB-IDs (1..7), or
+    that it keeps its EDS default COB-IDs (``known``; implied by ``cob_ids``). A node the
+    caller only names is read by the attribution rule (:mod:`canbus.tools.attribution`):
+    once its heartbeat and its whole default set of PDOs are seen."""
 
     node_id: int
     patch: int | None = None
     cob_ids: tuple[int, ...] | None = None
+    known: bool = False
 
 
 @dataclass(frozen=True)
@@ -184,6 +196,8 @@ class ForceReader(PdoSampleReader):
     default 65..127) on whatever bus it listens to (module docstring). ``eds``: their EDS
     (a path or a shipped name; e.g. a CAN FD force node's)."""
 
+    order = "tpdo"  # the host's force nodes send a sample's PDOs in TPDO order
+
     def __init__(self, nodes: Iterable[int | ForceNodeSpec] | None = None, *,
                  eds: EdsChoice = "skin-forces", period_s: float | None = None,
                  tracker: SampleTracker | None = None) -> None:
@@ -197,7 +211,8 @@ class ForceReader(PdoSampleReader):
         self._callbacks: tuple[Callable[[ForceSample], None], ...] = ()
         self._columns: dict[int, _Columns] = {}
         super().__init__(self.patches, eds, period_s=period_s,
-                         cob_ids={s.node_id: s.cob_ids for s in specs if s.cob_ids})
+                         known=[KnownNode(s.node_id, eds, cob_ids=s.cob_ids) for s in specs
+                                if s.known or s.cob_ids])
         for spec in specs:
             if spec.patch is not None:
                 self.tracker.expect(spec.patch, spec.node_id)

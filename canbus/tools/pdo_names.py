@@ -12,9 +12,10 @@ INTEGER16 mN) are newtons with 0x8000 as "no value"; taxel status bytes and the 
 taxel mask (0x2005) are spelled out; its contact summary (0x2008) is in N, N·m and mm with
 the state bits named, and the PDO that carries only it is labelled ``contact``.
 
-:class:`Dictionary` chooses the EDS per node-ID: 1..64 the patch, 65..127 the force node
-(the host's default is patch node-ID + 64), unless told otherwise; an identity read by
-SDO (0x1018:02 product code) switches a node to the shipped EDS of that product.
+:class:`~canbus.tools.pdo_dictionary.Dictionary` chooses the EDS per node-ID: 1..64 the
+patch, 65..127 the force node (the host's default is patch node-ID + 64), unless told
+otherwise; an identity read by SDO (0x1018:02 product code) switches a node to the shipped
+EDS of that product.
 """
 
 from __future__ import annotations
@@ -23,15 +24,14 @@ import dataclasses
 import functools
 import math
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import canopen
 import numpy as np
 
-from canbus import codes, contact_record
+from canbus import contact_record
 from canbus.mappings import force_fd_entries, patch_fd_entries
-from canbus.od import load_od
 from canbus.patch_constants import LSB_SCALE, scale_of
 from canbus.pdo_codec import (
     COB_ID_INVALID,
@@ -41,26 +41,28 @@ from canbus.pdo_codec import (
     read_defaults,
     read_layouts,
 )
-from decoder.reasons import reason_name
+from canbus.tools.pdo_values import (
+    CIA301_UNITS,
+    UNSIGNED32,
+    NamedValue,
+    contact_value,
+    counted_value,
+    force_value,
+    reason_value,
+    resistance_value,
+    scaled_value,
+    status_value,
+    valid_taxels_value,
+    var_size,
+)
 from skin.errors import ConfigError
 
 PATCH_PRODUCT, FORCES_PRODUCT = 1, 2
 SHIPPED_BY_PRODUCT = {PATCH_PRODUCT: "skin-patch", FORCES_PRODUCT: "skin-forces"}
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
-NO_FORCE = -0x8000
 _PDO_LAST = 0x1BFF  # RPDO/TPDO communication and mapping parameters: 0x1400..0x1BFF
 _PILLARS, _AXES = "zxy", "xyz"
 EdsChoice = str | os.PathLike[str]
-
-
-@dataclass(frozen=True, slots=True)
-class NamedValue:
-    """One mapped variable of a PDO: a short name, its value in ``unit`` and as text."""
-
-    name: str
-    value: float | None
-    unit: str
-    text: str
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,6 +108,7 @@ class NodeView:
         self.lsb_ohm = LSB_SCALE.to_si(int(lsb.default)) if self.product == PATCH_PRODUCT \
             and lsb is not None and lsb.default is not None else 0.05
         self.pdos: dict[int, PdoEntry] = {}
+        self._tpdos: tuple[TpdoLayout, ...] = ()
         self._namers: dict[tuple[int, int], Callable[[float], NamedValue]] = {}
         self._rebuild()
 
@@ -114,12 +117,13 @@ class NodeView:
         return f"{self.name} {self.node_id}"
 
     def observe(self, index: int, subindex: int, raw: bytes) -> bool:
-        """A value of ``index:subindex`` seen in an SDO transfer; True if the PDO table changed."""
+        """A value of ``index:subindex`` seen in an SDO transfer; True if the PDO table changed
+        (or a PDO's COB-ID is now known from the bus)."""
         var = self._variable(index, subindex)
         if var is None:
             return False
         try:
-            value = var.decode_raw(raw[: _size(var) or len(raw)])
+            value = var.decode_raw(raw[: var_size(var) or len(raw)])
         except (ValueError, TypeError, IndexError, UnicodeDecodeError):
             return False
         if index == 0x1017 and subindex == 0 and isinstance(value, int):
@@ -130,22 +134,42 @@ class NodeView:
             self._namers.clear()
         if not RPDO_COMM <= index <= _PDO_LAST or not isinstance(value, int):
             return False
+        told = subindex == 1 and (index, subindex) not in self.seen and \
+            (RPDO_COMM <= index < RPDO_MAP or TPDO_COMM <= index < TPDO_MAP)
         self.seen[(index, subindex)] = value
-        return self._rebuild()
+        return self._rebuild() or told  # a COB-ID now known from the bus, not the EDS
 
     def tpdo_layouts(self) -> list[TpdoLayout]:
         """The node's valid TPDOs, from the EDS defaults and the SDO values seen, of any
         length (a CAN FD PDO too); a TPDO whose mapping is half-way through a rewrite
-        (an entry the dictionary does not have) is left out, the others kept."""
+        (an entry the dictionary does not have), or was only partly seen being rewritten
+        (:meth:`mapping_known`), is left out, the others kept."""
+        return list(self._tpdos)
+
+    def mapping_known(self, mapping: int) -> bool:
+        """Whether the mapping at ``mapping`` (0x1A00.., 0x1600..) is known: the EDS default
+        while no SDO transfer touched it, else its count and every entry up to the count
+        seen (a whole rewrite, or a whole read-back). A recording that begins in the middle
+        of a master's rewrite shows some entries and not others: such a mapping is not
+        guessed from the EDS."""
+        touched = [sub for index, sub in self.seen if index == mapping]
+        if not touched:
+            return True
+        count = self.seen.get((mapping, 0))
+        return count is not None and all((mapping, sub) in self.seen
+                                         for sub in range(1, count + 1))
+
+    def _layouts(self, comm: int, mapping: int) -> list[TpdoLayout]:
         read, layouts = self._reader(), []
         number = 0
-        while TPDO_COMM + number in self.od and TPDO_MAP + number in self.od:
-            try:
-                found = read_layouts(read, 1, comm=TPDO_COMM + number,
-                                     mapping=TPDO_MAP + number)
-            except (ConfigError, KeyError):
-                found = []
-            layouts += [dataclasses.replace(layout, number=number + 1) for layout in found]
+        while comm + number in self.od and mapping + number in self.od:
+            if self.mapping_known(mapping + number):
+                try:
+                    found = read_layouts(read, 1, comm=comm + number,
+                                         mapping=mapping + number)
+                except (ConfigError, KeyError):
+                    found = []
+                layouts += [dataclasses.replace(layout, number=number + 1) for layout in found]
             number += 1
         return layouts
 
@@ -167,6 +191,42 @@ class NodeView:
         for sub, entry in enumerate(entries, start=1):
             self.seen[(TPDO_MAP, sub)] = entry.to_raw()
         return self._rebuild()
+
+    def pin(self, *, layouts: Sequence[TpdoLayout] | None = None,
+            cob_ids: Sequence[int] | None = None) -> bool:
+        """What a user's configuration says of the node, as if a master's SDO writes had
+        been seen: its whole TPDO mapping (``layouts``; every other TPDO invalid), or only
+        its TPDO COB-IDs (TPDO 1, 2, ... in order). True if the PDO table changed."""
+        read = self._reader()
+        if layouts is not None:
+            by_number = {layout.number: layout for layout in layouts}
+            number = 0
+            while TPDO_COMM + number in self.od and TPDO_MAP + number in self.od:
+                layout = by_number.get(number + 1)
+                if layout is None:
+                    self.seen[(TPDO_COMM + number, 1)] = read(TPDO_COMM + number, 1) \
+                        | COB_ID_INVALID
+                else:
+                    self.seen[(TPDO_COMM + number, 1)] = layout.cob_id
+                    self.seen[(TPDO_MAP + number, 0)] = len(layout.entries)
+                    for sub, entry in enumerate(layout.entries, start=1):
+                        self.seen[(TPDO_MAP + number, sub)] = entry.to_raw()
+                number += 1
+        for number, cob_id in enumerate(cob_ids or ()):
+            self.seen[(TPDO_COMM + number, 1)] = int(cob_id)
+        return self._rebuild()
+
+    def forget_pdo_parameters(self) -> bool:
+        """Drop every PDO parameter seen (the node booted: it starts again from its stored,
+        usually default, parameters). True if the PDO table changed."""
+        for key in [k for k in self.seen if RPDO_COMM <= k[0] <= _PDO_LAST]:
+            del self.seen[key]
+        return self._rebuild()
+
+    def told(self, entry: PdoEntry) -> bool:
+        """The PDO's COB-ID was seen (an SDO value, or pinned), not taken from the EDS."""
+        comm = TPDO_COMM if entry.kind == "TPDO" else RPDO_COMM
+        return (comm + entry.layout.number - 1, 1) in self.seen
 
     def fd_frame(self, cob_id: int, length: int) -> bool:
         """A CAN FD frame of ``length`` bytes came on ``cob_id``: if it is the node's TPDO 1
@@ -215,31 +275,31 @@ class NodeView:
         if product == PATCH_PRODUCT and index == 0x2000 and subindex:
             taxel, pillar = divmod(subindex - 1, 3)
             name, lsb = f"R{taxel}{_PILLARS[pillar]}", self.lsb_ohm
-            return lambda value: _resistance(name, int(value), lsb)
+            return lambda value: resistance_value(name, int(value), lsb)
         if product == FORCES_PRODUCT and index == 0x2000 and subindex:
             taxel, axis = divmod(subindex - 1, 3)
-            return functools.partial(_force, f"F{taxel}{_AXES[axis]}")
+            return functools.partial(force_value, f"F{taxel}{_AXES[axis]}")
         if product == PATCH_PRODUCT and index == 0x2004 and subindex:
-            return lambda value: _status(f"S{subindex - 1}", int(value))
+            return lambda value: status_value(f"S{subindex - 1}", int(value))
         if product == FORCES_PRODUCT and index == 0x2004 and subindex:
-            return lambda value: _reason(f"S{subindex - 1}", int(value))
+            return lambda value: reason_value(f"S{subindex - 1}", int(value))
         if product == FORCES_PRODUCT and index == 0x2005:
-            return _valid_taxels
+            return valid_taxels_value
         if product == FORCES_PRODUCT and index == contact_record.CONTACT and \
                 1 <= subindex <= contact_record.SUBS:
-            return functools.partial(_contact, subindex)
+            return functools.partial(contact_value, subindex)
         if index == 0x1001:
             return lambda value: NamedValue("ER", value, "", f"ER=0x{int(value):02X}")
         var = self._variable(index, subindex)
         name = var.name if var is not None else f"0x{index:04X}:{subindex:02X}"
         factor = var.factor if var is not None else 1.0
-        unit = (var.unit if var is not None else "") or _CIA301_UNITS.get(index, "")
+        unit = (var.unit if var is not None else "") or CIA301_UNITS.get(index, "")
         scale = scale_of(index, subindex) if product == PATCH_PRODUCT else None
         if scale is not None:  # a physical constant as a count of a small unit: in SI
             digits = max(0, round(-math.log10(scale.si_per_count)))
-            return functools.partial(_counted, name, scale.si_per_count, digits,
+            return functools.partial(counted_value, name, scale.si_per_count, digits,
                                      scale.si_unit)
-        return functools.partial(_scaled, name, factor, unit)
+        return functools.partial(scaled_value, name, factor, unit)
 
     def object_name(self, index: int, subindex: int) -> str:
         """``0x1018:01 Identity object.Vendor-ID`` (the name if the EDS has the object)."""
@@ -253,14 +313,14 @@ class NodeView:
         if var is None:
             return raw.hex(" ")
         try:
-            value = var.decode_raw(raw[: _size(var) or len(raw)])
+            value = var.decode_raw(raw[: var_size(var) or len(raw)])
         except (ValueError, TypeError, IndexError, UnicodeDecodeError):
             return raw.hex(" ")
         if isinstance(value, str):
             return repr(value)
         if isinstance(value, bytes | bytearray):
             return bytes(value).hex(" ")
-        if var.data_type == _UNSIGNED32 and index < 0x2000:
+        if var.data_type == UNSIGNED32 and index < 0x2000:
             return f"0x{int(value):08X}"
         return self.named(index, subindex, float(value)).text.split("=", 1)[1]
 
@@ -298,151 +358,17 @@ class NodeView:
         return read
 
     def _rebuild(self) -> bool:
-        read, table = self._reader(), {}
+        table = {}
         for kind, comm, mapping in (("TPDO", TPDO_COMM, TPDO_MAP), ("RPDO", RPDO_COMM, RPDO_MAP)):
-            count = 0
-            while comm + count in self.od and mapping + count in self.od:
-                count += 1
-            try:
-                layouts = read_layouts(read, count, comm=comm, mapping=mapping)
-                for layout in layouts:
+            layouts = self._layouts(comm, mapping)
+            if kind == "TPDO":
+                self._tpdos = tuple(layouts)
+            for layout in layouts:
+                try:
                     table[layout.cob_id] = PdoEntry(kind, layout, PdoCodec([layout], self.od))
-            except (ConfigError, KeyError, ValueError):
-                continue  # a mapping half-way through a rewrite (or longer than the
-                # codec's 8 bytes): keep the rest
+                except (ConfigError, KeyError, ValueError):
+                    continue  # an entry the dictionary does not have: keep the rest
         changed = {c: e.layout for c, e in table.items()} != \
             {c: e.layout for c, e in self.pdos.items()}
         self.pdos = table
         return changed
-
-
-class Dictionary:
-    """Node-ID -> :class:`NodeView`, built on first use; ``assignments`` pin nodes' EDS.
-
-    Each EDS is parsed once (``canopen.import_od`` takes ~10 ms) and shared by the views
-    of every node that uses it, so a burst of new nodes does not stall the receive thread.
-    ``version`` grows whenever a view appears or a view's PDO table changes.
-    """
-
-    def __init__(self, assignments: Mapping[int, EdsChoice] | None = None) -> None:
-        self.assignments: dict[int, EdsChoice] = dict(assignments or {})
-        self._views: dict[int, NodeView | None] = {}
-        self._ods: dict[str, tuple[canopen.ObjectDictionary, int]] = {}
-        self.version = 0
-
-    def view(self, node_id: int) -> NodeView | None:
-        """The node's view, or None for a node-ID outside 1..127."""
-        if node_id in self._views:
-            return self._views[node_id]
-        view = None
-        if 1 <= node_id <= 127:
-            view = self._new_view(node_id, self.assignments.get(node_id,
-                                                                shipped_default(node_id)))
-        self._views[node_id] = view
-        self.version += 1
-        return view
-
-    def _new_view(self, node_id: int, eds: EdsChoice) -> NodeView:
-        key = os.fspath(eds)
-        if key not in self._ods:
-            self._ods[key] = (load_od(eds, node_id), node_id)
-        od, od_node_id = self._ods[key]
-        return NodeView(node_id, od, od_node_id)
-
-    def observe(self, node_id: int, index: int, subindex: int, raw: bytes) -> None:
-        """Feed an SDO value to the node's view (and follow an identity it reveals)."""
-        view = self.view(node_id)
-        if view is None:
-            return
-        if (index, subindex) == (0x1018, 2) and node_id not in self.assignments:
-            product = int.from_bytes(raw[:4], "little")
-            if product in SHIPPED_BY_PRODUCT and product != view.product:
-                self._views[node_id] = self._new_view(node_id, SHIPPED_BY_PRODUCT[product])
-                self.version += 1
-                return
-        if view.observe(index, subindex, raw):
-            self.version += 1
-
-
-def parse_assignment(text: str) -> dict[int, str]:
-    """``NODE=FILE`` or ``FIRST-LAST=FILE`` (FILE: a path or a shipped EDS name)."""
-    nodes, sep, eds = text.partition("=")
-    if not sep or not eds:
-        raise ConfigError("--eds", f"expected NODE=FILE or FIRST-LAST=FILE, got {text!r}")
-    first, _, last = nodes.partition("-")
-    try:
-        low, high = int(first, 0), int(last or first, 0)
-    except ValueError as err:
-        raise ConfigError("--eds", f"{nodes!r} is not a node-ID or range") from err
-    if not 1 <= low <= high <= 127:
-        raise ConfigError("--eds", f"node-IDs must be in 1..127, got {nodes!r}")
-    load_od(eds, low)  # fail now, with the file's own error, not in the receive thread
-    return dict.fromkeys(range(low, high + 1), eds)
-
-
-_UNSIGNED32 = 0x0007
-_CIA301_UNITS = {0x1006: "µs", 0x1007: "µs", 0x1017: "ms"}
-
-
-def _size(var: canopen.objectdictionary.ODVariable) -> int | None:
-    struct = canopen.objectdictionary.ODVariable.STRUCT_TYPES.get(int(var.data_type or 0))
-    return None if struct is None else int(struct.size)
-
-
-def _resistance(name: str, code: int, lsb_ohm: float) -> NamedValue:
-    if code == codes.OPEN:
-        return NamedValue(name, math.inf, "Ω", f"{name}=open")
-    if code == codes.SATURATED:
-        return NamedValue(name, math.inf, "Ω", f"{name}=saturated")
-    if code == codes.SHORT:
-        return NamedValue(name, 0.0, "Ω", f"{name}=short")
-    ohm = code * lsb_ohm
-    return NamedValue(name, ohm, "Ω", f"{name}={ohm:.2f} Ω")
-
-
-def _force(name: str, value: float) -> NamedValue:
-    if int(value) == NO_FORCE:
-        return NamedValue(name, None, "N", f"{name}=none")
-    return NamedValue(name, value / 1000.0, "N", f"{name}={value / 1000.0:+.3f} N")
-
-
-def _contact(sub: int, value: float) -> NamedValue:
-    """A force node's 0x2008 sub-index ``sub`` (:mod:`canbus.contact_record`)."""
-    return NamedValue(*contact_record.describe(sub, int(value)))
-
-
-def _valid_taxels(value: float) -> NamedValue:
-    bits = int(value)
-    valid = bin(bits & 0x1FF).count("1")
-    complete = "" if bits & 0x8000 else " incomplete"
-    return NamedValue("valid", value, "", f"valid={valid}/9{complete}")
-
-
-def _scaled(name: str, factor: float, unit: str, value: float) -> NamedValue:
-    scaled = value * factor
-    number = f"{int(scaled)}" if float(scaled).is_integer() else f"{scaled:g}"
-    return NamedValue(name, scaled, unit, f"{name}={number}{' ' + unit if unit else ''}")
-
-
-def _counted(name: str, factor: float, digits: int, unit: str, value: float) -> NamedValue:
-    """A count of a small unit in SI, every digit the count has and no more."""
-    scaled = value * factor
-    number = f"{scaled:.{digits}f}".rstrip("0").rstrip(".") if digits else f"{int(scaled)}"
-    return NamedValue(name, scaled, unit, f"{name}={number}{' ' + unit if unit else ''}")
-
-
-def _status(name: str, status: int) -> NamedValue:
-    faults = [f"{p} {codes.FAULT_NAMES[(status >> (2 * k)) & 3]}"
-              for k, p in enumerate(_PILLARS) if (status >> (2 * k)) & 3]
-    return NamedValue(name, float(status), "", f"{name}={'ok' if not faults else ','.join(faults)}")
-
-
-def _reason(name: str, code: int) -> NamedValue:
-    """A force node's 0x2004: the decoder's reason code for the taxel (0 OK)."""
-    text = "ok" if code == 0 else reason_name(code)
-    return NamedValue(name, float(code), "", f"{name}={text}")
-
-
-def describe_taxel_fault(taxel: int, status: int) -> str:
-    """The manufacturer bytes of a patch EMCY (taxel, status byte) in words."""
-    return f"taxel {taxel}: {_status('', status).text.removeprefix('=')}"

@@ -11,8 +11,11 @@ Where a sample begins. A classic PDO carries no cycle number, but a node sends t
 of one sample together and in a fixed order, and the PDO with the lowest COB-ID comes
 first in both orders a sender may use: TPDO number order (one transmit FIFO, the host's
 force nodes) and ascending COB-ID (queued frames leave a CAN controller by arbitration);
-it is TPDO 1 in the predefined connection set. That PDO, the *first*, begins a sample. So
-a sample closes:
+it is TPDO 1 in the predefined connection set. That PDO, the *first*, begins a sample.
+(Where a configuration gives TPDO 1 a higher COB-ID than another TPDO, the two orders
+differ: a reader then takes the order its nodes use, ``PdoSampleReader.order``; the force
+reader TPDO order, as the host's force nodes send. Read in the other order, two samples
+would be joined.) So a sample closes:
 
 - *complete* when every mapped PDO came once;
 - *partial* when the next first PDO comes (the next sample began), or when a PDO it
@@ -41,185 +44,60 @@ import statistics
 import threading
 import time
 from collections import deque
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable
 
 import can
-import canopen
 import numpy as np
-from numpy.typing import NDArray
 
-from canbus.pdo_codec import TpdoLayout, entry_dtype
-from canbus.tools.pdo_names import Dictionary, EdsChoice, NodeView
+from canbus.tools.attribution import Attribution, KnownNode
+from canbus.tools.pdo_assembly import PdoAssembly, RawSample
+from canbus.tools.pdo_dictionary import Dictionary
+from canbus.tools.pdo_names import EdsChoice, NodeView
 from canbus.tools.services import SdoDecoder
 
 SYNC_COB_ID = 0x080
+HEARTBEAT = 0x700
+_SERVICES = frozenset((SYNC_COB_ID, *range(0x581, 0x680), *range(HEARTBEAT, HEARTBEAT + 0x80)))
 DEFAULT_PERIOD_S = 0.01
 """The sample period assumed until SYNCs are seen: the host's default 100 Hz."""
-HEADLESS_SHARE = 0.8
-"""Of the period: how long a sample without its first PDO may stay open."""
-OPEN_PERIODS = 2.0
-"""Periods after which any open sample closes partial."""
 _SYNC_INTERVALS = 8
 _POLL_S = 0.02
 
 
-@dataclass(frozen=True)
-class Variable:
-    """A mapped object ``index:subindex`` and the PDO (bit in ``arrived``) that carries it."""
-
-    index: int
-    subindex: int
-    pdo: int
-
-
-@dataclass(frozen=True)
-class RawSample:
-    """One node's joined PDOs (read them with :meth:`PdoAssembly.values`)."""
-
-    node_id: int
-    timestamp: float  # bus time of the sample's last PDO
-    payload: bytes  # the PDOs at their places in the assembly's buffer
-    arrived: int  # bit p: PDO p (in ``PdoAssembly.layouts`` order) came
-    complete: bool  # every mapped PDO came, once
-
-
-class PdoAssembly:
-    """One node's TPDO mapping and the sample being assembled (not thread-safe)."""
-
-    def __init__(self, node_id: int, layouts: Sequence[TpdoLayout],
-                 od: canopen.ObjectDictionary) -> None:
-        self.node_id = node_id
-        self.layouts = tuple(layouts)
-        self.slots: dict[int, tuple[int, int, int]] = {}  # COB-ID -> (PDO bit, offset, size)
-        formats: list[np.dtype[np.generic]] = []
-        offsets: list[int] = []
-        variables: list[Variable] = []
-        taken: set[tuple[int, int]] = set()
-        at = 0
-        for bit, layout in enumerate(self.layouts):
-            self.slots[layout.cob_id] = (bit, at, layout.size)
-            offset = at
-            for entry in layout.entries:
-                key = (entry.index, entry.subindex)
-                # index < 0x1000: CiA 301's dummy entries (a data type), padding only
-                if entry.index >= 0x1000 and key not in taken:
-                    taken.add(key)
-                    formats.append(entry_dtype(entry, od))
-                    offsets.append(offset)
-                    variables.append(Variable(entry.index, entry.subindex, bit))
-                offset += entry.bits // 8
-            at += max(8, layout.size)
-        self.variables = tuple(variables)
-        self.size = max(at, 1)
-        self.buffer = bytearray(self.size)
-        by_dtype: dict[np.dtype[np.generic], list[int]] = {}
-        for k, dtype in enumerate(formats):
-            by_dtype.setdefault(dtype, []).append(k)
-        self._groups = [(dtype, np.array(cols, dtype=np.intp),
-                         np.array([offsets[k] + b for k in cols for b in range(dtype.itemsize)],
-                                  dtype=np.intp))
-                        for dtype, cols in by_dtype.items()]
-        self._pdo = np.array([v.pdo for v in variables], dtype=np.int64)
-        self.full = (1 << len(self.layouts)) - 1
-        cob_ids = [layout.cob_id for layout in self.layouts]
-        self.first_pdo = cob_ids.index(min(cob_ids)) if cob_ids else 0
-        self.last_pdo = -1
-        self.seen = 0
-        self.first = 0.0
-        self.last = 0.0
-        self.malformed = 0
-
-    def column(self, index: int, subindex: int) -> int | None:
-        for k, v in enumerate(self.variables):
-            if (v.index, v.subindex) == (index, subindex):
-                return k
-        return None
-
-    def take(self, cob_id: int, data: bytes, timestamp: float,
-             period_s: float) -> list[RawSample]:
-        """One frame of PDO ``cob_id``: the samples it closes (none, one or two)."""
-        bit, offset, size = self.slots[cob_id]
-        out = []
-        if self.seen:
-            if bit == self.first_pdo:
-                out.append(self.close())
-            elif self.seen >> bit & 1:
-                if bit == self.last_pdo and bytes(data[:size]) == \
-                        self.buffer[offset:offset + size]:
-                    return out  # the frame just taken, again: a retransmission seen twice
-                out.append(self.close())
-            elif not self.seen >> self.first_pdo & 1 and \
-                    timestamp - self.first > HEADLESS_SHARE * period_s:
-                out.append(self.close())
-        if len(data) < size:
-            self.malformed += 1  # not trusted: its PDO stays missing
-            return out
-        if not self.seen:
-            self.first = timestamp
-        self.buffer[offset:offset + size] = data[:size]
-        self.seen |= 1 << bit
-        self.last = timestamp
-        self.last_pdo = bit
-        if self.seen == self.full:
-            out.append(self.close())
-        return out
-
-    def expire(self, now: float, period_s: float) -> RawSample | None:
-        """The open sample, closed partial, if it has been open for :data:`OPEN_PERIODS`
-        periods by bus time ``now`` (:data:`HEADLESS_SHARE` of one without its first PDO)."""
-        if not self.seen:
-            return None
-        limit = OPEN_PERIODS if self.seen >> self.first_pdo & 1 else HEADLESS_SHARE
-        if now - self.first > limit * period_s:
-            return self.close()
-        return None
-
-    def close(self) -> RawSample:
-        sample = RawSample(self.node_id, self.last, bytes(self.buffer), self.seen,
-                           self.seen == self.full)
-        self.seen = 0
-        return sample
-
-    def values(self, samples: Sequence[RawSample]) -> NDArray[np.float64]:
-        """``(n, V)`` every mapped variable of ``n`` samples of this assembly, one numpy
-        read; a PDO that did not come reads as the bytes left by the last one that did."""
-        n = len(samples)
-        raw = np.frombuffer(b"".join(s.payload for s in samples), dtype=np.uint8)
-        raw = raw.reshape(n, self.size)
-        out = np.empty((n, len(self.variables)), dtype=np.float64)
-        for dtype, columns, byte_index in self._groups:
-            out[:, columns] = np.ascontiguousarray(raw[:, byte_index]).view(dtype)
-        return out
-
-    def arrived(self, samples: Sequence[RawSample]) -> NDArray[np.bool_]:
-        """``(n, V)`` whether each variable's PDO came."""
-        bits = np.array([s.arrived for s in samples], dtype=np.int64)
-        came: NDArray[np.bool_] = (bits[:, None] >> self._pdo[None, :] & 1).astype(bool)
-        return came
-
-
 Frame = tuple[int, bytes, float]
+Closed = dict[int, tuple["PdoAssembly", list[RawSample]]]
+_RECENT = 1024
+"""Unattributed frames held for a node that their sample may yet name (a few samples')."""
 
 
 class PdoSampleReader(can.Listener):
-    """Samples of the TPDOs of ``node_ids`` (EDS ``eds``), handed to :meth:`on_raw`.
+    order = "cob-id"
+    """How the nodes send one sample's PDOs when their TPDO 1 is not their lowest COB-ID:
+    ``"cob-id"`` (queued frames leave by arbitration) or ``"tpdo"`` (one FIFO). Where TPDO 1
+    has the lowest COB-ID (the predefined set, ascending custom COB-IDs) both agree."""
 
-    ``cob_ids`` pins a node's TPDO COB-IDs (TPDO 1, 2, ... in order; a master that set
-    them without SDO, e.g. a host config's ``force_cob_ids``). ``period_s`` fixes the
+    """Samples of the TPDOs of ``node_ids`` (EDS ``eds``), handed to :meth:`on_samples`.
+
+    A frame goes to a node's sample only when :mod:`canbus.tools.attribution` attributes
+    its COB-ID to that node: ``known`` says what the caller's configuration knows (a node's
+    TPDO COB-IDs, e.g. a host config's ``force_cob_ids``, or that it keeps its EDS
+    defaults); the others are attributed by SDO transfers seen, or by their defaults once
+    their heartbeat runs and their whole set of TPDOs has been seen together. Frames no
+    node is known to send are counted in :attr:`unattributed`. ``period_s`` fixes the
     sample period the closing rules use (module docstring; default: the median of the
     last SYNC intervals seen, :data:`DEFAULT_PERIOD_S` before two SYNCs).
     """
 
     def __init__(self, node_ids: Iterable[int], eds: EdsChoice, *,
-                 cob_ids: dict[int, Sequence[int]] | None = None,
-                 period_s: float | None = None) -> None:
+                 known: Iterable[KnownNode] = (), period_s: float | None = None) -> None:
         self.node_ids = tuple(sorted(set(node_ids)))
         self.dictionary = Dictionary(dict.fromkeys(self.node_ids, eds))
+        self.attribution = Attribution(self.dictionary, known)
         self.fixed_period_s = period_s
         self.received = 0  # every frame the listener was handed
         self.frames = 0  # PDO frames of the nodes taken
         self.malformed = 0  # of which shorter than their mapping
+        self.unattributed: dict[int, int] = {}  # COB-ID -> frames no node is known to send
         self.syncs = 0
         self.sync_counter: int | None = None
         self.latest = -np.inf  # the newest bus timestamp processed
@@ -227,17 +105,21 @@ class PdoSampleReader(can.Listener):
         self._sync_times: deque[float] = deque(maxlen=_SYNC_INTERVALS + 1)
         self._period_s = DEFAULT_PERIOD_S
         self._pending: deque[Frame] = deque()
+        self._recent: deque[Frame] = deque(maxlen=_RECENT)
         self._lock = threading.Lock()
         self._assemblies: dict[int, PdoAssembly] = {}
         self._table: dict[int, PdoAssembly] = {}
         self._wanted: frozenset[int] = frozenset()
         self._thread: threading.Thread | None = None
         self._stopping = threading.Event()
+        self._version = -1
+        self._started = False
         for node in self.node_ids:
             view = self._view(node)
-            for n, cob in enumerate((cob_ids or {}).get(node, ())):
-                view.observe(0x1800 + n, 1, int(cob).to_bytes(4, "little"))
-            self._rebuild(node)
+            self._assemblies[node] = PdoAssembly(node, view.tpdo_layouts(), view.od,
+                                                order=self.order)
+        self._follow_attribution()
+        self._started = True  # from now on a node named mid-stream waits for its next sample
 
     # -- receive path -----------------------------------------------------------------
 
@@ -287,30 +169,9 @@ class PdoSampleReader(can.Listener):
         the newest frame's time or ``now`` (bus time), whichever is later."""
         with self._lock:
             pending = self._pending
-            sdo_low, sdo_high = 0x581, 0x67F
-            period = self.period_s()
             closed: dict[int, tuple[PdoAssembly, list[RawSample]]] = {}
             while pending:
-                cob_id, data, timestamp = pending.popleft()
-                if timestamp > self.latest:
-                    self.latest = timestamp
-                assembly = self._table.get(cob_id)
-                if assembly is not None and len(data) > 8 and \
-                        self._view(assembly.node_id).fd_frame(cob_id, len(data)):
-                    self._rebuild(assembly.node_id)  # a force node mapped for CAN FD in place
-                    assembly = self._table.get(cob_id)
-                if assembly is not None:
-                    self.frames += 1
-                    before = assembly.malformed
-                    raws = assembly.take(cob_id, data, timestamp, period)
-                    if raws:
-                        closed.setdefault(id(assembly), (assembly, []))[1].extend(raws)
-                    self.malformed += assembly.malformed - before
-                elif cob_id == SYNC_COB_ID:
-                    self._on_sync(data, timestamp)
-                    period = self.period_s()
-                elif sdo_low <= cob_id <= sdo_high:
-                    self._sdo_frame(cob_id, data)
+                self._one(*pending.popleft(), closed)
             until = self.latest if now is None else max(self.latest, now)
             period = self.period_s()
             for assembly in self._assemblies.values():
@@ -320,6 +181,63 @@ class PdoSampleReader(can.Listener):
             for assembly, raws in closed.values():
                 self.on_samples(assembly, raws)
                 time.sleep(0)  # a thread waiting for the GIL (a bus, a host) goes first
+
+    def _one(self, cob_id: int, data: bytes, timestamp: float, closed: Closed) -> None:
+        """One frame copied by the receive path (lock held)."""
+        if timestamp > self.latest:
+            self.latest = timestamp
+        if cob_id not in _SERVICES:
+            self.attribution.frame(cob_id, timestamp, len(data))
+        if self.dictionary.version != self._version:
+            self._backfill(self._follow_attribution(), closed)
+        assembly = self._table.get(cob_id)
+        if assembly is not None and len(data) > 8 and \
+                self._view(assembly.node_id).fd_frame(cob_id, len(data)):
+            self._rebuild(assembly.node_id)  # a force node mapped for CAN FD in place
+            assembly = self._table.get(cob_id)
+        if assembly is not None:
+            self._take(assembly, cob_id, data, timestamp, closed)
+        elif cob_id == SYNC_COB_ID:
+            self._on_sync(data, timestamp)
+            self.attribution.sync(timestamp)
+        elif 0x581 <= cob_id <= 0x67F:
+            self._sdo_frame(cob_id, data)
+        elif HEARTBEAT <= cob_id <= HEARTBEAT + 0x7F:
+            self.attribution.heartbeat(cob_id - HEARTBEAT,
+                                       data[0] & 0x7F if len(data) == 1 else None, timestamp)
+        else:
+            self.unattributed[cob_id] = self.unattributed.get(cob_id, 0) + 1
+            self._recent.append((cob_id, data, timestamp))
+
+    def _take(self, assembly: PdoAssembly, cob_id: int, data: bytes, timestamp: float,
+              closed: Closed) -> None:
+        self.frames += 1
+        before = assembly.malformed
+        raws = assembly.take(cob_id, data, timestamp, self.period_s())
+        if raws:
+            closed.setdefault(id(assembly), (assembly, []))[1].extend(raws)
+        self.malformed += assembly.malformed - before
+
+    def _backfill(self, named: set[int], closed: Closed) -> None:
+        """The frames held unattributed that nodes just named by their defaults sent since
+        the first of the frames that named them (their sample, now known to be theirs)."""
+        if not named:
+            return
+        keep: deque[Frame] = deque(maxlen=_RECENT)
+        for cob_id, data, timestamp in self._recent:
+            assembly = self._table.get(cob_id)
+            since = self.attribution.named_at.get(assembly.node_id, np.inf) \
+                if assembly is not None and assembly.node_id in named else np.inf
+            if assembly is not None and timestamp >= since:
+                left = self.unattributed[cob_id] - 1
+                if left:
+                    self.unattributed[cob_id] = left
+                else:
+                    del self.unattributed[cob_id]
+                self._take(assembly, cob_id, data, timestamp, closed)
+            else:
+                keep.append((cob_id, data, timestamp))
+        self._recent = keep
 
     def on_samples(self, assembly: PdoAssembly, raws: list[RawSample]) -> None:
         """Samples of one node that closed, in order (called with the reader's lock
@@ -353,11 +271,35 @@ class PdoSampleReader(can.Listener):
         """The node's assembly from its current mapping; its open sample is dropped (a
         mapping change mid-sample: the node's PDOs before it are of the old one)."""
         view = self._view(node_id)
-        self._assemblies[node_id] = PdoAssembly(node_id, view.tpdo_layouts(), view.od)
-        table = {cob: a for a in self._assemblies.values() for cob in a.slots}
-        self._table = table
-        sdo = {base + n for n in self._assemblies for base in (0x580, 0x600)}
-        self._wanted = frozenset(table) | sdo | {SYNC_COB_ID}
+        self._assemblies[node_id] = PdoAssembly(node_id, view.tpdo_layouts(), view.od,
+                                                order=self.order)
+        self._follow_attribution()
+
+    def _follow_attribution(self) -> set[int]:
+        """Route to each node's assembly only the COB-IDs attributed to that node
+        (:mod:`canbus.tools.attribution`); copy every COB-ID any of them may send on, its
+        heartbeat and SDO, and SYNC, so that a node using its defaults can be confirmed.
+        Returns the nodes named just now."""
+        self._version = self.dictionary.version
+        for node, assembly in list(self._assemblies.items()):
+            view = self._view(node)
+            layouts = tuple(view.tpdo_layouts())
+            if layouts != assembly.layouts:  # a boot-up forgot a remap, CAN FD was adopted
+                # (or a mapping was seen only in part)
+                self._assemblies[node] = PdoAssembly(node, layouts, view.od, order=self.order)
+        owners = self.attribution.table()
+        before = {a.node_id for a in self._table.values()}
+        self._table = {cob: a for a in self._assemblies.values() for cob in a.slots
+                       if (owner := owners.get(cob)) is not None and owner.node == a.node_id}
+        named = set()
+        for assembly in {id(a): a for a in self._table.values()}.values():
+            if self._started and assembly.node_id not in before:  # named mid-stream:
+                assembly.await_first = True  # from its next sample on
+                named.add(assembly.node_id)
+        possible = {cob for a in self._assemblies.values() for cob in a.slots}
+        services = {base + n for n in self._assemblies for base in (0x580, 0x600, HEARTBEAT)}
+        self._wanted = frozenset(possible | set(self._table) | services | {SYNC_COB_ID})
+        return named
 
     def assembly(self, node_id: int) -> PdoAssembly:
         return self._assemblies[node_id]

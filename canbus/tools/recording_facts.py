@@ -19,7 +19,8 @@ import can
 
 from canbus.patch_constants import decode_si
 from canbus.pdo_codec import TpdoLayout
-from canbus.tools.pdo_names import Dictionary, NodeView
+from canbus.tools.pdo_dictionary import Dictionary
+from canbus.tools.pdo_names import NodeView
 from canbus.tools.replay import Recording
 from canbus.tools.services import SdoDecoder
 

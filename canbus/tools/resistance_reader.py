@@ -4,8 +4,10 @@ A patch sends 0x2000, its pillar resistances as UNSIGNED16 codes (taxel*3 + pill
 pillars z, x, y; code x LSB = ohms, ``canbus.codes``: 0 short, 0xFFFE saturated, 0xFFFF
 open). :class:`ResistanceReader` reads them by the EDS default mapping (3-axis: 4 codes per
 TPDO in TPDO 1..7, predefined COB-IDs) and every mapping and LSB (0x2001) a master writes
-or reads by SDO, as the force reader reads force nodes. A pillar the mapping does not
-carry (z-only mode) or whose PDO did not come is NaN.
+or reads by SDO, as the force reader reads force nodes, and only the frames
+:mod:`canbus.tools.attribution` attributes to the patch (``known``: what a host config
+says, e.g. the mapping of the patch's mode). A pillar the mapping does not carry (z-only
+mode) or whose PDO did not come is NaN.
 """
 
 from __future__ import annotations
@@ -18,7 +20,9 @@ from numpy.typing import NDArray
 
 from canbus.codes import code_to_resistance
 from canbus.patch_constants import decode_si
-from canbus.tools.pdo_samples import PdoAssembly, PdoSampleReader, RawSample
+from canbus.tools.attribution import KnownNode
+from canbus.tools.pdo_assembly import PdoAssembly, RawSample
+from canbus.tools.pdo_samples import PdoSampleReader
 
 RESISTANCES, LSB = 0x2000, 0x2001
 DEFAULT_LSB_OHM = 0.05
@@ -37,10 +41,11 @@ class ResistanceSample:
 class ResistanceReader(PdoSampleReader):
     """Resistance samples of the patches ``patches`` (node-IDs) on the bus it listens to."""
 
-    def __init__(self, patches: Iterable[int], *, period_s: float | None = None) -> None:
+    def __init__(self, patches: Iterable[int], *, period_s: float | None = None,
+                 known: Iterable[KnownNode] = ()) -> None:
         self.lsb_ohm = dict.fromkeys(patches, DEFAULT_LSB_OHM)
         self._callbacks: tuple[Callable[[ResistanceSample], None], ...] = ()
-        super().__init__(self.lsb_ohm, "skin-patch", period_s=period_s)
+        super().__init__(self.lsb_ohm, "skin-patch", period_s=period_s, known=known)
 
     def on_sample(self, callback: Callable[[ResistanceSample], None]) -> None:
         """Call ``callback(sample)`` for every sample, on the processing thread."""

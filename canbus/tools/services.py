@@ -21,8 +21,11 @@ import can
 from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoAbortedError
 
+from canbus.tools.attribution import Attribution
 from canbus.tools.lss_names import describe_lss
-from canbus.tools.pdo_names import PATCH_PRODUCT, Dictionary, NodeView, describe_taxel_fault
+from canbus.tools.pdo_dictionary import Dictionary
+from canbus.tools.pdo_names import PATCH_PRODUCT, NodeView
+from canbus.tools.pdo_values import describe_taxel_fault
 
 
 class Service(StrEnum):
@@ -278,13 +281,44 @@ def _block(specifier: int, data: bytes, view: NodeView | None, *, request: bool)
     return f"{kind} ({data.hex(' ')})"
 
 
-class ServiceDecoder:
-    """Frames in words, with the node's EDS; follows SDO transfers and NMT states."""
+UNATTRIBUTED = "unattributed"
+"""The label of a PDO-shaped frame no node is known to send (``canbus.tools.attribution``)."""
+_PDO_SHAPED = frozenset((Service.PDO, Service.UNKNOWN))
 
-    def __init__(self, dictionary: Dictionary | None = None) -> None:
-        self.dictionary = dictionary or Dictionary()
+
+class ServiceDecoder:
+    """Frames in words, with the node's EDS; follows SDO transfers and NMT states.
+
+    A PDO is put under the node that sends it by ``attribution``
+    (:mod:`canbus.tools.attribution`), never by its COB-ID alone: a PDO no node is known to
+    send is routed as ``Route(PDO, None, "unattributed")`` and shown as bytes.
+    """
+
+    def __init__(self, dictionary: Dictionary | None = None,
+                 attribution: Attribution | None = None) -> None:
+        self.dictionary = dictionary or (attribution.dictionary if attribution else Dictionary())
+        self.attribution = attribution or Attribution(self.dictionary)
         self.sdo = SdoDecoder()
         self.states: dict[int, str] = {}
+        self._routes: dict[int, Route] = {}
+        self._routes_version = -1
+
+    def route(self, msg: can.Message) -> Route:
+        """:func:`route`, with a PDO-shaped frame put under the node that sends it."""
+        where = route(msg)
+        if where.service not in _PDO_SHAPED or msg.is_extended_id or msg.is_error_frame:
+            return where
+        if self._routes_version != self.dictionary.version:
+            self._routes, self._routes_version = {}, self.dictionary.version
+        cob = msg.arbitration_id
+        found = self._routes.get(cob)
+        if found is None:
+            owner = self.attribution.owner(cob)
+            found = Route(Service.PDO, owner.node, owner.label) if owner is not None else \
+                Route(Service.PDO, None, UNATTRIBUTED) if where.service is Service.PDO \
+                else where
+            self._routes[cob] = found
+        return found
 
     def node_label(self, node: int | None) -> str:
         if node is None:
@@ -299,12 +333,14 @@ class ServiceDecoder:
 
     def decode(self, msg: can.Message, where: Route | None = None) -> Decoded:
         """One frame in words; feeds what SDO transfers reveal to the dictionary."""
-        where = where or route(msg)
+        where = where or self.route(msg)
         data = bytes(msg.data)
         node, label = where.node, where.label
         view = self.dictionary.view(node) if node is not None else None
         service = where.service
-        if service is Service.PDO:
+        if service is Service.PDO and node is None:
+            text = data.hex(" ") if not msg.is_remote_frame else f"remote request, DLC {msg.dlc}"
+        elif service is Service.PDO:
             label = self.pdo_label(msg, where)
             text = self.describe_pdo(msg.arbitration_id, data, view)
         elif service is Service.SDO and node is not None:
@@ -351,6 +387,8 @@ class ServiceDecoder:
             elif entry is not None:
                 texts.append(f"{bytes(data).hex(' ')} (length {len(data)}, mapping needs "
                              f"{entry.layout.size})")
-            else:
+            elif view is not None:
                 texts.append(f"{bytes(data).hex(' ')} (not in the node's PDO mapping)")
+            else:  # unattributed, or a node without an EDS here: its bytes only
+                texts.append(bytes(data).hex(" "))
         return texts

@@ -18,8 +18,10 @@ Anomalies:
 - incomplete samples: after a SYNC, a node that sent some PDOs in the cycle but not all it
   sends in other cycles, or one of them twice (frames before the first SYNC are not judged);
 - heartbeat gaps: a node's heartbeat interval over 1.5 times the median of its last 8;
-- unknown COB-IDs: frames outside the predefined connection set, 29-bit ids, and PDOs that
-  no node's mapping (EDS defaults plus SDO values seen) explains;
+- unknown COB-IDs: frames outside the predefined connection set and 29-bit ids;
+- unattributed PDOs: PDOs no node is known to send (``canbus.tools.attribution``: a
+  config, an SDO transfer, or a node confirmed on its default COB-IDs); they are shown as
+  bytes, never decoded as some node's;
 - error frames.
 
 Own frames: a sniffer counts what crosses the bus. Given the ``ReceiveFilter`` of its bus
@@ -48,6 +50,7 @@ from canbus.rxfilter import ReceiveFilter
 from canbus.tools.services import Decoded, Route, Service, ServiceDecoder, route
 
 _MANAGEMENT = frozenset((Service.NMT, Service.EMCY, Service.SDO, Service.TIME, Service.LSS))
+_PDO_SHAPED = frozenset((Service.PDO, Service.UNKNOWN))
 _WINDOW = 8
 
 
@@ -146,6 +149,9 @@ class Anomalies:
     unknown_frames: int = 0
     unknown_cob_ids: tuple[int, ...] = ()
     error_frames: int = 0
+    unattributed_frames: int = 0
+    """PDOs no node is known to send (``canbus.tools.attribution``): shown as bytes."""
+    unattributed_cob_ids: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -220,6 +226,8 @@ class Sniffer(can.Listener):
         self._missed_sync = self._incomplete = self._complete = 0
         self._gaps = self._unknown = self._errors = 0
         self._unknown_ids: set[int] = set()
+        self._unattributed = 0
+        self._unattributed_ids: set[int] = set()
         self._sync_counter: int | None = None
         self._sync_top = 0
         self._sync_period = _Period()
@@ -234,7 +242,11 @@ class Sniffer(can.Listener):
         if self.own is not None and self.own.is_own(msg):
             self.own_frames += 1
             return
-        where = route(msg)
+        attribution = self.decoder.attribution
+        if not msg.is_extended_id and not msg.is_error_frame and not msg.is_remote_frame \
+                and route(msg).service in _PDO_SHAPED:
+            attribution.frame(msg.arbitration_id, msg.timestamp, len(msg.data))
+        where = self.decoder.route(msg)
         decoded = None
         service = where.service
         if service in _MANAGEMENT or (service is Service.HEARTBEAT and self._new_state(
@@ -266,7 +278,10 @@ class Sniffer(can.Listener):
             self._events.append(decoded)
         if not msg.is_error_frame:
             self._add_bits(msg)
-        if not cob.known:
+        if not cob.known and service is Service.PDO:
+            self._unattributed += 1
+            self._unattributed_ids.add(msg.arbitration_id)
+        elif not cob.known:
             self._unknown += 1
             self._unknown_ids.add(msg.arbitration_id)
         if service is Service.PDO and self._cycle is not None and where.node is not None:
@@ -276,8 +291,11 @@ class Sniffer(can.Listener):
             seen.add(msg.arbitration_id)
         elif service is Service.SYNC:
             self._on_sync(msg)
+            self.decoder.attribution.sync(msg.timestamp)
         elif service is Service.HEARTBEAT and where.node is not None:
             self._on_heartbeat(where.node, msg)
+            self.decoder.attribution.heartbeat(
+                where.node, msg.data[0] & 0x7F if len(msg.data) == 1 else None, msg.timestamp)
         elif service is Service.ERROR:
             self._errors += 1
 
@@ -289,8 +307,8 @@ class Sniffer(can.Listener):
         if cob is None:
             cob = self._cobs[key] = _Cob(where, self._known(msg, where), version,
                                           first=msg.timestamp)
-        elif cob.version != version:  # an EDS or a PDO mapping changed: known again?
-            cob.known, cob.version = self._known(msg, where), version
+        elif cob.version != version:  # an EDS, a mapping or an owner changed: known again?
+            cob.route, cob.known, cob.version = where, self._known(msg, where), version
         if cob.count:
             interval = msg.timestamp - cob.last
             cob.dt_last = interval
@@ -313,9 +331,8 @@ class Sniffer(can.Listener):
     def _known(self, msg: can.Message, where: Route) -> bool:
         if where.service is Service.UNKNOWN:
             return False
-        if where.service is Service.PDO and where.node is not None:
-            view = self.decoder.dictionary.view(where.node)
-            return view is not None and msg.arbitration_id in view.pdos
+        if where.service is Service.PDO:
+            return where.node is not None  # attributed (canbus.tools.attribution)
         return True
 
     def _on_sync(self, msg: can.Message) -> None:
@@ -359,7 +376,8 @@ class Sniffer(can.Listener):
                          for (cob_id, ext, _), c in sorted(self._cobs.items()))
             anomalies = Anomalies(self._missed_sync, self._incomplete, self._complete,
                                   self._gaps, self._unknown, tuple(sorted(self._unknown_ids)),
-                                  self._errors)
+                                  self._errors, self._unattributed,
+                                  tuple(sorted(self._unattributed_ids)))
             return Snapshot(time.monotonic(), self.frames, self._first, self._last, self._best,
                             self._worst, self.bitrate, dict(self._by_service), rows, anomalies,
                             tuple(self._events), dict(self.decoder.states))

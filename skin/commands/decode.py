@@ -2,7 +2,10 @@
 
 The recording (.log, .asc, .blf, .pcap, .pcapng) goes through the listen-only host on its
 own clock (:mod:`canbus.offline.decode`): the forces are what a listen-only host publishes
-for it, the same every time, with no bus. Output, written atomically:
+for it, the same every time, with no bus; what it says of each patch (samples, stretches
+without an answer, invalid taxels) is in seconds of the recording
+(:mod:`skin.commands.decode_report`), never a live host's "lost" or "in the last N s".
+Output, written atomically:
 
 - ``.csv``: one row per taxel of every sample: ``cycle, sync_counter, time_s, patch,
   force_node, taxel, fx_N, fy_N, fz_N, valid, reason, complete`` (``reason`` by name);
@@ -40,6 +43,7 @@ def _decode(args: argparse.Namespace) -> int:
     from canbus.offline.decode import decode_recording
     from canbus.tools.replay import recording_reader
     from skin.atomic import atomic_write
+    from skin.commands.decode_report import first_frame_time, lines, quiet_host, report, to_json
     from skin.errors import ConfigError
 
     recording_reader(args.recording, field="REC")
@@ -50,7 +54,8 @@ def _decode(args: argparse.Namespace) -> int:
     if args.contact and Path(args.contact).suffix.lower() != ".csv":
         raise ConfigError("--contact", f"the contact table is a .csv file, got {args.contact!r}")
     config = load_host_config(args.config)
-    frames = decode_recording(args.recording, config)
+    with quiet_host():
+        frames = decode_recording(args.recording, config)
     data = _csv(frames) if suffix == ".csv" else _npz(frames, args, config.source)
     contact = _contact_csv(frames) if args.contact else None
     with atomic_write(args.output) as handle:
@@ -62,10 +67,14 @@ def _decode(args: argparse.Namespace) -> int:
     patches = sorted({f.patch for f in frames})
     print(f"decoded {len(frames)} samples ({complete} complete) of patches "
           f"{', '.join(map(str, patches)) or 'none'} from {args.recording} -> {args.output}")
+    reports = report(frames, first_frame_time(args.recording))
+    for line in lines(reports):
+        print(line)
     if args.json:
         summary = {"recording": args.recording, "output": args.output, "samples": len(frames),
                    "complete_samples": complete,
-                   "patches": {str(p): sum(f.patch == p for f in frames) for p in patches}}
+                   "patches": {str(p): sum(f.patch == p for f in frames) for p in patches},
+                   "by_patch": to_json(reports)}
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(summary, indent=2).encode() + b"\n")
     return 0

@@ -5,8 +5,10 @@ needs no training (``analytic``). D.npz is a dataset of ``skin sim dataset``, be
 model was not trained on (another seed). The figures are ``decoder.metrics``': the paper's
 AveRelErr (Eq. 22), the floored one (|F| >= 5 % of full scale), RMSE in N and in % of full
 scale, per axis, max absolute error, edge against centre taxels, over the taxels the
-decoder did not mask; and the share of taxels masked, by reason (every code a decoder
-returns, named by ``decoder.reasons.reason_name``).
+decoder did not mask, with the share of the taxels they cover in the first line; and the
+share of taxels masked, by reason (every code a decoder returns, named by
+``decoder.reasons.reason_name``). A run whose every taxel is masked has no result: its
+first line says so and the command exits with 3.
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ if TYPE_CHECKING:
     from skin.dataset import Dataset
 
 _MODE_NAMES = {1: "z-only", 3: "3-axis"}
+NO_RESULT = 3
+"""Exit status when the figures cover no taxel (every one masked): no result."""
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -126,6 +130,7 @@ def _eval(args: argparse.Namespace) -> int:
         "metrics": {k: _finite(v) for k, v in report.to_dict().items()},
         "rmse_per_axis_N": {k: _finite(v) for k, v in axes.items()},
         "taxels": taxels,
+        "covered": {"taxels": report.covered, "share": report.covered_share},
         "invalid": {"taxels": sum(invalid.values()),
                     "share": sum(invalid.values()) / taxels if taxels else 0.0,
                     "by_reason": {name: {"taxels": n, "share": n / taxels}
@@ -136,7 +141,7 @@ def _eval(args: argparse.Namespace) -> int:
     if args.json:
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2, allow_nan=False).encode() + b"\n")
-    return 0
+    return NO_RESULT if report.covered == 0 else 0
 
 
 def _finite(value: float) -> float | None:
@@ -150,16 +155,21 @@ def _num(value: float | None, fmt: str, unit: str = "") -> str:
 def _lines(record: dict[str, Any]) -> list[str]:
     m, fs = record["metrics"], record["full_scale_N"]
     compared = "Fz compared" if record["mode"] == "z" else "Fx, Fy, Fz compared"
-    invalid = record["invalid"]
+    invalid, covered = record["invalid"], record["covered"]
     reasons = ", ".join(f"{name} {100 * r['share']:.2f} %" for name, r in
                         invalid["by_reason"].items()) or "none"
     axes = ", ".join(f"F{axis} {_num(v, '.4f', ' N')}"
                      for axis, v in record["rmse_per_axis_N"].items())
     s = "" if record["patches"] == 1 else "es"
+    what = (f"{record['model']} ({record['decoder']}) on {record['data']}: "
+            f"{record['samples']:,} samples x {record['patches']} patch{s}, "
+            f"{_MODE_NAMES[1 if record['mode'] == 'z' else 3]}")
+    if not covered["taxels"]:
+        return [f"{what}: no result: every taxel masked ({invalid['taxels']:,} of "
+                f"{record['taxels']:,}: {reasons}), so no error covers anything"]
     return [
-        f"{record['model']} ({record['decoder']}) on {record['data']}: {record['samples']:,} "
-        f"samples x {record['patches']} patch{s}, "
-        f"{_MODE_NAMES[1 if record['mode'] == 'z' else 3]} ({compared})",
+        f"{what} ({compared}); the figures cover {covered['taxels']:,} of "
+        f"{record['taxels']:,} taxels ({100 * covered['share']:.2f} %)",
         f"  AveRelErr (Eq. 22)       {_num(m['ave_rel_err_pct'], '.3f', ' %')}",
         f"  floored (|F| >= {0.05 * fs:g} N)  {_num(m['ave_rel_err_floored_pct'], '.3f', ' %')}",
         f"  RMSE                     {_num(m['rmse_N'], '.4f', ' N')} = "

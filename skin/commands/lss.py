@@ -19,11 +19,10 @@ from typing import Any
 def _network(args: argparse.Namespace) -> Any:
     import canopen
 
-    from skin.commands.common.busargs import default_channel
-    from skin.commands.common.busopen import open_bus
+    from skin.commands.common.busopen import open_command_bus
 
-    default_channel(args)
-    network = canopen.Network(open_bus(args))
+    bus, _ = open_command_bus(args, command="skin lss", sends=True)
+    network = canopen.Network(bus)
     network.NOTIFIER_CYCLE = 0.05
     network.connect()
     return network
@@ -96,7 +95,7 @@ def add_subparser(subparsers: Any) -> None:
     scan.add_argument("--scan-s", type=scan_s, default=0.3, metavar="S",
                       help="how long the SDO scan of configured nodes waits (default 0.3 s)")
     argtypes.add_bus_arguments(scan)
-    scan.set_defaults(func=_scan, interface="virtual")
+    scan.set_defaults(func=_scan)
     assign = group.add_parser("assign", help="give the patch with a serial number a node-ID")
     assign.add_argument("serial", type=_serial, metavar="SERIAL",
                         help="its serial number (0x1018 sub 4; decimal or 0x hex)")
@@ -105,6 +104,6 @@ def add_subparser(subparsers: Any) -> None:
                         help="LSS store configuration: the patch keeps the node-ID across "
                              "power cycles")
     argtypes.add_bus_arguments(assign)
-    assign.set_defaults(func=_assign, interface="virtual")
+    assign.set_defaults(func=_assign)
 
 

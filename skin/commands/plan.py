@@ -1,4 +1,6 @@
-"""``skin plan``: the load N patches put on their buses, every frame counted."""
+"""``skin plan``: the load N patches put on their buses, every frame counted, and how many
+buses they need under the target load, classic CAN and CAN FD side by side
+(``canbus.sizing``)."""
 
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ from skin.commands.common import argtypes
 
 if TYPE_CHECKING:
     from canbus.busload import BusPlan, Plan
+    from canbus.sizing import Sizing
 
 KIND_NAMES = {"patch_pdo": "patch PDO", "force_pdo": "force PDO", "sync": "SYNC",
               "heartbeat": "heartbeat"}
@@ -96,19 +99,71 @@ def _plan(args: argparse.Namespace) -> int:
         print("\n".join(_describe_bus(each, result)))
     if len(result.buses) > 1:
         print(f"worst bus: {result.worst_bus}, {result.load_worst_pct:.1f} % worst case")
+    sizings = _sizings(args)
+    _print_sizing(args, sizings)
+    advice = _advice(sizings)
     if not result.fits:
         print(f"warning: the traffic does not fit: {result.worst_bus} needs "
               f"{result.load_best_pct:.1f} to {result.load_worst_pct:.1f} % of its wire; lower "
-              f"the rate to {result.max_rate_hz:,.1f} Hz, use CAN FD or more buses",
-              file=sys.stderr)
+              f"the rate to {result.max_rate_hz:,.1f} Hz{advice}", file=sys.stderr)
     elif result.over_target:
         print(f"warning: worst-case load {result.load_worst_pct:.1f} % is above the "
-              f"{result.target_pct:g} % target; lower the rate to {result.max_rate_hz:,.1f} Hz "
-              "or use fewer patches per bus", file=sys.stderr)
+              f"{result.target_pct:g} % target; lower the rate to {result.max_rate_hz:,.1f} Hz"
+              f"{advice}", file=sys.stderr)
     if args.json:
+        record = _record(result) | {"sizing": {("fd" if s.fd else "classic"): asdict(s)
+                                               for s in sizings}}
         with atomic_write(args.json) as handle:
-            handle.write(json.dumps(_record(result), indent=2).encode() + b"\n")
+            handle.write(json.dumps(record, indent=2).encode() + b"\n")
     return 0
+
+
+def _sizings(args: argparse.Namespace) -> list[Sizing]:
+    """The buses needed at the target, classic CAN and CAN FD (``canbus.sizing``)."""
+    from canbus.sizing import size
+
+    return [size(args.patches, args.rate, args.mode, args.bitrate, data_bitrate=fd,
+                 target_pct=args.target, forces=args.forces, heartbeat_ms=args.heartbeat_ms,
+                 force_heartbeat_ms=args.force_heartbeat_ms, contact=not args.no_contact)
+            for fd in (None, args.data_bitrate)]
+
+
+def _kind(s: Sizing) -> str:
+    return f"CAN FD {s.bitrate:,}/{s.data_bitrate:,} bit/s" if s.fd else \
+        f"CAN {s.bitrate:,} bit/s"
+
+
+def _buses(s: Sizing) -> str:
+    if s.buses is None or s.force_buses is None:
+        return "none fits"
+    return f"{s.buses}" + (f" + {s.force_buses} for forces" if s.force_buses else "")
+
+
+def _print_sizing(args: argparse.Namespace, sizings: list[Sizing]) -> None:
+    """Classic and CAN FD side by side: buses needed, patches a bus, load, highest rate."""
+    from skin.commands.common.tables import show
+
+    rows = []
+    for s in sizings:
+        low, high = s.patches_per_bus
+        rows.append([_kind(s), _buses(s), f"{low}" if low == high else f"{low}-{high}",
+                     f"{s.load_worst_pct:.1f} %", f"{s.max_rate_hz:,.1f} Hz"])
+    show(f"buses needed for {args.patches} patches x {args.rate:g} Hz under the "
+         f"{args.target:g} % target (worst-case stuffing)",
+         ["bus", "buses", "patches a bus", "worst-case load a bus", "highest rate a bus carries"],
+         rows, caption="none fits: one patch alone on a bus is above the target; its highest "
+         "rate is shown" if any(s.buses is None for s in sizings) else "")
+
+
+def _count(n: int, what: str) -> str:
+    return f"{n} {what}{'es' if n != 1 else ''}"
+
+
+def _advice(sizings: list[Sizing]) -> str:
+    fitting = [_count(s.buses, "bus") + (f" and {_count(s.force_buses, 'force bus')}"
+                                         if s.force_buses else "") + f" of {_kind(s)}"
+               for s in sizings if s.buses is not None and s.force_buses is not None]
+    return f", or use {' or '.join(fitting)} (above)" if fitting else ""
 
 
 def add_subparser(subparsers: Any) -> None:

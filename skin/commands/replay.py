@@ -22,8 +22,7 @@ from skin.commands.common import argtypes
 def _replay(args: argparse.Namespace) -> int:
     from canbus.tools.replay import Recording, RecordingError, Replayer
     from skin.atomic import atomic_write
-    from skin.commands.common.busargs import default_channel
-    from skin.commands.common.busopen import open_bus
+    from skin.commands.common.busopen import open_command_bus
     from skin.commands.common.signals import until_stopped
     from skin.errors import ConfigError
 
@@ -35,7 +34,7 @@ def _replay(args: argparse.Namespace) -> int:
         raise ConfigError("--rate", f"must be a positive number of frames/s, got {args.rate}")
     with Recording(args.file):  # suffix and file header checked before the bus is opened
         pass
-    default_channel(args)
+    bus, described = open_command_bus(args, command="skin replay", sends=True)
     passes = 1 if args.loop is None else args.loop
     rate = args.rate if args.rate is not None else DEFAULT_RATES.get(args.interface)
 
@@ -43,7 +42,7 @@ def _replay(args: argparse.Namespace) -> int:
         if passes != 1:
             print(f"pass {done}: {frames:,} frames", file=sys.stderr, flush=True)
 
-    with open_bus(args) as bus:
+    with bus:
         replayer = Replayer(bus, args.file, realtime=not args.fast, passes=passes,
                             skip_s=args.skip, error_frames=args.error_frames,
                             rate_fps=rate if args.fast else None, partial=args.partial)
@@ -64,7 +63,7 @@ def _replay(args: argparse.Namespace) -> int:
              if result.error_frames_skipped else "")
           + (f"; stopped by {stopped.signal}" if stopped.signal else ""))
     if args.json:
-        record = {"file": args.file, "frames_sent": result.frames_sent,
+        record = {"file": args.file, "bus": described, "frames_sent": result.frames_sent,
                   "error_frames_skipped": result.error_frames_skipped,
                   "passes": result.passes, "seconds": result.seconds,
                   "timing": "fast" if args.fast else "original",
@@ -118,4 +117,4 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
                         help="write the figures as JSON")
     argtypes.add_bus_arguments(parser)
-    parser.set_defaults(func=_replay, interface="virtual")
+    parser.set_defaults(func=_replay)

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import gc
 import json
 import logging
@@ -165,7 +164,7 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
             "config": config.source, "listen_only": host.listen_only,
             "seconds": round(elapsed, 3), "stopped_by": stopped.signal, "stats": stats,
             "buses": buses_stats,
-            "patches": {str(n): dataclasses.asdict(h) for n, h in health.items()},
+            "patches": {str(n): h.as_json() for n, h in health.items()},
             "unknown_nodes": sorted(host.unknown_nodes),
             "bus_gone": gone,
             "zenoh": None if publisher is None else publisher.counters(),

@@ -24,12 +24,11 @@ def _tare(args: argparse.Namespace) -> int:
 
     from canbus.master.forcenode import TARE, TARE_COMMAND
     from canbus.od import load_od
-    from skin.commands.common.busargs import default_channel
-    from skin.commands.common.busopen import open_bus
+    from skin.commands.common.busopen import open_command_bus
     from skin.errors import BusError
 
-    default_channel(args)
-    with open_bus(args) as bus:
+    bus, described = open_command_bus(args, command="skin tare", sends=True)
+    with bus:
         network = canopen.Network(bus)
         network.connect()
         try:
@@ -43,8 +42,8 @@ def _tare(args: argparse.Namespace) -> int:
                 raise BusError(f"force node {args.node} refused the tare: abort "
                                f"0x{err.code:08X}{': ' + why if why else ''}") from err
             except SdoCommunicationError as err:
-                raise BusError(f"force node {args.node} did not answer on "
-                               f"{args.interface}:{args.channel}: {err}") from err
+                raise BusError(f"force node {args.node} did not answer on {described}: "
+                               f"{err}") from err
         finally:
             network.disconnect()
     print(f"force node {args.node}: tared")
@@ -65,4 +64,4 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--timeout", type=argtypes.seconds, default=1.0, metavar="S",
                         help="SDO response time-out (default 1 s)")
     argtypes.add_bus_arguments(parser)
-    parser.set_defaults(func=_tare, interface="virtual")
+    parser.set_defaults(func=_tare)

@@ -119,6 +119,8 @@ def test_a_node_without_a_judge_answers_no_summary_and_packs_it_when_mapped() ->
 def test_the_sniffer_names_the_contact_pdo_and_its_values() -> None:
     import can
 
+    from canbus.tools.attribution import Attribution, KnownNode
+    from canbus.tools.pdo_dictionary import Dictionary
     from canbus.tools.services import ServiceDecoder
 
     node = ForceNode(65, 1)
@@ -126,8 +128,9 @@ def test_the_sniffer_names_the_contact_pdo_and_its_values() -> None:
     force[5] = (0.2, 0.1, 2.0)
     force[4] = (0.0, 0.0, 1.0)
     frames = dict(node.frames(force, np.ones(9, bool), True))
-    decoded = ServiceDecoder().decode(can.Message(arbitration_id=0x541, data=frames[0x541],
-                                                  is_extended_id=False))
+    told = Attribution(Dictionary(), [KnownNode(65, "skin-forces")])  # as --config tells it
+    decoded = ServiceDecoder(attribution=told).decode(
+        can.Message(arbitration_id=0x541, data=frames[0x541], is_extended_id=False))
     assert decoded.label == "TPDO8 contact"
     assert decoded.text == ("Fz=+3.00 N CoPx=+10.00 mm CoPy=+0.00 mm state=contact,onset "
                             "taxels=2")

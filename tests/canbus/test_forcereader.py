@@ -22,6 +22,7 @@ from canbus.master.forcenode import ForceNode, forces_to_mN
 from canbus.master.patch_setup import tpdo_layouts
 from canbus.od import eds_file, load_od
 from canbus.pdo_codec import PdoCodec
+from canbus.tools.attribution import KnownNode
 from canbus.tools.forcereader import UNSPECIFIED, ForceNodeSpec, ForceReader, ForceSample
 from canbus.tools.resistance_reader import ResistanceReader, ResistanceSample
 from canbus.tools.sample_tracker import LIVE, LOST, STALE, WAITING, SampleTracker
@@ -33,6 +34,11 @@ NODE = ForceNode(65, 1)  # only packs frames: never attached to a bus
 def _messages(frames: list[tuple[int, bytes]], t: float, dt: float = 1e-4) -> list[can.Message]:
     return [can.Message(arbitration_id=cob, data=data, timestamp=t + k * dt,
                         is_extended_id=False) for k, (cob, data) in enumerate(frames)]
+
+
+def _known(*nodes: int, eds: str | Path = "skin-forces") -> ForceReader:
+    """A reader told that ``nodes`` keep their EDS default COB-IDs (as a config says)."""
+    return ForceReader([ForceNodeSpec(n, known=True) for n in nodes], eds=eds)
 
 
 def _read(reader: ForceReader, messages: list[can.Message],
@@ -52,7 +58,7 @@ def _press(seed: int) -> np.ndarray:
 
 @functools.cache
 def _node_and_reader(node: int) -> tuple[ForceNode, ForceReader, list[ForceSample]]:
-    reader, sink = ForceReader([node]), []
+    reader, sink = _known(node), []
     reader.on_sample(sink.append)
     return ForceNode(node, node - 64), reader, sink
 
@@ -86,7 +92,7 @@ def test_a_lost_pdo_makes_one_partial_sample_and_never_mixes_two(lost: int) -> N
         if k == 1:
             del frames[lost]
         messages += _messages(frames, 1.0 + 0.01 * k)
-    a, b, c = _read(ForceReader([65]), messages)
+    a, b, c = _read(_known(65), messages)
     for sample, f in ((a, forces[0]), (c, forces[2])):
         assert sample.complete and sample.valid.all()
         np.testing.assert_array_equal(sample.force_N, f)
@@ -104,7 +110,7 @@ def test_pdos_in_cob_id_order_make_the_same_samples() -> None:
     frames = sorted(NODE.frames(f, np.ones(9, bool), True))  # 1C1, 241, 2C1, 341, ...
     assert [cob for cob, _ in frames] != [cob for cob, _ in NODE.frames(f, np.ones(9, bool),
                                                                         True)]
-    samples = _read(ForceReader([65]), _messages(frames, 1.0) + _messages(frames, 1.01))
+    samples = _read(_known(65), _messages(frames, 1.0) + _messages(frames, 1.01))
     assert [s.complete for s in samples] == [True, True]
     np.testing.assert_array_equal(samples[1].force_N, f)
 
@@ -115,7 +121,7 @@ def _syncs(until: float, count: int = 4, period: float = 0.01) -> list[can.Messa
 
 
 def test_a_sender_held_up_mid_sample_still_makes_whole_samples() -> None:
-    reader = ForceReader([65])
+    reader = _known(65)
     a, b = _press(10), _press(11)
     fa = NODE.frames(a, np.ones(9, bool), True)
     fb = NODE.frames(b, np.ones(9, bool), True)
@@ -132,10 +138,10 @@ def test_a_frame_seen_twice_is_one_frame_but_other_bytes_end_the_sample() -> Non
     fa = NODE.frames(_press(12), np.ones(9, bool), True)
     fb = NODE.frames(_press(13), np.ones(9, bool), True)
     twice = [*fa[:3], fa[2], *fa[3:]]
-    (sample,) = _read(ForceReader([65]), _messages(twice, 1.0))
+    (sample,) = _read(_known(65), _messages(twice, 1.0))
     assert sample.complete
     # B's first PDO lost, and its third is one A already holds: A ends there
-    first, second = _read(ForceReader([65]), [*_messages(fa[:3], 1.0),
+    first, second = _read(_known(65), [*_messages(fa[:3], 1.0),
                                                *_messages(fb[1:], 1.001)], now=1.05)
     assert (first.pdos_missing, second.pdos_missing) == (5, 1)
     assert not first.complete and not second.complete
@@ -143,7 +149,7 @@ def test_a_frame_seen_twice_is_one_frame_but_other_bytes_end_the_sample() -> Non
 
 
 def test_samples_without_their_first_pdo_stay_apart_and_open_ones_close_by_bus_time() -> None:
-    reader = ForceReader([65])
+    reader = _known(65)
     fa = NODE.frames(_press(14), np.ones(9, bool), True)
     fb = NODE.frames(_press(15), np.ones(9, bool), True)
     got = _read(reader, [*_syncs(0.999), *_messages(fa[1:3], 1.0), *_messages(fb[3:], 1.01)])
@@ -158,7 +164,7 @@ def test_samples_without_their_first_pdo_stay_apart_and_open_ones_close_by_bus_t
 
 
 def test_only_the_frames_a_reader_needs_are_copied() -> None:
-    reader = ForceReader([65])
+    reader = _known(65)
     for cob in (0x181, 0x1C2, 0x701, 0x5C2):  # a patch PDO, another node's, heartbeat, SDO
         reader.on_message_received(can.Message(arbitration_id=cob, data=b"\0" * 8,
                                                is_extended_id=False))
@@ -182,7 +188,7 @@ def test_a_remap_and_the_source_patch_read_by_sdo_are_followed() -> None:
     node.attach(device)
     remote = canopen.RemoteNode(70, load_od("skin-forces", 70))
     master.add_node(remote)
-    reader = ForceReader([70])
+    reader = _known(70)
     got: list[ForceSample] = []
     reader.on_sample(got.append)
     try:
@@ -264,7 +270,7 @@ def _fd_force_eds(path: Path) -> Path:
 
 def test_a_can_fd_force_pdo_with_the_whole_sample_needs_only_its_eds(tmp_path: Path) -> None:
     eds = _fd_force_eds(tmp_path / "fd-forces.eds")
-    reader = ForceReader([65], eds=eds)
+    reader = _known(65, eds=eds)
     layout = reader.assembly(65).layouts
     assert [(lay.cob_id, lay.size) for lay in layout] == [(0x1C1, 57)]
     f = _press(7)
@@ -311,7 +317,7 @@ def test_the_resistance_reader_reads_a_patch_s_codes_in_ohms() -> None:
     code[7, 0] = codes.SHORT
     payloads = codec.pack(code.reshape(1, 27))[0]
     frames = [(lay.cob_id, bytes(payloads[n][:lay.size])) for n, lay in enumerate(layouts)]
-    reader = ResistanceReader([3])
+    reader = ResistanceReader([3], known=[KnownNode(3, "skin-patch")])
     got: list[ResistanceSample] = []
     reader.on_sample(got.append)
     reader.feed(_messages(frames, 5.0) + _messages(frames[:6], 5.01))

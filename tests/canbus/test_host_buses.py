@@ -233,7 +233,7 @@ def test_the_sniffer_and_the_view_read_can_fd_forces(fd_bus: Buses) -> None:
     """A host maps its own force nodes for CAN FD in place, with no SDO on the bus: a tool
     reading the bus adopts the one-frame mapping when a TPDO 1 arrives as a long FD frame."""
     from canbus.tools.forcereader import ForceReader
-    from canbus.tools.pdo_names import Dictionary
+    from canbus.tools.pdo_dictionary import Dictionary
     from canbus.tools.services import ServiceDecoder
 
     load = press({4: (0.3, -0.2, 2.5)})

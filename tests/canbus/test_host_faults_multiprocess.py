@@ -217,7 +217,7 @@ def test_the_json_tells_what_happened(run: Run) -> None:
     patches = record["patches"]
     assert all(p["state"] == "operational" for p in patches.values()), patches
     assert patches["3"]["setup_failures"] >= 1  # the garbled answers, retried
-    assert patches["3"]["history"][-1][1] == "operational"
+    assert patches["3"]["history"][-1]["state"] == "operational"
     # UDP may drop a datagram when the host's socket buffer fills on a busy machine.
     assert patches["1"]["emcys"] >= 0.9 * EMCYS and patches["1"]["faulty_taxels"] == [4]
     # Every line of a state is printed once, on stdout.

@@ -8,10 +8,13 @@ import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bench.rigs import children
 from canbus import busload
 from canbus.busload import plan
+from canbus.sizing import size
 
 
 def _skin_plan(*args: str) -> subprocess.CompletedProcess[str]:
@@ -154,3 +157,47 @@ def test_bad_plans_fail_in_one_line(args: list[str], message: str, status: int,
     run = _skin_plan("--patches", "8", "--rate", "100", "--json", str(out), *args)
     assert run.returncode == status and message in run.stderr
     assert run.stderr.count("\n") == 1 and not out.exists()
+
+
+@settings(max_examples=60, deadline=None)
+@given(patches=st.integers(1, 24), rate=st.floats(10, 1000), mode=st.sampled_from(["z", "xyz"]),
+       fd=st.booleans(), forces=st.sampled_from(["same-bus", "other-bus", "none"]),
+       target=st.floats(20, 95))
+def test_the_buses_needed_are_the_fewest_that_keep_every_bus_under_the_target(
+        patches: int, rate: float, mode: str, fd: bool, forces: busload.Forces,
+        target: float) -> None:
+    data = 5_000_000 if fd else None
+    sized = size(patches, rate, mode, 1_000_000, data_bitrate=data, target_pct=target,
+                 forces=forces)
+
+    def patch_plan(buses: int) -> busload.Plan:
+        return plan(patches, rate, mode, 1_000_000, data_bitrate=data, target_pct=target,
+                    buses=buses, forces="none" if forces == "other-bus" else forces)
+
+    if sized.buses is None:
+        assert patch_plan(patches).over_target  # one patch a bus is already too much
+    else:
+        at = patch_plan(sized.buses)
+        assert all(b.load_worst_pct <= target for b in at.buses)
+        assert sized.buses == 1 or patch_plan(sized.buses - 1).over_target
+        assert sized.max_rate_hz <= at.max_rate_hz + 1e-9
+        assert max(b.load_worst_pct for b in at.buses) <= sized.load_worst_pct + 1e-9
+    if forces != "other-bus":
+        assert sized.force_buses == 0
+
+
+def test_plan_answers_the_sizing_question(tmp_path: Path) -> None:
+    """16 patches at 200 Hz (3-axis, forces with the contact PDO on each patch's bus): 644 %
+    of one classic bus."""
+    out = tmp_path / "plan.json"
+    run = _skin_plan("--patches", "16", "--rate", "200", "--json", str(out))
+    assert run.returncode == 0
+    assert "buses needed for 16 patches x 200 Hz under the 70 % target" in run.stdout
+    rows = {line.split("  ")[0]: line.split() for line in run.stdout.splitlines()
+            if line.startswith("CAN ")}
+    assert rows["CAN 1,000,000 bit/s"][-6:-3] == ["16", "1", "41.5"]
+    assert rows["CAN FD 1,000,000/5,000,000 bit/s"][-6:-3] == ["2", "8", "55.6"]
+    assert "or use 16 buses of CAN 1,000,000 bit/s or 2 buses of CAN FD" in run.stderr
+    sizing = json.loads(out.read_text())["sizing"]
+    assert (sizing["classic"]["buses"], sizing["fd"]["buses"]) == (16, 2)
+    assert sizing["fd"]["max_rate_hz"] == pytest.approx(252.19, abs=0.01)

@@ -122,15 +122,16 @@ def test_unknown_suffix_or_missing_file_fail_before_the_bus_opens(
 
 def test_cli_replays_and_reports(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     with can.Bus(interface="virtual", channel="cli-replay") as rx:
-        code = main(["replay", str(FILES / "good.pcap"), "-c", "cli-replay", "--fast",
-                     "--loop", "2", "--json", str(tmp_path / "r.json")])
+        code = main(["replay", str(FILES / "good.pcap"), "-i", "virtual", "-c", "cli-replay",
+                     "--fast", "--loop", "2", "--json", str(tmp_path / "r.json")])
         assert code == 0
         assert len(_drain(rx)) == 12
         out = capsys.readouterr()
         assert "sent 12 frames" in out.out and "2 passes, as fast as possible" in out.out
         assert json.loads((tmp_path / "r.json").read_text())["frames_sent"] == 12
 
-        assert main(["replay", str(FILES / "truncated.log"), "-c", "cli-replay", "--fast"]) == 1
+        assert main(["replay", str(FILES / "truncated.log"), "-i", "virtual", "-c", "cli-replay",
+                     "--fast"]) == 1
         err = capsys.readouterr().err
         assert "(sent 5 frames before it)" in err and err.count("\n") == 1
         assert "truncated.log: frame 6: line 6: cut short" in err
@@ -141,8 +142,8 @@ def test_fast_replay_paced_to_a_rate(tmp_path: Path, capsys: pytest.CaptureFixtu
     """udp_multicast has no flow control: `--rate` (by default there) caps frames/s."""
     with can.Bus(interface="virtual", channel="paced") as rx:
         started = time.monotonic()
-        code = main(["replay", str(FILES / "good.log"), "-c", "paced", "--fast", "--loop", "10",
-                     "--rate", "400", "--json", str(tmp_path / "r.json")])
+        code = main(["replay", str(FILES / "good.log"), "-i", "virtual", "-c", "paced", "--fast",
+                     "--loop", "10", "--rate", "400", "--json", str(tmp_path / "r.json")])
         took = time.monotonic() - started
         assert code == 0 and len(_drain(rx)) == 80
     assert took >= 79 / 400 - 0.002  # any machine: a slow machine only takes longer

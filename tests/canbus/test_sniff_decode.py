@@ -5,7 +5,9 @@ from __future__ import annotations
 import can
 import pytest
 
-from canbus.tools.pdo_names import Dictionary, parse_assignment, shipped_default
+from canbus.tools.attribution import Attribution, KnownNode
+from canbus.tools.pdo_dictionary import Dictionary, parse_assignment
+from canbus.tools.pdo_names import shipped_default
 from canbus.tools.services import Service, ServiceDecoder, route
 from canbus.tools.sniffer import FrameFilter
 from skin.errors import ConfigError
@@ -77,11 +79,18 @@ TRACE = [  # (COB-ID, payload, service, node label, label, text)
      "switch state selective serial 0x00001001"),
     (0x7E4, "4400000000000000", "lss", "", "LSS slave",
      "switch state selective: the slave is in configuration state"),
+    (0x1C2, "e80318fc0080e803", "pdo", "", "unattributed", "e8 03 18 fc 00 80 e8 03"),
 ]
 
 
+def _told(*nodes: tuple[int, str]) -> ServiceDecoder:
+    """A decoder told (as a host config tells it) that ``nodes`` keep their defaults."""
+    return ServiceDecoder(attribution=Attribution(Dictionary(),
+                                                  [KnownNode(n, eds) for n, eds in nodes]))
+
+
 def test_trace_in_words() -> None:
-    decoder = ServiceDecoder()
+    decoder = _told((1, "skin-patch"), (5, "skin-patch"), (65, "skin-forces"))
     got = []
     for cob_id, data, *_ in TRACE:
         decoded = decoder.decode(_msg(cob_id, data))
@@ -115,8 +124,9 @@ def test_segmented_upload_names_its_object() -> None:
 def test_pdo_mapping_follows_sdo() -> None:
     """A master that remaps TPDO1 of patch 5 to pillar z of taxels 0..2 (the z-only mapping)."""
     decoder = ServiceDecoder()
-    assert decoder.decode(_msg(0x185, "204e204e204e")).text == \
-        "20 4e 20 4e 20 4e (length 6, mapping needs 8)"
+    unknown = decoder.decode(_msg(0x185, "204e204e204e"))  # nothing says patch 5 sends it
+    assert (unknown.node, unknown.label, unknown.text) == (None, "unattributed",
+                                                           "20 4e 20 4e 20 4e")
     writes = [("1800", "01", "85010080"), ("1A00", "00", "00"), ("1A00", "01", "10010020"),
               ("1A00", "02", "10040020"), ("1A00", "03", "10070020"), ("1A00", "00", "03"),
               ("1800", "01", "85010000")]
@@ -126,7 +136,8 @@ def test_pdo_mapping_follows_sdo() -> None:
         index_le = index[2:] + index[:2]
         decoder.decode(_msg(0x605, command + index_le + sub + value.ljust(8, "0")))
         decoder.decode(_msg(0x585, "60" + index_le + sub + "00000000"))
-    decoded = decoder.decode(_msg(0x185, "204e6e4e204e"))
+    decoded = decoder.decode(_msg(0x185, "204e6e4e204e"))  # its COB-ID, written by SDO
+    assert (decoded.node, decoded.label) == (5, "TPDO1")
     assert decoded.text == "R0z=1000.00 Ω R1z=1003.90 Ω R2z=1000.00 Ω"
     # an aborted write changes nothing
     decoder.decode(_msg(0x605, "2f001a0000000000"))
@@ -145,6 +156,8 @@ def test_identity_read_switches_the_eds() -> None:
     decoder.decode(_msg(0x646, "4018100200000000"))
     decoder.decode(_msg(0x5C6, "4318100201000000"))  # product 1: a patch at node 70
     assert decoder.node_label(70) == "patch 70"
+    decoder.decode(_msg(0x646, "4000180100000000"))
+    decoder.decode(_msg(0x5C6, "43001801c6010000"))  # its TPDO 1 is on 0x1C6, read by SDO
     assert decoder.decode(_msg(0x1C6, "204e7c6e7c6e204e")).text.startswith("R0z=1000.00 Ω")
 
 
@@ -196,7 +209,7 @@ def test_nodes_sharing_an_eds_keep_their_own_cob_ids() -> None:
 
 def test_a_force_nodes_taxel_status_reads_as_the_decoders_reason() -> None:
     """0x2004 of a force node is the decoder's reason code, not a patch's pillar bits."""
-    from canbus.tools.pdo_names import Dictionary
+    from canbus.tools.pdo_dictionary import Dictionary
     from decoder.reasons import Reason
 
     forces, patch = Dictionary().view(65), Dictionary().view(1)

@@ -20,6 +20,7 @@ nodes 65 and 66 publishing), while a listener records the bus to .pcap and .log.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import threading
 from dataclasses import dataclass
@@ -39,7 +40,7 @@ from canbus.device.source import ArraySource
 from canbus.master.dataplane import ForceFrame
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, PatchConfig
-from canbus.tools.recorder import Recorder
+from canbus.tools.recorder import CandumpLogWriter, Recorder
 from canbus.tools.replay import Recording, Replayer
 from canbus.tools.services import Service, route
 from canbus.tools.sniffer import Sniffer
@@ -119,7 +120,7 @@ def host_run(tmp_path_factory: pytest.TempPathFactory) -> HostRun:
 def _seen(host: HostManager) -> int:
     """Frames the host's data plane (the notifier's last listener) has taken."""
     stats = host.dataplane.stats
-    return stats.frames_in + stats.unknown_frames
+    return stats.frames_in + stats.unknown_frames + stats.bus_frames
 
 
 def _key(frame: ForceFrame) -> tuple[int, int]:
@@ -348,3 +349,35 @@ def test_skin_decode_writes_every_sample_s_contact(host_run: HostRun, tmp_path: 
         assert (row["in_contact"], row["onset"], row["slipping"]) == (
             str(int(c.in_contact)), str(int(c.onset)), str(int(c.slipping)))
     assert any(line.split(",")[header.index("in_contact")] == "1" for line in lines[1:])
+
+
+def test_skin_decode_speaks_of_the_recording_not_of_a_live_bus(
+        host_run: HostRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Patch 1 falls silent half-way (its PDOs and heartbeats cut from the recording): the
+    decode says when, in seconds of the recording, and never 'lost' or 'in the last 0 s'."""
+    with Recording(host_run.folder / "host.log") as recording:
+        messages = list(recording)
+    first, syncs = messages[0].timestamp, [m.timestamp for m in messages
+                                           if m.arbitration_id == 0x80]
+    cut = syncs[len(syncs) // 2]
+    silent = {0x701, *(base + 1 for base in (0x180, 0x280, 0x380, 0x480, 0x200, 0x300, 0x400))}
+    path = tmp_path / "silent.log"
+    with path.open("w", encoding="utf-8") as handle:
+        writer = CandumpLogWriter(handle)
+        for msg in messages:
+            if not (msg.timestamp > cut and msg.arbitration_id in silent):
+                writer.on_message_received(msg)
+        writer.stop()
+    assert main(["decode", str(path), "--config", str(_write_config(tmp_path)), "-o",
+                 str(tmp_path / "f.csv"), "--json", str(tmp_path / "d.json")]) == 0
+    out, err = capsys.readouterr()
+    assert "lost" not in out + err and "in the last" not in out + err
+    line = next(x for x in out.splitlines() if x.startswith("patch 1: "))
+    start = float(re.search(r"no answer (\d+\.\d+)-", line)[1])  # type: ignore[index]
+    assert cut - first - 0.001 <= start < cut - first + 0.5  # from its first unanswered SYNC
+    assert "invalid taxel-samples: " in line and "MISSING " in line
+    report = json.loads((tmp_path / "d.json").read_text())["by_patch"]
+    assert report["2"]["silent"] == []
+    gap = report["1"]["silent"][0]
+    assert gap["from_s"] == pytest.approx(start, abs=0.0005)
+    assert report["1"]["invalid_by_reason"]["MISSING"] >= 9 * gap["syncs"]

@@ -23,7 +23,7 @@ def _stop(proc: Child, sig: signal.Signals) -> tuple[str, str]:
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
 def test_sim_run(tmp_path: Path, sig: signal.Signals) -> None:
     out = tmp_path / "sim.json"
-    proc = spawn([sys.executable, "-m", "skin.cli", "sim", "run", "paper",
+    proc = spawn([sys.executable, "-m", "skin.cli", "sim", "run", "paper", "-i", "virtual",
                   "-c", f"stop-{sig.name}", "--json", str(out)])
     proc.wait_for("Ctrl-C stops", timeout=60)
     stdout, stderr = _stop(proc, sig)
@@ -36,8 +36,8 @@ def test_sim_run(tmp_path: Path, sig: signal.Signals) -> None:
 
 def test_replay(tmp_path: Path) -> None:
     out = tmp_path / "replay.json"
-    proc = spawn([sys.executable, "-m", "skin.cli", "replay", str(FILES / "good.log"),
-                  "--loop", "--json", str(out)])
+    proc = spawn([sys.executable, "-m", "skin.cli", "replay", "-i", "virtual",
+                  str(FILES / "good.log"), "--loop", "--json", str(out)])
     proc.wait_for("pass 1: 8 frames", stream="stderr", timeout=60)
     stdout, stderr = _stop(proc, signal.SIGTERM)
     assert proc.returncode == 0, stderr
@@ -62,4 +62,6 @@ def test_run(tmp_path: Path, sig: signal.Signals) -> None:
     assert f"stopped by {sig.name}" in stdout and "(0 complete, " in stdout  # patch absent
     record = json.loads(out.read_text())
     assert record["stopped_by"] == sig.name and record["patches"]["1"]["state"] == "absent"
+    # a time says its clock and unit: never heard, so none
+    assert record["patches"]["1"]["last_heartbeat_unix_s"] is None
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp file

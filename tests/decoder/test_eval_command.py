@@ -33,7 +33,8 @@ def _eval(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, dict[str
     out = Path(argv[-1]).with_suffix(".json")
     code = main(["eval", *argv, "--json", str(out)])
     captured = capsys.readouterr()
-    return code, (json.loads(out.read_text()) if code == 0 else {}), captured.out, captured.err
+    return code, (json.loads(out.read_text()) if code in (0, 3) else {}), captured.out, \
+        captured.err
 
 
 def test_a_model_file_on_held_out_data(tmp_path: Path,
@@ -51,7 +52,10 @@ def test_a_model_file_on_held_out_data(tmp_path: Path,
     assert record["rmse_per_axis_N"] == {"z": pytest.approx(expected.rmse_N, rel=1e-12)}
     assert (record["decoder"], record["mode"], record["samples"]) == ("deconv", "z", 60)
     assert record["invalid"] == {"taxels": 0, "share": 0.0, "by_reason": {}}
-    assert f"{model} (deconv) on {tmp_path / 'test.npz'}: 60 samples x 1 patch, z-only" in out
+    assert out.startswith(f"{model} (deconv) on {tmp_path / 'test.npz'}: 60 samples x 1 "
+                          "patch, z-only (Fz compared); the figures cover 540 of 540 taxels "
+                          "(100.00 %)\n")
+    assert record["covered"] == {"taxels": 540, "share": 1.0}
     assert f"  RMSE                     {expected.rmse_N:.4f} N = " in out
     assert "  floored (|F| >= 0.25 N)  " in out
 
@@ -133,3 +137,31 @@ def test_clear_refusals(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     assert not (tmp_path / "e.json").exists()
     assert rmse_per_axis(np.zeros((1, 9, 3)), np.ones((1, 9, 3)), mode="xyz") == \
         {"x": 1.0, "y": 1.0, "z": 1.0}
+
+
+def test_a_run_whose_every_taxel_is_masked_is_no_result(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Not a perfect score: the first line says nothing was covered; exit 3, and no figure
+    (floored, max relative) reads 0 %."""
+    r, f = make_data(30, pillars=3, seed=19)
+    r[:] = np.inf  # every pillar open
+    code, record, out, _ = _eval(capsys, "analytic", str(_dataset(tmp_path / "d.npz", r, f)))
+    assert code == 3
+    first = out.splitlines()[0]
+    assert first == (f"analytic (analytic) on {tmp_path / 'd.npz'}: 30 samples x 1 patch, "
+                     "3-axis: no result: every taxel masked (270 of 270: OPEN 100.00 %), so no "
+                     "error covers anything")
+    assert len(out.splitlines()) == 1
+    assert record["covered"] == {"taxels": 0, "share": 0.0}
+    metrics = record["metrics"]
+    assert metrics["ave_rel_err_floored_pct"] is None  # type: ignore[index]
+    assert metrics["max_rel_err_floored_pct"] is None  # type: ignore[index]
+
+
+def test_a_figure_over_nothing_is_nan_never_zero() -> None:
+    nothing = evaluate(np.ones((2, 9, 3)), np.ones((2, 9, 3)), np.zeros((2, 9), bool),
+                       mode="xyz")
+    assert np.isnan(nothing.ave_rel_err_floored_pct) and np.isnan(nothing.rmse_N)
+    assert (nothing.covered, nothing.covered_share, nothing.taxels) == (0, 0.0, 18)
+    at_rest = evaluate(np.zeros((2, 9, 3)), np.zeros((2, 9, 3)), mode="xyz")
+    assert np.isnan(at_rest.ave_rel_err_floored_pct) and at_rest.covered_share == 1.0

@@ -87,7 +87,8 @@ def test_a_blf_object_of_size_zero_ends(tmp_path: Path) -> None:
     struct.pack_into("<L", inner, 8, 0)
     path = tmp_path / "zero.blf"
     path.write_bytes(_blf(bytes(inner)))
-    _one_line(_skin("replay", path, "--fast"), str(path), "frame 1", "declares 0 bytes")
+    _one_line(_skin("replay", path, "--fast", "-i", "virtual"), str(path), "frame 1",
+              "declares 0 bytes")
 
 
 def test_an_eds_mapping_count_of_0x7fffffff(tmp_path: Path) -> None:

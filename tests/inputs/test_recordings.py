@@ -25,7 +25,7 @@ GOOD = sorted(RECORDINGS.glob("good.*"))
 def _replay(path: Path) -> None:
     folder = path.parent
     before = fingerprint(folder)
-    result = run("replay", path, "--fast", "-c", f"hostile{id(path)}")
+    result = run("replay", path, "--fast", "-i", "virtual", "-c", f"hostile{id(path)}")
     answered(result)
     if result.code:
         assert str(path) in result.lines[0]
@@ -96,6 +96,6 @@ def test_a_blf_decompression_bomb_is_refused(tmp_path: Path, declared: int,
     header[10] = len(data) + size % 4
     data[:blf.FILE_HEADER_STRUCT.size] = blf.FILE_HEADER_STRUCT.pack(*header)
     path.write_bytes(bytes(data) + bytes(size % 4))
-    result = run("replay", path, "--fast", "-c", "bomb")
+    result = run("replay", path, "--fast", "-i", "virtual", "-c", "bomb")
     refused(result)
     assert "container" in result.lines[0] and str(path) in result.lines[0]

@@ -79,18 +79,25 @@ def test_the_snippet_is_a_host_config_and_the_model_decodes_in_its_frame(folder:
     assert e.ave_rel_err_floored_pct < 1.25 * report["heldout_floored_pct"] + 0.1
 
 
-def _check(folder: Path, data: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, dict]:
+def _check(folder: Path, data: Path, capsys: pytest.CaptureFixture[str],
+           lines: list[str] | None = None) -> tuple[int, dict]:
     out = folder / "check.json"
     code = main(["calibrate", "--check", str(folder / "m.msgpack"), str(data), "--json",
                  str(out)])
+    if lines is not None:
+        lines[:] = capsys.readouterr().out.splitlines()
     capsys.readouterr()
     return code, json.loads(out.read_text())
 
 
 def test_check_says_whether_the_model_still_fits(folder: Path, tmp_path: Path,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
-    code, doc = _check(folder, folder / "d2.npz", capsys)
+    lines: list[str] = []
+    code, doc = _check(folder, folder / "d2.npz", capsys, lines)
     assert code == 0 and doc["verdict"] == "fits" and doc["now"]["fits"]
+    covered = doc["now"]["covered_pct"]
+    assert covered == pytest.approx(100 - doc["now"]["flagged_pct"])
+    assert f" over {covered:.2f} % of the taxels (its own held-out " in lines[0]
     # the rest drifted 1 % (a temperature change): a tare restores the fit
     ds = read_dataset(folder / "d2.npz")
     drifted = tmp_path / "drifted.npz"
@@ -101,6 +108,14 @@ def test_check_says_whether_the_model_still_fits(folder: Path, tmp_path: Path,
     code, doc = _check(folder, folder / "indenter.npz", capsys)
     assert code == 3 and not doc["now"]["fits"] and not doc["after_tare"]["fits"]
     assert doc["limit_pct"] == pytest.approx(1.25 * doc["own_heldout_floored_pct"] + 0.1)
+    # every taxel refused (every pillar open): not a perfect score, no result, first line
+    opened = tmp_path / "open.npz"
+    write_dataset(opened, Dataset(np.full_like(ds.resistance_ohm, np.inf), ds.force_N, ds.meta))
+    code, doc = _check(folder, opened, capsys, lines)
+    assert code == 3 and doc["now"]["covered_pct"] == 0.0 and doc["now"]["floored_pct"] is None
+    assert lines[0].startswith(f"{folder / 'm.msgpack'} refused every taxel of patch 1 of "
+                               f"{opened} (")
+    assert "no result, its error covers nothing" in lines[0]
 
 
 def test_bad_use_is_one_line(folder: Path, tmp_path: Path,

@@ -16,8 +16,8 @@ STAMP = r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d{3}"
 
 
 def _sniff(tmp_path: Path, *flags: str, after: tuple[str, ...] = ()) -> list[str]:
-    return [*flags, "sniff", "-c", f"log{len(flags)}{len(after)}", "--view", "none",
-            "--seconds", "0.05", "--record", str(tmp_path / "r.log"), *after]
+    return [*flags, "sniff", "-i", "virtual", "-c", f"log{len(flags)}{len(after)}", "--view",
+            "none", "--seconds", "0.05", "--record", str(tmp_path / "r.log"), *after]
 
 
 def test_v_shows_the_librarys_info_lines_with_a_timestamp(
@@ -36,7 +36,7 @@ def test_v_shows_the_librarys_info_lines_with_a_timestamp(
 def test_q_hides_warnings(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     cut = tmp_path / "cut.log"
     cut.write_text("(1.000000) can0 080#01\n(1.001000) can0 181#0102")  # killed mid-line
-    replay = ["replay", "--partial", "--fast", "-c", "logq", str(cut)]
+    replay = ["replay", "--partial", "--fast", "-i", "virtual", "-c", "logq", str(cut)]
     assert main(replay) == 0
     captured = capsys.readouterr()
     assert re.search(rf"^{STAMP} WARNING canbus\.tools\.replay: .*cut\.log: frame 2: line 2: "

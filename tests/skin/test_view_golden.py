@@ -36,8 +36,10 @@ def _check(name: str, text: str) -> None:
 
 
 def _recording(path: Path) -> None:
-    """1 s at 100 Hz: patch 1 pressed with shear; patch 2 with an invalid taxel and, every
-    10th cycle (7, 17, ...), TPDO 3 lost; patch 3 silent after 0.5 s."""
+    """1 s at 100 Hz after the force nodes' boot-up: patch 1 pressed with shear; patch 2
+    with an invalid taxel and, every 10th cycle (7, 17, ...), TPDO 3 lost; patch 3 silent
+    after 0.5 s. A reader names each force node by its heartbeat and its first whole set of
+    default PDOs, that sample included (no config is given)."""
     nodes = {1: ForceNode(65, 1), 2: ForceNode(66, 2), 3: ForceNode(67, 3)}
     one = np.zeros((9, 3))
     one[:, 2] = 0.02
@@ -50,6 +52,10 @@ def _recording(path: Path) -> None:
     valid_two[8] = False
     with path.open("w", encoding="utf-8") as handle:
         writer = CandumpLogWriter(handle)
+        for node in (65, 66, 67):  # the force nodes boot (a reader knows them from then on)
+            writer.on_message_received(can.Message(
+                arbitration_id=0x700 + node, data=b"\0", timestamp=T0,
+                is_extended_id=False))
         for k in range(100):
             t = T0 + 0.01 * k
             frames = [(0x80, bytes([k % 240 + 1]))]

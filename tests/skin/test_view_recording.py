@@ -28,7 +28,12 @@ from skin.commands.demo import demo_scene
 from skin.commands.view import moment_view, title
 from skin.commands.view.layout import Layout
 from skin.commands.view.plot import moment_picture
-from skin.commands.view.sources import recorded_resistances, recorded_samples, recording_times
+from skin.commands.view.sources import (
+    force_specs,
+    recorded_resistances,
+    recorded_samples,
+    recording_times,
+)
 
 CYCLES = 80
 
@@ -53,10 +58,19 @@ def _void(sample: object) -> bool:
 
 
 def test_the_reader_gets_every_published_sample_of_the_run_bit_for_bit(run: HostRun) -> None:
-    samples = recorded_samples(run.path)
+    samples = recorded_samples(run.path, specs=force_specs(run.config))
+    by_bus = recorded_samples(run.path)  # no config: what the bus shows names each node
     for patch in (1, 2):
+        told = [s for s in samples if s.patch == patch]
+        seen = [s for s in by_bus if s.patch == patch]
+        # named by its heartbeat and its first whole set of default PDOs, that sample
+        # included: every sample, the same as a reader told the config reads
+        assert [s.timestamp for s in seen] == [s.timestamp for s in told]
+        for a, b in zip(seen, told, strict=True):
+            np.testing.assert_array_equal(a.force_N, b.force_N)
+            np.testing.assert_array_equal(a.valid, b.valid)
         want = _published(run, patch)
-        got = [s for s in samples if s.patch == patch]
+        got = told
         assert len(got) >= len(want) >= CYCLES
         assert sum(map(_void, got)) - sum(map(_void, want)) == len(got) - len(want)
         want = [f for f in want if not _void(f)]
@@ -205,7 +219,8 @@ def test_the_view_reads_a_live_bus(run: HostRun, tmp_path: Path,
     record = tmp_path / "bus.json"
     code: list[int] = []
     runner = threading.Thread(target=lambda: code.append(main(
-        ["view", "-c", "view-live-bus", "--seconds", "2.5", "--json", str(record)])))
+        ["view", "-i", "virtual", "-c", "view-live-bus", "--seconds", "2.5", "--json",
+         str(record)])))
     runner.start()
     try:
         until(lambda: "view-live-bus" in can.interfaces.virtual.channels, "the view's bus")
@@ -215,5 +230,5 @@ def test_the_view_reads_a_live_bus(run: HostRun, tmp_path: Path,
         runner.join(15.0)
     assert not runner.is_alive() and code == [0]
     figures = json.loads(record.read_text())
-    assert figures["source"] == "virtual:view-live-bus"
+    assert figures["source"] == "virtual:view-live-bus (from -i)"
     assert figures["samples"] == len(recorded_samples(run.path))

@@ -77,7 +77,7 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--sdo-timeout", type=argtypes.seconds, default=1.0, metavar="S",
                         help="SDO response time-out for --write-node (default 1 s)")
     argtypes.add_bus_arguments(parser)
-    parser.set_defaults(func=_run, interface="virtual")
+    parser.set_defaults(func=_run)
 
 
 def _nodes(meta: dict[str, Any], patches: int) -> list[int]:
@@ -200,8 +200,7 @@ def _write_fit(args: argparse.Namespace, found: dict[str, Any], cal: Any, tare: 
     written = 0
     if args.write_node and tare is not None:
         written = write_rest_to_node(args, node, tare.rest_ohm)
-        print(f"wrote {written} rest values to patch {node}'s 0x2002 on "
-              f"{args.interface}:{args.channel}"
+        print(f"wrote {written} rest values to patch {node}'s 0x2002 on {args.described}"
               f"{' and saved them (0x1010)' if args.store else ''}; an active host reads "
               "them when it next configures the patch")
     if not args.config_snippet:
@@ -284,9 +283,14 @@ def _check(args: argparse.Namespace) -> int:
     else:
         verdict, code = "does not fit: recalibrate", RECALIBRATE
     own_pct = own["heldout_floored_pct"]
-    print(f"{args.check} on patch {node} of {args.dataset} ({r.shape[0]} samples): floored "
-          f"{_fmt(now['floored_pct'])} % (its own held-out {own_pct:.3f} %, limit "
-          f"{limit:.3f} %), refused {now['flagged_pct']:.2f} %")
+    where = f"patch {node} of {args.dataset} ({r.shape[0]} samples)"
+    if now["flagged_pct"] >= 100.0:
+        print(f"{args.check} refused every taxel of {where}: no result, its error covers "
+              f"nothing (its own held-out {own_pct:.3f} %, limit {limit:.3f} %)")
+    else:
+        print(f"{args.check} on {where}: floored {_fmt(now['floored_pct'])} % over "
+              f"{100 - now['flagged_pct']:.2f} % of the taxels (its own held-out "
+              f"{own_pct:.3f} %, limit {limit:.3f} %), refused {now['flagged_pct']:.2f} %")
     if retared is not None and tare is not None:
         _print_retared(tare, rest, retared)
     print(f"{args.check} {verdict}")
@@ -306,10 +310,11 @@ def _check_figures(f: Any, decoded: Any, mode: str, constants: Any, limit: float
 
     e = evaluate(f, decoded.force_N, decoded.valid, mode=mode, constants=constants)
     flagged = float(1.0 - decoded.valid.mean())
-    floored = e.ave_rel_err_floored_pct if e.floored else math.nan  # none compared
+    floored = e.ave_rel_err_floored_pct  # NaN when nothing was compared: never fits
     fits = floored <= limit and 100 * flagged <= max(1.0, 2 * own_flagged_pct)
     return {"floored_pct": floored, "ave_rel_err_pct": e.ave_rel_err_pct,
-            "rmse_N": e.rmse_N, "flagged_pct": 100 * flagged, "fits": bool(fits)}
+            "rmse_N": e.rmse_N, "flagged_pct": 100 * flagged,
+            "covered_pct": 100 * e.covered_share, "fits": bool(fits)}
 
 
 def _print_retared(tare: Any, rest: Any, retared: dict[str, Any]) -> None:
@@ -318,4 +323,5 @@ def _print_retared(tare: Any, rest: Any, retared: dict[str, Any]) -> None:
     drift = 100.0 * (np.asarray(tare.rest_ohm) / np.asarray(rest) - 1.0)
     print(f"after a tare on its {tare.samples} samples at rest (rest moved "
           f"{np.min(drift):+.3f}..{np.max(drift):+.3f} %): floored "
-          f"{_fmt(retared['floored_pct'])} %, refused {retared['flagged_pct']:.2f} %")
+          f"{_fmt(retared['floored_pct'])} % over {100 - retared['flagged_pct']:.2f} % of the "
+          f"taxels, refused {retared['flagged_pct']:.2f} %")

@@ -140,14 +140,14 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
 
     from canbus.od import load_od
     from canbus.patch_constants import encode_si
-    from skin.commands.common.busargs import default_channel
-    from skin.commands.common.busopen import open_bus
+    from skin.commands.common.busopen import open_command_bus
     from skin.errors import BusError, ConfigError
 
     rest = np.asarray(rest_ohm, dtype=np.float64)
-    default_channel(args)
+    bus, described = open_command_bus(args, command="skin calibrate --write-node", sends=True)
+    args.described = described
     written = 0
-    with open_bus(args) as bus:
+    with bus:
         network = canopen.Network(bus)
         network.connect()
         try:
@@ -167,8 +167,8 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
                                        f"{rest[taxel, pillar]:g} ohm: abort 0x{err.code:08X} "
                                        f"({err})") from err
                     except SdoCommunicationError as err:
-                        raise BusError(f"patch {node_id} did not answer on "
-                                       f"{args.interface}:{args.channel}: {err}") from err
+                        raise BusError(f"patch {node_id} did not answer on {described}: "
+                                       f"{err}") from err
                     written += 1
             if getattr(args, "store", False):
                 _save_manufacturer_parameters(node, node_id)

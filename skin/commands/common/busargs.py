@@ -11,15 +11,9 @@ if TYPE_CHECKING:
 from skin.commands.common import argtypes
 
 DEFAULT_CHANNELS = {"virtual": "skin", "timed": "skin", "udp_multicast": "239.74.163.2"}
-"""The channel every command uses when none is given, so that they meet on the same bus
+"""The channel every command uses when none is given (and python-can's configuration names
+none for the interface: ``skin.commands.busopen``), so that they meet on the same bus
 without ``-c`` (udp_multicast: python-can's IPv4 default group)."""
-
-
-def default_channel(args: argparse.Namespace) -> None:
-    """Set ``args.channel`` to :data:`DEFAULT_CHANNELS`' when none was given; other
-    interfaces keep python-can's own default (its configuration, or the driver's)."""
-    if not hasattr(args, "channel") and getattr(args, "interface", None) in DEFAULT_CHANNELS:
-        args.channel = DEFAULT_CHANNELS[args.interface]
 
 
 def add_rcvbuf_argument(parser: argparse.ArgumentParser) -> None:

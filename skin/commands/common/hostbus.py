@@ -45,12 +45,12 @@ def resolve(config: HostConfig, args: argparse.Namespace) -> HostConfig:
     bus = with_flags(config.buses[0], flags)
     if bus.interface is None and configured_interface() is None:
         raise BusError(f"no bus: {config.source} names none; {BUS_WAYS}")
-    if bus.channel is None and bus.interface in ("virtual", "udp_multicast", "timed"):
-        from skin.commands.common.busargs import default_channel
+    if bus.channel is None and bus.interface is not None:
+        from skin.commands.common.busopen import default_channel_for
 
-        namespace = argparse.Namespace(interface=bus.interface)
-        default_channel(namespace)
-        bus = replace(bus, channel=namespace.channel)
+        channel = default_channel_for(bus.interface)  # python-can's, else canskin's
+        if channel is not None:
+            bus = replace(bus, channel=channel)
     if bus.interface in ("virtual", "timed"):
         logger.warning("bus %s: %s reaches only this process; use udp_multicast to meet "
                        "patches in another process", bus.name, bus.interface)

@@ -58,16 +58,14 @@ class Capture:
 
 
 def _sniff(args: argparse.Namespace) -> int:
-    from functools import partial
-
-    from canbus.busio import ResilientBus
-    from canbus.tools.pdo_names import Dictionary, parse_assignment
-    from canbus.tools.recorder import check_channel_name, enlarge_receive_buffer, recording_format
+    from canbus.tools.attribution import Attribution
+    from canbus.tools.pdo_dictionary import Dictionary, parse_assignment
+    from canbus.tools.recorder import check_channel_name, recording_format
     from canbus.tools.services import ServiceDecoder
     from canbus.tools.sniffer import FrameFilter, Sniffer
-    from skin.commands.common.busargs import default_channel
-    from skin.commands.common.busopen import open_bus
+    from skin.commands.common.busopen import open_command_bus
     from skin.commands.common.logs import held_back
+    from skin.commands.common.tool_config import config_nodes, tool_config
     from skin.errors import BusError, ConfigError
 
     if args.record:
@@ -81,11 +79,13 @@ def _sniff(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         if value is not None and not value > 0:
             raise ConfigError(f"--{name.replace('_', '-')}", f"must be positive, got {value}")
-    assignments: dict[int, str] = {}
+    assignments: dict[int, str | None] = {}
     with held_back("canopen"):
         for text in args.eds:
             assignments |= parse_assignment(text)
-    decoder = ServiceDecoder(Dictionary(assignments))
+    config = tool_config(args)
+    decoder = ServiceDecoder(attribution=Attribution(Dictionary(assignments),
+                                                     config_nodes(config, args)))
     shown = FrameFilter(args.node, args.service)
     view = args.view or ("live" if sys.stdout.isatty() else "lines")
     stats = ViewStats()
@@ -93,19 +93,20 @@ def _sniff(args: argparse.Namespace) -> int:
     sniffer = Sniffer(decoder, bitrate=getattr(args, "bitrate", None) or 1_000_000,
                       data_bitrate=getattr(args, "data_bitrate", None),
                       on_frame=printer.on_frame if printer is not None else None)
-    default_channel(args)
     switch = sys.getswitchinterval()
     try:
         sys.setswitchinterval(min(switch, _SWITCH_S))
-        # What recv raises is survived; a bus that keeps failing is opened again (busio).
-        with ResilientBus(partial(open_bus, args), name=f"{args.interface}:{args.channel}",
-                          prepare=partial(enlarge_receive_buffer, size=args.rcvbuf)
-                          if args.rcvbuf else None) as bus:
+        bus, args.described = open_command_bus(  # lines mode: stdout is the frames
+            args, command="skin sniff", config=config, sends=args.ask_by_sdo,
+            out=sys.stderr if view == "lines" else sys.stdout, resilient=True,
+            rcvbuf=args.rcvbuf)
+        with bus:  # what recv raises is survived; a bus that keeps failing is opened again
             capture = _capture(bus, sniffer, shown, printer, stats, view, args)
             capture.receive = bus.stats.as_dict()
     finally:
         sys.setswitchinterval(switch)
-    _report(sniffer.snapshot(), capture, stats, view, args)
+    _report(sniffer.snapshot(), capture, stats, view, args,
+            sniffer.decoder.attribution.silent_nodes())
     if capture.error is not None:
         raise BusError(f"receiving stopped: {capture.error}") from capture.error
     return 0
@@ -119,22 +120,27 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
     from canbus.receiveloop import ReceiveLoop
     from canbus.tools.recorder import Recorder, log_channel_name
     from skin.commands.common.signals import until_stopped
+    from skin.commands.common.tool_config import asking
 
-    name = args.channel_name or log_channel_name(args.channel)
-    header = f"skin sniff {args.interface}:{args.channel}" + \
-        (f" → {args.record}" if args.record else "")
+    name = args.channel_name or log_channel_name(getattr(args, "channel", None))
+    header = f"skin sniff {args.described}" + (f" → {args.record}" if args.record else "")
     started, cpu = time.monotonic(), time.process_time()
     recorder: Recorder | None = None
     notifier: ReceiveLoop | None = None
     try:
-        with until_stopped() as stopped:  # Ctrl-C is how a sniffer is meant to end
+        with until_stopped() as stopped, contextlib.ExitStack() as stack:  # Ctrl-C: the end
             if args.record:
                 recorder = Recorder(args.record, channel=name, rotate_bytes=args.rotate_size,
                                     rotate_s=args.rotate_seconds)
             listeners: list[can.Listener] = [sniffer] if recorder is None else \
                 [recorder, sniffer]
-            notifier = ReceiveLoop(bus, listeners, timeout=_TICK_S,
-                                   name=f"{args.interface}:{args.channel}")
+            asker = asking(bus, sniffer.decoder.attribution, args)
+            if asker is not None:
+                listeners.append(asker.listener)
+            notifier = ReceiveLoop(bus, listeners, timeout=_TICK_S, name=args.described)
+            if asker is not None:
+                stack.callback(asker.stop)
+                asker.start()
             if printer is not None:
                 printer.start()
             logger.info("capturing %s; Ctrl-C stops", header)  # receiving from here on
@@ -157,12 +163,16 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
 
 
 def _report(snap: Snapshot, capture: Capture, stats: ViewStats, view: str,
-            args: argparse.Namespace) -> None:
+            args: argparse.Namespace, silent: list[int]) -> None:
     from skin.atomic import atomic_write
 
     out = sys.stderr if view == "lines" else sys.stdout  # lines mode: stdout is the frames
     for line in summary_lines(snap, capture.seconds, stats):
         print(line, file=out)
+    if silent and snap.anomalies.unattributed_frames:
+        print(f"node{'s' if len(silent) > 1 else ''} {', '.join(map(str, silent))}: heartbeat "
+              "seen, no PDO known to be theirs (remapped where this bus did not show it, or "
+              "not sending)", file=out)
     if capture.saved is not None:
         where = str(capture.saved) if len(capture.files) == 1 else \
             f"{capture.files[0]} .. {capture.files[-1]} ({len(capture.files)} files)"
@@ -173,7 +183,8 @@ def _report(snap: Snapshot, capture: Capture, stats: ViewStats, view: str,
             "recording": None if capture.saved is None else
             {"path": str(capture.saved), "frames": capture.recorded,
              "files": [str(p) for p in capture.files]},
-            "stopped_by": capture.stopped_by, "receive": capture.receive,
+            "stopped_by": capture.stopped_by, "silent_nodes": silent,
+            "receive": capture.receive,
             "view": {"mode": view, "redraws": stats.redraws,
                      "redraws_skipped": stats.redraws_skipped, "lines": stats.lines,
                      "lines_dropped": stats.lines_dropped}}
@@ -230,6 +241,7 @@ def _watch(notifier: can.Notifier, recorder: Recorder | None, printer: LinePrint
 
 def add_subparser(subparsers: Any) -> None:
     from skin.commands.common.busargs import add_rcvbuf_argument
+    from skin.commands.common.tool_config import add_config_arguments
 
     parser = subparsers.add_parser(
         "sniff", help="live, EDS-aware bus view; --record to .log/.asc/.blf/.pcap",
@@ -266,5 +278,6 @@ def add_subparser(subparsers: Any) -> None:
     add_rcvbuf_argument(parser)
     parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
                         help="write the summary as JSON")
+    add_config_arguments(parser)
     argtypes.add_bus_arguments(parser, filter_arg=True)
-    parser.set_defaults(func=_sniff, interface="virtual")
+    parser.set_defaults(func=_sniff)

@@ -83,12 +83,11 @@ class LinePrinter:
 
         texts = [d.text if d is not None else None for _, _, d in batch]
         labels = [d.label if d is not None else w.label for _, w, d in batch]
-        groups: dict[int, list[int]] = {}
+        groups: dict[tuple[int, int | None], list[int]] = {}
         for k, (msg, where, decoded) in enumerate(batch):
             if decoded is None and where.service is Service.PDO:
-                groups.setdefault(msg.arbitration_id, []).append(k)
-        for cob_id, ks in groups.items():
-            node = batch[ks[0]][1].node
+                groups.setdefault((msg.arbitration_id, where.node), []).append(k)
+        for (cob_id, node), ks in groups.items():  # the node the frame was attributed to
             view = self.decoder.dictionary.view(node) if node is not None else None
             described = self.decoder.describe_pdos(
                 cob_id, [bytes(batch[k][0].data) for k in ks], view)
@@ -131,10 +130,12 @@ def render(snap: Snapshot, decoder: ServiceDecoder, shown: FrameFilter, stats: V
     anomalies = Text(f"missed SYNC {a.missed_sync}  incomplete samples {a.incomplete_samples}"
                      f"/{a.incomplete_samples + a.complete_samples}  heartbeat gaps "
                      f"{a.heartbeat_gaps}  unknown {a.unknown_frames} "
-                     f"({len(a.unknown_cob_ids)} ids)  error frames {a.error_frames}",
+                     f"({len(a.unknown_cob_ids)} ids)  unattributed {a.unattributed_frames} "
+                     f"({len(a.unattributed_cob_ids)} ids)  error frames {a.error_frames}",
                      style="yellow" if any((a.missed_sync, a.incomplete_samples,
                                             a.heartbeat_gaps, a.unknown_frames,
-                                            a.error_frames)) else "green")
+                                            a.unattributed_frames, a.error_frames))
+                     else "green")
     states = "  ".join(f"{decoder.node_label(n)}: {s}" for n, s in sorted(snap.states.items()))
     start = snap.first or 0.0
     events = [Text(f"{e.timestamp - start:9.3f} {e.cob_id:03X} {e.label:<9} "
@@ -196,6 +197,18 @@ def summary_lines(snap: Snapshot, seconds: float, stats: ViewStats) -> list[str]
         f"of {a.incomplete_samples + a.complete_samples}, heartbeat gaps {a.heartbeat_gaps}, "
         f"unknown frames {a.unknown_frames}{f' ({unknown})' if unknown else ''}, "
         f"error frames {a.error_frames}",
+        *unattributed_lines(a.unattributed_frames, a.unattributed_cob_ids),
         f"view: {stats.redraws} redraws ({stats.redraws_skipped} skipped), "
         f"{stats.lines:,} lines ({stats.lines_dropped:,} dropped)",
     ]
+
+
+def unattributed_lines(frames: int, cob_ids: tuple[int, ...]) -> list[str]:
+    """What to say of PDOs no node is known to send (empty when there are none)."""
+    if not frames:
+        return []
+    from canbus.tools.attribution import cob_ranges
+
+    return [f"unattributed PDOs: {frames:,} frames on {cob_ranges(cob_ids)}: no node is "
+            "known to send them, so they are shown as bytes; give the host's --config "
+            "HOST.toml (or --ask-by-sdo on a live bus) to name them"]

@@ -84,6 +84,9 @@ def _check(args: argparse.Namespace) -> None:
         raise ConfigError("--patch", f"must be a node-ID in 1..127, got {args.patch}")
     if args.decode and not args.config:
         raise ConfigError("--decode", "needs --config host.toml (the patches to decode)")
+    if args.ask_by_sdo and (args.file or args.decode or args.zenoh is not None):
+        raise ConfigError("--ask-by-sdo", "asks the force nodes on a live bus: not with a "
+                          "recording FILE, --decode or --zenoh")
     if args.scene and args.config:
         raise ConfigError("--scene", "give the layout by --scene or by --config, not both")
     if args.mp4 or args.gif:
@@ -178,27 +181,21 @@ def moment_view(path: str, t: float, layout: Layout, scale_N: float, *,
 
 
 def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) -> int:
-    from functools import partial
-
-    from canbus.busio import ResilientBus
-    from canbus.tools.recorder import enlarge_receive_buffer
-    from skin.commands.common.busargs import default_channel
-    from skin.commands.common.busopen import open_bus
+    from skin.commands.common.busopen import open_command_bus
+    from skin.commands.common.tool_config import asking
     from skin.commands.view.sources import BusDecode, BusForces, force_specs
 
-    default_channel(args)
     seconds = args.seconds
     if seconds is None and args.snapshot:
         seconds = SNAPSHOT_SECONDS
     # opened again when it keeps failing (canbus.busio); the first open's failure is
     # BusError "cannot open the bus IFACE:CHANNEL: ..." in one line
-    bus = ResilientBus(partial(open_bus, args), name=f"{args.interface}:{args.channel}",
-                       prepare=partial(enlarge_receive_buffer, size=args.rcvbuf)
-                       if args.rcvbuf else None)
+    bus, where = open_command_bus(args, command="skin view", config=config,
+                                  sends=args.ask_by_sdo, resilient=True, rcvbuf=args.rcvbuf)
     with bus:
         source: BusForces | BusDecode = BusDecode(bus, config) if args.decode and config \
-            else BusForces(bus, force_specs(config))
-        where = f"{args.interface}:{args.channel}"
+            else BusForces(bus, force_specs(config),
+                           lambda reader: asking(bus, reader.attribution, args))
         return _live(args, source, layout, seconds, where, lambda view, started:
                      f"{time.monotonic() - started:5.1f} s")
 
@@ -282,6 +279,10 @@ def _report(args: argparse.Namespace, view: SkinView, figures: dict[str, Any], e
               f"{p['complete_pct']:.0f} % complete in the last second")
     if stats is not None and stats.redraws:
         print(f"view: {stats.redraws} redraws ({stats.redraws_skipped} skipped)")
+    if figures.get("unattributed"):
+        from skin.commands.view.sources import warn_unattributed
+
+        warn_unattributed(where, {int(c, 16): n for c, n in figures["unattributed"].items()})
     if args.json:
         record = {"source": where, "decode": bool(args.decode), "seconds": round(elapsed, 3),
                   "scale_N": args.scale, "samples": samples, "incomplete": incomplete,
@@ -373,24 +374,34 @@ def _trace(args: argparse.Namespace, config: HostConfig | None, times: Recording
     import numpy as np
 
     from skin.commands.view.plot import save_trace
-    from skin.commands.view.sources import force_specs, recorded_resistances, recorded_samples
+    from skin.commands.view.sources import (
+        force_specs,
+        recorded_resistances,
+        recorded_samples,
+        unattributed_text,
+        warn_unattributed,
+    )
     from skin.errors import ConfigError
 
     begin = _at(args, times, args.start or 0.0, "--from")
     end = _at(args, times, args.end, "--to")
+    unattributed: dict[int, int] = {}
     samples = [s for s in recorded_samples(args.file, until=end, specs=force_specs(config),
-                                           decode=config if args.decode else None)
+                                           decode=config if args.decode else None,
+                                           unattributed=unattributed)
                if s.patch == args.patch and s.timestamp >= begin]
     if not samples:
         raise ConfigError("--patch", f"patch {args.patch} has no force sample in {args.file} "
-                          f"between {begin - times.first:g} and {end - times.first:g} s")
+                          f"between {begin - times.first:g} and {end - times.first:g} s"
+                          + (f"; {unattributed_text(unattributed)}" if unattributed else ""))
+    warn_unattributed(args.file, unattributed)
     t = [s.timestamp - times.first for s in samples]
     force = np.array([s.force_N[args.taxel] for s in samples])
     valid = np.array([bool(s.valid[args.taxel]) for s in samples])
     raw_t, raw = None, None
     if args.raw:
-        raws = [r for r in recorded_resistances(args.file, args.patch, until=end)
-                if r.timestamp >= begin]
+        raws = [r for r in recorded_resistances(args.file, args.patch, until=end,
+                                                config=config) if r.timestamp >= begin]
         if not raws:
             raise ConfigError("--raw", f"patch {args.patch} sent no resistance PDO in "
                               f"{args.file} in that span")
@@ -421,6 +432,7 @@ _OUT = argtypes.output_file
 
 def add_subparser(subparsers: Any) -> None:
     from skin.commands.common.busargs import add_rcvbuf_argument
+    from skin.commands.common.tool_config import add_config_arguments
 
     parser = subparsers.add_parser(
         "view", help="every patch's taxels at its place: live, or pictures of a recording",
@@ -461,8 +473,9 @@ def add_subparser(subparsers: Any) -> None:
 
     add_zenoh_arguments(parser)
     add_rcvbuf_argument(parser)
+    add_config_arguments(parser, config=False)
     argtypes.add_bus_arguments(parser)
-    parser.set_defaults(func=_view, interface="virtual")
+    parser.set_defaults(func=_view)
 
 
 def _add_picture_arguments(parser: argparse.ArgumentParser) -> None:

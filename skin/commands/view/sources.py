@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig
     from canbus.tools.forcereader import ForceNodeSpec, ForceReader
+    from canbus.tools.pdo_query import PdoAsker
     from canbus.tools.resistance_reader import ResistanceSample
     from canbus.tools.sample_tracker import SampleLike
     from skin.commands.view.term import SkinView
@@ -39,7 +40,8 @@ def force_specs(config: HostConfig | None) -> list[ForceNodeSpec] | None:
 
     if config is None:
         return None
-    return [ForceNodeSpec(p.force_node, p.node_id, p.force_cob_ids) for p in config.patches]
+    return [ForceNodeSpec(p.force_node, p.node_id, p.force_cob_ids, known=True)
+            for p in config.patches]
 
 
 class LiveSource(Protocol):
@@ -52,11 +54,13 @@ class LiveSource(Protocol):
 class BusForces:
     """The force nodes' TPDOs on ``bus``, read as any master reads them."""
 
-    def __init__(self, bus: can.BusABC, specs: list[ForceNodeSpec] | None) -> None:
+    def __init__(self, bus: can.BusABC, specs: list[ForceNodeSpec] | None,
+                 asker: Callable[[ForceReader], PdoAsker | None] | None = None) -> None:
         from canbus.tools.forcereader import ForceReader
 
         self.bus = bus
         self.reader: ForceReader = ForceReader(specs)
+        self.asker = asker(self.reader) if asker is not None else None
         self._notifier: can.Notifier | None = None
 
     def start(self, view: SkinView) -> None:
@@ -64,9 +68,16 @@ class BusForces:
 
         self.reader.on_sample(view.update)
         self.reader.start()
-        self._notifier = ReceiveLoop(self.bus, [self.reader], timeout=0.05)
+        listeners: list[can.Listener] = [self.reader]
+        if self.asker is not None:
+            listeners.append(self.asker.listener)
+        self._notifier = ReceiveLoop(self.bus, listeners, timeout=0.05)
+        if self.asker is not None:
+            self.asker.start()
 
     def stop(self) -> None:
+        if self.asker is not None:
+            self.asker.stop()
         if self._notifier is not None:
             self._notifier.stop()  # stops the reader too: what arrived is processed
         self.reader.stop()
@@ -80,7 +91,8 @@ class BusForces:
     def figures(self) -> dict[str, Any]:
         r = self.reader
         return {"frames": r.received, "force_pdos": r.frames, "malformed": r.malformed,
-                "samples": r.samples, "syncs": r.syncs}
+                "samples": r.samples, "syncs": r.syncs,
+                "unattributed": {f"0x{cob:03X}": n for cob, n in sorted(r.unattributed.items())}}
 
 
 class BusDecode:
@@ -100,7 +112,7 @@ class BusDecode:
 
     def received(self) -> int:
         stats = self.host.dataplane.stats
-        return stats.frames_in + stats.unknown_frames
+        return stats.frames_in + stats.unknown_frames + stats.bus_frames
 
     def error(self) -> BaseException | None:
         notifier = self.host.network.notifier
@@ -228,12 +240,15 @@ def _messages(path: str | os.PathLike[str], until: float | None) -> Iterator[can
 
 def recorded_samples(path: str | os.PathLike[str], *, until: float | None = None,
                      specs: list[ForceNodeSpec] | None = None,
-                     decode: HostConfig | None = None) -> list[SampleLike]:
+                     decode: HostConfig | None = None,
+                     unattributed: dict[int, int] | None = None) -> list[SampleLike]:
     """Every force sample of a recording up to bus time ``until``, in time order.
 
     From the force nodes' PDOs (a sample is there once its last PDO is, at or before
     ``until``), or with ``decode`` a host config, from the patches' PDOs decoded by a
-    listen-only host (the cycles whose SYNC is at or before ``until``).
+    listen-only host (the cycles whose SYNC is at or before ``until``). The frames no
+    force node is known to send go to ``unattributed`` (COB-ID -> frames), or, without
+    it, into one warning.
     """
     if decode is not None:
         return _decoded(path, until, decode)
@@ -244,7 +259,30 @@ def recorded_samples(path: str | os.PathLike[str], *, until: float | None = None
     reader.on_sample(samples.append)
     reader.feed(_messages(path, until))
     samples.sort(key=lambda s: s.timestamp)
+    if unattributed is None:
+        warn_unattributed(os.fspath(path), reader.unattributed)
+    else:
+        unattributed.update(reader.unattributed)
     return samples
+
+
+def warn_unattributed(where: str, unattributed: dict[int, int]) -> None:
+    """One line naming the force PDOs no node is known to send (left out, not guessed)."""
+    if unattributed:
+        import logging
+
+        logging.getLogger("skin.commands").warning("%s: %s", where,
+                                                   unattributed_text(unattributed))
+
+
+def unattributed_text(unattributed: dict[int, int]) -> str:
+    from canbus.tools.attribution import cob_ranges
+
+    return (f"{sum(unattributed.values())} frames on {cob_ranges(list(unattributed))} came "
+            "from no node known, when they came, to send them (a force node is known by "
+            "--config, by an SDO transfer, or once its heartbeat and its whole set of default "
+            "PDOs are seen together): left out, not guessed; give the host's --config "
+            "HOST.toml (or --ask-by-sdo on a live bus) to read them")
 
 
 def _decoded(path: str | os.PathLike[str], until: float | None,
@@ -288,11 +326,17 @@ def _decoded(path: str | os.PathLike[str], until: float | None,
 
 
 def recorded_resistances(path: str | os.PathLike[str], patch: int, *,
-                         until: float | None = None) -> list[ResistanceSample]:
+                         until: float | None = None,
+                         config: HostConfig | None = None) -> list[ResistanceSample]:
     """Patch ``patch``'s raw resistances (its own TPDOs) in a recording, in time order."""
     from canbus.tools.resistance_reader import ResistanceReader
 
-    reader = ResistanceReader([patch])
+    known = []
+    if config is not None and any(p.node_id == patch for p in config.patches):
+        from skin.commands.common.known_nodes import patch_node
+
+        known = [patch_node(config, config.patch(patch))]
+    reader = ResistanceReader([patch], known=known)
     samples: list[ResistanceSample] = []
     reader.on_sample(samples.append)
     reader.feed(_messages(path, until))
