@@ -81,7 +81,7 @@ def _one_recording(start: Callable[..., Child], run: int, bus: list[str], truth:
                    samples: int, timeout: float) -> None:
     """runN.log by ``skin sniff`` while ``skin sim run`` answers ``samples`` SYNCs."""
     sniff = start(f"sniff{run}", "sniff", "--record", f"run{run}.log", "--view", "none", *bus)
-    sniff.wait_for("Ctrl-C stops", stream="stderr", timeout=60)
+    sniff.wait_for("Ctrl-C stops", timeout=60)  # --view none: on stdout
     sim = start(f"sim{run}", "sim", "run", SCENE, "--truth", truth.name, "--seed", str(run),
                 *bus)
     wait_until(lambda: _truth_samples(truth) >= samples or not sim.running(),

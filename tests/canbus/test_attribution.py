@@ -10,7 +10,6 @@ sniffer's line printer and by the force reader, with the config and without it.
 from __future__ import annotations
 
 import io
-import time
 from dataclasses import replace
 
 import can
@@ -20,6 +19,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from bench.rigs.waiting import wait_until
 from canbus.master.cobids import predefined_tpdo_cob_ids, restricted
 from canbus.master.hostconfig import HostConfig, PatchConfig, load_host_config
 from canbus.tools.attribution import Attribution, KnownNode, cob_ranges
@@ -263,17 +263,13 @@ def test_asked_by_sdo_a_force_node_names_its_own_pdos() -> None:
             asker = PdoAsker(bus, decoder.attribution, timeout_s=1.0)
             notifier = can.Notifier(bus, [sniffer, asker.listener], timeout=0.05)
             try:
-                deadline = time.monotonic() + 10
-                while 100 not in decoder.attribution.alive:
-                    assert time.monotonic() < deadline, "no heartbeat of node 100"
-                    time.sleep(0.01)
+                wait_until(lambda: 100 in decoder.attribution.alive,
+                           what="a heartbeat of node 100")
                 assert decoder.attribution.owner(0x1E0) is None  # not known yet
                 assert asker.due() == [100]
                 assert asker.ask(100) == "answered"
-                deadline = time.monotonic() + 5
-                while decoder.attribution.owner(0x1E6) is None:
-                    assert time.monotonic() < deadline, "the answers were not followed"
-                    time.sleep(0.01)
+                wait_until(lambda: decoder.attribution.owner(0x1E6) is not None,
+                           what="the answers followed")
             finally:
                 notifier.stop()
     finally:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import re
 import threading
-import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import canopen
 import numpy as np
 import pytest
 
+from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
@@ -86,10 +86,8 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
             host.start()
             try:
                 assert host.wait_operational(timeout=15.0), host.health()
-                deadline = time.monotonic() + 20
-                while sum(f.patch == 3 and f.complete for f in frames) < CYCLES:
-                    assert time.monotonic() < deadline, "the host published too little"
-                    time.sleep(0.01)
+                wait_until(lambda: sum(f.patch == 3 and f.complete for f in frames) >= CYCLES,
+                           what=f"{CYCLES} complete samples of patch 3")
             finally:
                 host.stop()
     finally:
@@ -106,10 +104,8 @@ def _sniff_lines(run: Run, *extra: str) -> list[str]:
     out = run.path.parent / f"lines{len(extra)}.txt"
 
     def replay() -> None:
-        deadline = time.monotonic() + 20
-        while channel not in can.interfaces.virtual.channels:
-            assert time.monotonic() < deadline
-            time.sleep(0.01)
+        wait_until(lambda: channel in can.interfaces.virtual.channels,
+                   what="skin sniff on the bus")
         with can.Bus(interface="virtual", channel=channel) as sender:
             Replayer(sender, run.path, realtime=False).run()
 

@@ -35,14 +35,18 @@ def test_no_bus_anywhere_is_one_line_not_an_empty_bus(argv: list[str], tmp_path:
     assert "python-can's configuration" in err and err.count("\n") == 1
 
 
+GROUP = "239.74.1.9"  # no socket: a channel name the bus choice reports, never opened
+OTHER_GROUP = "239.74.1.10"  # no socket: as GROUP
+DEFAULT_GROUP = "239.74.163.2"  # no socket: canskin's default channel, as the config names it
+
 def test_python_can_s_configuration_is_a_default(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("CAN_INTERFACE", "udp_multicast")
-    monkeypatch.setenv("CAN_CHANNEL", "239.74.1.9")
+    monkeypatch.setenv("CAN_CHANNEL", GROUP)
     args = argparse.Namespace()
     assert choose_bus(args, command="skin sniff") == \
-        "udp_multicast:239.74.1.9 (from python-can's configuration)"
+        f"udp_multicast:{GROUP} (from python-can's configuration)"
     given = argparse.Namespace(interface="udp_multicast")  # -i, and the config's channel
-    assert choose_bus(given, command="x") == "udp_multicast:239.74.1.9 (from -i)"
+    assert choose_bus(given, command="x") == f"udp_multicast:{GROUP} (from -i)"
     other = argparse.Namespace(interface="virtual")  # another interface: canskin's channel
     assert choose_bus(other, command="x") == "virtual:skin (from -i)"
 
@@ -109,10 +113,9 @@ def test_skin_run_takes_the_same_channel_default(monkeypatch: pytest.MonkeyPatch
 
     path = tmp_path / "h.toml"
     path.write_text("[[patches]]\nnode_id = 1\n", encoding="utf-8")
-    monkeypatch.setenv("CAN_CHANNEL", "239.74.1.10")
+    monkeypatch.setenv("CAN_CHANNEL", OTHER_GROUP)
     config = resolve(load_host_config(path), argparse.Namespace(interface="udp_multicast"))
-    assert (config.buses[0].interface, config.buses[0].channel) == ("udp_multicast",
-                                                                     "239.74.1.10")
+    assert (config.buses[0].interface, config.buses[0].channel) == ("udp_multicast", OTHER_GROUP)
     monkeypatch.delenv("CAN_CHANNEL")
     config = resolve(load_host_config(path), argparse.Namespace(interface="udp_multicast"))
-    assert config.buses[0].channel == "239.74.163.2"
+    assert config.buses[0].channel == DEFAULT_GROUP

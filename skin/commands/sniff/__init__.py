@@ -143,7 +143,9 @@ def _capture(bus: can.BusABC, sniffer: Sniffer, shown: FrameFilter,
                 asker.start()
             if printer is not None:
                 printer.start()
-            logger.info("capturing %s; Ctrl-C stops", header)  # receiving from here on
+            # receiving from here on; beside the bus's line (stderr when stdout is the frames)
+            print(f"capturing {header}; Ctrl-C stops", flush=True,
+                  file=sys.stderr if view == "lines" else sys.stdout)
             _watch(notifier, recorder, printer, sniffer, shown, stats, view, header, args,
                    started)
     finally:
