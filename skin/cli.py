@@ -24,7 +24,7 @@ from skin import __version__
 from skin.commands.common.argtypes import OneLineParser
 from skin.commands.common.logs import add_logging_arguments, configured_logging
 from skin.commands.common.signals import stop_signal_name, stop_signals_interrupt
-from skin.errors import SkinError
+from skin.errors import SkinError, printable_line
 
 SUBCOMMANDS = (
     "sim", "model", "train", "eval", "bench", "plan", "eds", "run", "demo", "sniff", "replay",
@@ -96,7 +96,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def one_line(err: BaseException) -> str:
     """The error's message on one line."""
-    return " ".join(str(err).split()) or type(err).__name__
+    return printable_line(str(err)) or type(err).__name__
 
 
 if __name__ == "__main__":

@@ -82,3 +82,13 @@ class ReferenceFileError(SkinError, ValueError):
         self.problem = problem
         where = f"{source}: row {row}" if row is not None else source
         super().__init__(f"{where}: {problem}")
+
+
+def printable_line(text: str) -> str:
+    """``text`` as one printable line: whitespace runs (line breaks of every kind
+    included) become one space, other control characters their ``\\xNN`` escape, so text
+    read from a broken file can neither split an error line nor drive the terminal."""
+    flat = " ".join(text.split())
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
+                   for c in flat)
+

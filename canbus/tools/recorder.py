@@ -52,7 +52,7 @@ from canbus.tools.segments import (
     log_channel_name,
     open_segment,
 )
-from skin.errors import ConfigError
+from skin.errors import ConfigError, SkinError
 
 logger = logging.getLogger(__name__)
 
@@ -169,8 +169,8 @@ class Recorder(can.Listener):
         try:
             segment = open_segment(path, self.suffix, self.channel)
         except OSError as err:
-            if err.filename is not None:
-                raise
+            if err.filename is not None or isinstance(err, SkinError):
+                raise  # named already
             raise OSError(err.errno, err.strerror or str(err), str(path)) from err
         self.files.append(path)
         logger.info("recording to %s", path)

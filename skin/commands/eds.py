@@ -11,13 +11,14 @@ def _check(args: argparse.Namespace) -> int:
     from canbus.od import eds_file
     from canbus.tools.edscheck import check
     from skin.commands.common.logs import held_back
+    from skin.errors import printable_line
 
     failed = 0
     for name in args.files:
         with eds_file(name) as path, held_back("canopen"):
             problems = check(path)
         for problem in problems:
-            print(f"{name}: {problem}", file=sys.stderr)
+            print(printable_line(f"{name}: {problem}"), file=sys.stderr)
         if problems:
             failed += 1
         else:
