@@ -100,7 +100,7 @@ def test_the_live_view_of_8_patches_shows_every_sample_the_host_published() -> N
     resistance = Simulator(scene).run(SAMPLES + 200).resistance_ohm
     run = _run(scene, resistance, SAMPLES)
     figures = run.figures
-    assert run.reader.frames == figures["frames_out"] == 8 * figures["samples"]  # forces in 7, contact 1
+    assert run.reader.frames == figures["frames_out"] == 8 * figures["samples"]  # 7 + contact
     assert run.drawn is not None and run.thread is not None and run.thread.error is None
     assert run.drawn.redraws >= 1 and run.thread.stats.redraws >= 2
     read = run.bus_view.state().statuses
