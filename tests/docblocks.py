@@ -50,12 +50,15 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bench.rigs import children
+
 ROOT = Path(__file__).resolve().parents[1]
 SHELL = {"", "sh", "bash", "console", "shell"}
 MARKER = re.compile(r"<!--\s*doc-test:(.*?)-->", re.S)
 EXIT = re.compile(r"#.*\bexit (\d+)\b")
 _groups = itertools.count(1)
 DEFAULT_TIMEOUT_S = 120.0
+READY_S = 60.0  # for a background command to say it runs
 
 
 @dataclass
@@ -236,59 +239,43 @@ class Outcome:
 
 def run(argv: list[str], cwd: Path, env: dict[str, str], timeout_s: float,
         stdin: str | None = None) -> Outcome:
-    """Run ``argv`` in its own process group; at the limit, SIGTERM then SIGKILL the group."""
+    """Run ``argv`` as a child of its own process group; at the limit, the group is killed."""
     started = time.monotonic()
-    proc = subprocess.Popen(argv, cwd=cwd, env=env, stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+    child = children.spawn(argv, cwd=cwd, env=env, stdin=subprocess.PIPE, tracked=False)
+    assert child.stdin is not None
+    with child.stdin:
+        child.stdin.write(stdin or "")
     try:
-        out, err = proc.communicate(stdin, timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        _stop_group(proc)
-        out, err = proc.communicate()
-        return Outcome(-1, out, err + f"\ndoc-test: over the {timeout_s:g} s limit",
-                       time.monotonic() - started)
-    return Outcome(proc.returncode, out, err, time.monotonic() - started)
-
-
-def _stop_group(proc: subprocess.Popen[str]) -> None:
-    for sig, wait in ((signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
-        try:
-            os.killpg(proc.pid, sig)
-        except ProcessLookupError:
-            return
-        try:
-            proc.wait(wait)
-            return
-        except subprocess.TimeoutExpired:
-            continue
+        code = child.wait(timeout_s)
+    except AssertionError:  # killed at the limit
+        return Outcome(-1, child.stdout(), child.stderr() + f"\ndoc-test: over the "
+                       f"{timeout_s:g} s limit", time.monotonic() - started)
+    return Outcome(code, child.stdout(), child.stderr(), time.monotonic() - started)
 
 
 class Background:
-    """The marker's ``with`` commands, started before a block and stopped after it."""
+    """The marker's ``with`` commands, started before a block and stopped after it. Each
+    is a long-running ``skin`` command: the block starts once each said "Ctrl-C stops"
+    (its bus open, its nodes or host running)."""
 
     def __init__(self, block: Block, cwd: Path, env: dict[str, str]) -> None:
         self.commands = [c.strip() for c in block.marker.get("with", "").split(";") if c.strip()]
-        self.procs = [subprocess.Popen(["bash", "-c", c], cwd=cwd, env=env,
-                                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                       text=True, start_new_session=True)
+        self.procs = [children.spawn(["bash", "-c", c], cwd=cwd, env=env, tracked=False)
                       for c in self.commands]
-        if self.procs:
-            time.sleep(2.0)  # their bus and nodes are up before the block starts
+        try:
+            for proc in self.procs:
+                proc.wait_for("Ctrl-C stops", timeout=READY_S)
+        except AssertionError:
+            for proc in self.procs:
+                proc.kill()
+            raise
 
     def stop(self) -> list[str]:
         """Stop them; what went wrong with any that did not run until stopped."""
         problems = []
         for command, proc in zip(self.commands, self.procs, strict=True):
             early = proc.poll()
-            if early is None:
-                os.killpg(proc.pid, signal.SIGTERM)
-                try:
-                    proc.wait(15)
-                except subprocess.TimeoutExpired:
-                    os.killpg(proc.pid, signal.SIGKILL)
-                    proc.wait()
-            err = proc.stderr.read() if proc.stderr else ""
-            if early not in (None, 0) or proc.returncode not in (0, -signal.SIGTERM):
-                problems.append(f"{command}: exit {proc.returncode}: {err[-800:]}")
+            code = proc.stop(signal.SIGTERM, timeout=15) if early is None else proc.wait()
+            if early not in (None, 0) or code not in (0, -signal.SIGTERM):
+                problems.append(f"{command}: exit {code}: {proc.stderr()[-800:]}")
         return problems

@@ -80,7 +80,7 @@ class Child:
 
     def __init__(self, args: Sequence[str], *, cwd: Path | str | None,
                  env: Mapping[str, str] | None, stdout: Path | None, stderr: Path | None,
-                 stdin: int | None) -> None:
+                 stdin: int | None, tracked: bool = True) -> None:
         self.args = [str(a) for a in args]
         files = [None if p is None else p.open("w") for p in (stdout, stderr)]
         parent = os.getpid()
@@ -97,7 +97,8 @@ class Child:
                     f.close()
         self._out = _Stream(self.popen.stdout, stdout)
         self._err = _Stream(self.popen.stderr, stderr)
-        started.append(self)
+        if tracked:
+            started.append(self)
 
     def __repr__(self) -> str:
         return f"Child({' '.join(self.args)!r}, pid={self.pid}, returncode={self.returncode})"
@@ -194,11 +195,16 @@ def _die_with(parent: int) -> None:
 
 def spawn(args: Sequence[str], *, cwd: Path | str | None = None,
           env: Mapping[str, str] | None = None, stdout: Path | None = None,
-          stderr: Path | None = None, stdin: int | None = None) -> Child:
+          stderr: Path | None = None, stdin: int | None = None,
+          tracked: bool = True) -> Child:
     """Start ``args`` as a :class:`Child`. ``stdout`` / ``stderr``: files to write to (stderr
     joins stdout's file when only ``stdout`` is given); by default both are kept in
-    memory. ``stdin``: ``subprocess.PIPE`` to write to :attr:`Child.stdin`."""
-    return Child(args, cwd=cwd, env=env, stdout=stdout, stderr=stderr, stdin=stdin)
+    memory. ``stdin``: ``subprocess.PIPE`` to write to :attr:`Child.stdin`.
+    ``tracked=False``: not the current test's to reap, for a runner whose work spans a
+    module's tests (tests/docblocks.py runs documents side by side); it still dies with
+    the thread that started it, and that runner ends it."""
+    return Child(args, cwd=cwd, env=env, stdout=stdout, stderr=stderr, stdin=stdin,
+                 tracked=tracked)
 
 
 def run(args: Sequence[str], *, timeout: float, cwd: Path | str | None = None,
