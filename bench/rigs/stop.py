@@ -91,7 +91,7 @@ def run(suffix: str, channel: str, port: int, folder: Path, *, rate: float = 200
     try:
         procs[0].wait_for("Connected to", timeout=60)
         for proc in procs[1:]:  # the line comes once the sniffer receives
-            proc.wait_for("Ctrl-C stops", stream="stderr", timeout=60)
+            proc.wait_for("Ctrl-C stops", timeout=60)  # --view none: stdout
         with can.Bus(interface="udp_multicast", channel=channel, port=port) as bus:
             signalled, sent_at = _send(bus, rate, seconds, signal_at, procs[:2], procs[2])
         codes = [proc.wait() for proc in procs]
