@@ -25,6 +25,7 @@ from canbus.zenoh.reader import open_session
 
 ROOT = Path(__file__).resolve().parents[2]
 SYNC = 0x080
+CYCLES = 20  # at least, while Zenoh is flooded
 
 
 class CanSide:
@@ -84,7 +85,7 @@ class CanSide:
         syncs = sum(m.arbitration_id == SYNC for m in self.frames)
         frames = self.rig.by_cycle()
         cycles = range(self.first_cycle, self.last_cycle + 1)
-        assert len(cycles) >= 20 and syncs >= len(cycles)
+        assert len(cycles) >= CYCLES and syncs >= len(cycles)
         for patch in host.patches:
             mine = [frames.get((patch, c)) for c in cycles]
             assert all(f is not None for f in mine), f"patch {patch}: a cycle without a sample"
@@ -132,6 +133,8 @@ def test_nothing_put_or_asked_on_zenoh_reaches_the_host_or_the_bus() -> None:
                         replies += list(session.get("canskin/**", timeout=0.2))
                         replies += list(session.get("@/**", timeout=0.2))
                 time.sleep(0.5)  # pacing: for the forged samples to reach whoever listens
+                wait_until(lambda: rig.host.sync.cycle - side.first_cycle >= CYCLES + 1,
+                           what=f"{CYCLES} whole cycles on the CAN side")
         finally:
             session.close()
     side.check()
