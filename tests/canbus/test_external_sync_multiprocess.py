@@ -39,6 +39,9 @@ kind = "idle"
 """
 
 
+NO_VALUE = -0x8000  # a force PDO's INTEGER16 "no value"
+
+
 def _skin(*args: str) -> list[str]:
     return [sys.executable, "-m", "skin.cli", *args]
 
@@ -96,7 +99,9 @@ node_id = 1
         wait_until(lambda: len(samples) >= 40, what="40 force samples after the tare")
         with lock:
             after = np.array(samples[-20:], dtype=float)  # well after the tare took effect
-        assert np.abs(after).max() <= 15  # mN: near zero after the tare
+        valued = after[after != NO_VALUE]  # a sample cut short on a busy machine has gaps
+        assert valued.size >= after.size / 2
+        assert np.abs(valued).max() <= 15  # mN: near zero after the tare
         master.sync.stop()
         assert host.stop(signal.SIGINT) == 0, host.output()
         record = json.loads((tmp_path / "run.json").read_text())
