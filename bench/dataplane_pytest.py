@@ -107,4 +107,4 @@ def test_both_paths_send_identical_force_frames(dataplane: DataPlaneRig,
 
 
 if __name__ == "__main__":
-    sys.exit(pytest.main([__file__, "--benchmark-enable", *sys.argv[1:]]))
+    sys.exit(pytest.main([__file__, "-n", "0", "--benchmark-enable", *sys.argv[1:]]))

@@ -1,4 +1,4 @@
-"""Speed benchmarks (pytest-benchmark); run with --benchmark-enable to measure.
+"""Speed benchmarks (pytest-benchmark); run with -n 0 --benchmark-enable to measure.
 
 Figures: bench.sim.run_benchmark, printed by `skin bench sim`.
 """
