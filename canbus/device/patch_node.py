@@ -199,8 +199,9 @@ def batch_frames(nodes: Sequence[PatchNode], due: Due, sync_byte: int = 0) -> li
             node.answered = sync_byte
         live = [node for node in nodes if node.nmt.state == OPERATIONAL]
         out: list[Frame] = []
-        for node, payloads in zip(live, pack_payloads(live), strict=True):
-            plan = answer_plan(node)
+        plans = [answer_plan(node) for node in live]  # read once: see pack_payloads
+        for node, plan, payloads in zip(live, plans, pack_payloads(live, plans=plans),
+                                        strict=True):
             chosen = set(due(node, payloads))
             out += [(plan.cob_ids[p], payloads[p]) for p in plan.order if p in chosen]
         return out
@@ -228,12 +229,16 @@ _ROW_BYTES = 65
 
 
 def pack_payloads(nodes: Sequence[PatchNode], codes: NDArray[np.uint16] | None = None,
-                  status: NDArray[np.uint8] | None = None) -> list[list[bytes]]:
+                  status: NDArray[np.uint8] | None = None,
+                  plans: Sequence[AnswerPlan] | None = None) -> list[list[bytes]]:
     """Every valid TPDO payload of each node (in its codec's order), from its codes ``(9, 3)``,
     taxel status and 0x2006: one numpy gather per mapping shape for all nodes mapped alike.
     ``codes`` ``(n, 9, 3)`` and ``status`` ``(n, 9)``: the nodes' own, already stacked.
 
-    The caller holds the nodes' locks (or owns them) so that sample and mapping agree.
+    The caller holds the nodes' locks (or owns them) so that sample and mapping agree. A
+    caller that sends the payloads by a plan passes ``plans`` (each node's
+    :func:`answer_plan`, read once): an SDO write may change a mapping between two reads of
+    it, and payloads packed by one mapping must never go out by another's COB-IDs.
     """
     n = len(nodes)
     if not n:
@@ -247,7 +252,8 @@ def pack_payloads(nodes: Sequence[PatchNode], codes: NDArray[np.uint16] | None =
     rows[:, 54:63] = status
     rows[:, 63] = np.where(status.any(axis=1), REGISTER_FAULT, 0)  # FaultReporter's 0x1001
     rows[:, 64] = [node.answered for node in nodes]
-    plans = [answer_plan(node) for node in nodes]
+    if plans is None:
+        plans = [answer_plan(node) for node in nodes]
     layout = plans[0].layout
     if all(plan.layout is layout for plan in plans):  # the usual case: one shape
         groups = [list(range(n))]

@@ -274,8 +274,8 @@ class PatchServer:
         with locked(nodes):
             self._codes[:, :, :width] = new
             status = self._status_of(measured)
-            payloads = pack_payloads(nodes, self._codes, status)
-            plans = [answer_plan(node) for node in nodes]
+            plans = [answer_plan(node) for node in nodes]  # read once: see pack_payloads
+            payloads = pack_payloads(nodes, self._codes, status, plans)
         prepared = {}
         for node, plan, node_payloads in zip(nodes, plans, payloads, strict=True):
             messages: list[can.Message] = [TxMessage.frame(plan.cob_ids[p], node_payloads[p])
@@ -301,8 +301,8 @@ class PatchServer:
     def _prepare(node: PatchNode) -> _Prepared:
         """One node's TPDOs packed from its current sample and mapping."""
         with locked([node]):
-            payloads = pack_payloads([node])[0]
             plan = answer_plan(node)
+            payloads = pack_payloads([node], plans=[plan])[0]
         return _Prepared(plan, payloads,
                          [TxMessage.frame(plan.cob_ids[p], payloads[p]) for p in plan.order])
 
