@@ -20,7 +20,8 @@ A block may carry a marker, an HTML comment on the line before its fence:
   (``$CAN_INTERFACE``, ``$CAN_CHANNEL``, ``$CAN_CONFIG``): a multicast group and UDP port of
   its own, so commands as written (``-i udp_multicast``, or no flag at all) meet there;
 - ``with="cmd; cmd"``: commands running in the background for the block's length (a
-  simulated robot for a live example), stopped by SIGTERM after it;
+  simulated robot for a live example), stopped by SIGTERM after it; the block starts once
+  each has said it is up (``Ctrl-C stops``, as ``skin sim run`` and ``skin run`` print);
 - ``stop=S``: a command that runs until it is stopped is stopped after S seconds by
   SIGTERM, as ``timeout`` does (every ``skin`` the block runs);
 - ``together=yes``: the lines run at once ("in two terminals");
@@ -46,9 +47,12 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import IO
 
 ROOT = Path(__file__).resolve().parents[1]
 SHELL = {"", "sh", "bash", "console", "shell"}
@@ -151,6 +155,21 @@ def bus_env(block: Block, base: dict[str, str]) -> dict[str, str]:
         env["CAN_CHANNEL"] = f"239.74.{200 + pid % 50}.{n % 250 + 1}"
         env["CAN_CONFIG"] = json.dumps({"port": 32000 + (pid % 500) * 8 + n % 8})
     return env
+
+
+def work(document: Path) -> int:
+    """How much a document runs, roughly: its commands and Python examples, and what runs
+    beside them (a ``with`` background)."""
+    total = 0
+    for block in blocks(document):
+        if "skip" in block.marker or "long" in block.marker:
+            continue
+        if block.lang in SHELL:
+            total += len(commands(block))
+        elif block.lang == "python":
+            total += 3
+        total += 3 * bool(block.marker.get("with"))
+    return total
 
 
 def held_back(block: Block) -> str | None:
@@ -264,22 +283,60 @@ def _stop_group(proc: subprocess.Popen[str]) -> None:
             continue
 
 
+READY = "Ctrl-C stops"
+"""The line ``skin sim run`` and ``skin run`` print once they serve (a ``with`` command is up)."""
+READY_WITHIN_S = 60.0
+SETTLE_S = 1.0  # after the ready lines: the host's scan and set-up, the patches' boot-up
+
+
+class _Output(threading.Thread):
+    """A background command's stream, read as it comes (a full pipe would stop the command):
+    its last lines, and whether it said :data:`READY` (or ended)."""
+
+    def __init__(self, stream: IO[str]) -> None:
+        super().__init__(daemon=True)
+        self.stream = stream
+        self.tail: deque[str] = deque(maxlen=40)
+        self.ready = threading.Event()
+        self.start()
+
+    def run(self) -> None:
+        for line in self.stream:
+            self.tail.append(line)
+            if READY in line:
+                self.ready.set()
+        self.ready.set()
+
+    def text(self) -> str:
+        self.join(5.0)
+        return "".join(self.tail)
+
+
 class Background:
-    """The marker's ``with`` commands, started before a block and stopped after it."""
+    """The marker's ``with`` commands, started before a block and stopped after it. The block
+    starts once each has printed :data:`READY` (at most :data:`READY_WITHIN_S`, so a command
+    that never says it only waits that long), and :data:`SETTLE_S` more: a loaded machine
+    takes seconds to start a Python process, and a fixed wait was either long or too short."""
 
     def __init__(self, block: Block, cwd: Path, env: dict[str, str]) -> None:
         self.commands = [c.strip() for c in block.marker.get("with", "").split(";") if c.strip()]
         self.procs = [subprocess.Popen(["bash", "-c", c], cwd=cwd, env=env,
-                                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                       stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                        text=True, start_new_session=True)
                       for c in self.commands]
+        self.outputs = [(_Output(p.stdout), _Output(p.stderr))  # type: ignore[arg-type]
+                        for p in self.procs]
+        deadline = time.monotonic() + READY_WITHIN_S
+        for out, _ in self.outputs:
+            out.ready.wait(max(0.0, deadline - time.monotonic()))
         if self.procs:
-            time.sleep(2.0)  # their bus and nodes are up before the block starts
+            time.sleep(SETTLE_S)
 
     def stop(self) -> list[str]:
         """Stop them; what went wrong with any that did not run until stopped."""
         problems = []
-        for command, proc in zip(self.commands, self.procs, strict=True):
+        for command, proc, (_, err) in zip(self.commands, self.procs, self.outputs,
+                                           strict=True):
             early = proc.poll()
             if early is None:
                 os.killpg(proc.pid, signal.SIGTERM)
@@ -288,7 +345,6 @@ class Background:
                 except subprocess.TimeoutExpired:
                     os.killpg(proc.pid, signal.SIGKILL)
                     proc.wait()
-            err = proc.stderr.read() if proc.stderr else ""
             if early not in (None, 0) or proc.returncode not in (0, -signal.SIGTERM):
-                problems.append(f"{command}: exit {proc.returncode}: {err[-800:]}")
+                problems.append(f"{command}: exit {proc.returncode}: {err.text()[-800:]}")
         return problems
