@@ -9,6 +9,14 @@ step's "next LSS sub" left on the sub being checked, so no node ever reaches the
 configuration state; a branch nobody answers costs one time-out. By default it looks for
 canskin patches (vendor, product and revision of the shipped EDS, each confirmed by one
 step) and walks the 32 bits of their serial numbers; ``thorough`` walks all 128 bits.
+
+Every waiting node answers a step it matches, with the same frame, so one step's answers
+cannot be told from the next one's: an answer that arrives after the step that asked for
+it (on udp_multicast the simulated patches answer one after the other, from another
+process) would pass for a match of the next step and invent a node. A step that was
+answered therefore takes its answers until the bus is quiet for ``SETTLE_S``, and every
+identity the walk ends on is confirmed by LSS identify remote slave (the exact identity)
+after a whole time-out of quiet: a node is listed only if it answers to its own identity.
 """
 
 from __future__ import annotations
@@ -23,10 +31,18 @@ import canopen
 from canopen.sdo.exceptions import SdoError
 
 from canbus.device.local_device import eds_identity
-from canbus.device.lss_slave import FASTSCAN, FASTSCAN_CONFIRM, IDENTIFY_ANSWER, LSS_MASTER
+from canbus.device.lss_slave import (
+    FASTSCAN,
+    FASTSCAN_CONFIRM,
+    IDENTIFY,
+    IDENTIFY_ANSWER,
+    LSS_MASTER,
+)
 from canbus.master.discovery import Identity, read_identity, scan, sdo_client
 
 DEFAULT_TIMEOUT_S = 0.1
+SETTLE_S = 0.02
+"""The quiet that ends an answered step: every node answers a step at once."""
 
 
 @dataclass(frozen=True)
@@ -69,11 +85,28 @@ class Fastscan:
 
     def step(self, id_number: int, bit_check: int, sub: int, nxt: int) -> bool:
         """One fastscan request; True if any node answered."""
-        while not self._answers.empty():  # a late answer to an earlier step
-            self._answers.get_nowait()
+        self._quiet(0.0)  # a late answer to an earlier step
         self.steps += 1
         self.network.send_message(LSS_MASTER, struct.pack("<BIBBB", FASTSCAN, id_number,
                                                           bit_check, sub, nxt))
+        if not self._answered():
+            return False
+        self._quiet(min(SETTLE_S, self.timeout_s))  # the other nodes' answers to this step
+        return True
+
+    def present(self, identity: Identity) -> bool:
+        """LSS identify remote slave over exactly ``identity``, after a time-out of quiet:
+        True if a node answers."""
+        self._quiet(self.timeout_s)
+        i = identity
+        for k, value in enumerate((i.vendor, i.product, i.revision, i.revision, i.serial,
+                                   i.serial)):
+            self.network.send_message(LSS_MASTER, struct.pack("<BI3x", IDENTIFY.start + k,
+                                                              value))
+        return self._answered()
+
+    def _answered(self) -> bool:
+        """An answer within the time-out (other frames on 0x7E4 are skipped)."""
         try:
             while True:
                 answer = self._answers.get(timeout=self.timeout_s)
@@ -81,6 +114,17 @@ class Fastscan:
                     return True
         except queue.Empty:
             return False
+
+    def _quiet(self, gap_s: float) -> None:
+        """Take every answer until none has come for ``gap_s`` (0: those already here)."""
+        try:
+            while True:
+                if gap_s > 0:
+                    self._answers.get(timeout=gap_s)
+                else:
+                    self._answers.get_nowait()
+        except queue.Empty:
+            return
 
     def reset(self) -> bool:
         """The confirmation step: every unconfigured node back to LSS sub 0; True if any."""
@@ -121,7 +165,8 @@ def unconfigured(network: canopen.Network, *, timeout_s: float = DEFAULT_TIMEOUT
         def branch(prefix: list[int]) -> None:
             sub = len(prefix)
             if sub == 4:
-                out.append(Identity(*prefix))
+                if scan_.present(Identity(*prefix)):
+                    out.append(Identity(*prefix))
                 return
             if sub and not scan_.walk_to(prefix):
                 return

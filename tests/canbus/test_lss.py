@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import queue
 import struct
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -297,6 +298,49 @@ def test_the_fastscan_walk_lists_every_waiting_identity(found: list[tuple[int, .
     network = MemoryNetwork(patches)
     listed = unconfigured(network, timeout_s=0.0005, thorough=True)  # type: ignore[arg-type]
     assert listed == [FoundIdentity(*i) for i in sorted(found)]
+    assert all(p.lss is not None and p.lss.state == WAITING for p in patches)
+
+
+class LateNetwork(MemoryNetwork):
+    """Answers reach the master late, on a thread of their own: ``stagger_s`` apart (the
+    patches of one ``skin sim run`` answer one after the other, from another process), and
+    each heard a second time ``echo_s`` later when ``echo_s`` is given (a path that
+    delivers a frame twice)."""
+
+    def __init__(self, patches: list[PatchNode], stagger_s: float,
+                 echo_s: float | None = None) -> None:
+        super().__init__(patches)
+        self.stagger_s, self.echo_s = stagger_s, echo_s
+        self.burst = 0
+        self.timers: list[threading.Timer] = []
+
+    def send_message(self, cob_id: int, data: bytes) -> None:
+        if cob_id == 0x7E5:
+            self.burst = 0
+            super().send_message(cob_id, data)
+            return
+        self.burst += 1
+        delays = [self.burst * self.stagger_s]
+        if self.echo_s is not None:
+            delays.append(delays[0] + self.echo_s)
+        for delay in delays:
+            timer = threading.Timer(delay, super().send_message, (cob_id, bytes(data)))
+            self.timers.append(timer)
+            timer.start()
+
+
+@pytest.mark.parametrize(("stagger_s", "echo_s"), [(0.004, None), (0.001, 0.03)],
+                         ids=["answers one after the other", "every answer heard twice"])
+def test_late_answers_invent_no_node(stagger_s: float, echo_s: float | None) -> None:
+    serials = [0x5100_0001, 0x5100_0002, 0x5100_0003, 0x5100_0008]
+    patches = [PatchNode(0xFF, serial=serial) for serial in serials]
+    network = LateNetwork(patches, stagger_s, echo_s)
+    try:
+        listed = unconfigured(network, timeout_s=0.05)  # type: ignore[arg-type]
+    finally:
+        for timer in network.timers:
+            timer.cancel()
+    assert listed == [FoundIdentity(VENDOR, PRODUCT, REVISION, s) for s in serials]
     assert all(p.lss is not None and p.lss.state == WAITING for p in patches)
 
 

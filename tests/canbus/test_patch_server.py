@@ -362,3 +362,31 @@ def _check_sizes(messages: list[can.Message], codec: PdoCodec) -> None:
     assert sorted(m.arbitration_id for m in messages) == sorted(size)
     assert all(len(m.data) == size[m.arbitration_id] for m in messages), \
         [(hex(m.arbitration_id), len(m.data), size[m.arbitration_id]) for m in messages]
+def test_a_mapping_written_while_samples_are_taken_never_stops_them(
+        virtual: tuple[canopen.Network, Master]) -> None:
+    """The host remaps a patch by SDO while the server's sample thread packs its TPDOs: a
+    write between two reads of the mapping must neither send one mapping's payloads by the
+    other's COB-IDs nor end the sample thread (its patches would answer with one frozen
+    sample from then on)."""
+    network, master = virtual
+    server = PatchServer(network, ArraySource(_samples(8, 1), (1,)), event_rate_hz=2000.0)
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # thread switches everywhere, the write among them
+    try:
+        with server:
+            master.start_all()
+            _operational(server)
+            store = server.nodes[0].store
+            until = time.monotonic() + 1.0
+            for k in itertools.count():  # TPDO 1 invalid, valid, ... as CiA 301's sequence
+                if time.monotonic() > until:
+                    break
+                cob = 0x181 | (0x8000_0000 if k % 2 == 0 else 0)
+                store.set_data(TPDO_COMM, 1, cob.to_bytes(4, "little"))
+                for msg in server.answer():  # TPDO 7 (0x401) carries 3 codes, the others 4
+                    assert len(msg.data) == (6 if msg.arbitration_id == 0x401 else 8)
+            taken = server.samples
+            time.sleep(0.05)
+            assert server.samples > taken, "the sample thread stopped"
+    finally:
+        sys.setswitchinterval(switch)
