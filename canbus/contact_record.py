@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from skin.contact import ContactParams
+from skin.contact import ContactInstant, ContactParams
 from skin.contact_state import (
     CONTACT_BIT,
     NEAR_SLIP,
@@ -64,6 +64,9 @@ STATE, COUNT, CONTACT_MASK, SLIP_MASK, RATIO = 11, 12, 13, 14, 15
 SCALE = {**dict.fromkeys(FORCE_SUBS, 0.01), **dict.fromkeys(TORQUE_SUBS, 1e-4),
          **dict.fromkeys(COP_SUBS, 1e-5), **dict.fromkeys(PLACED_SUBS, 1e-4), RATIO: 1e-3}
 """SI units per count of each scaled sub-index (N, N·m, m, m, 1)."""
+COUNTS_PER_UNIT = {sub: float(round(1.0 / scale)) for sub, scale in SCALE.items()}
+"""Counts per SI unit (exact integers): a value's count is ``rint(value ·
+COUNTS_PER_UNIT[sub])``."""
 UNIT = {**dict.fromkeys(FORCE_SUBS, "N"), **dict.fromkeys(TORQUE_SUBS, "N·m"),
         **dict.fromkeys(COP_SUBS, "m"), **dict.fromkeys(PLACED_SUBS, "m"), RATIO: ""}
 NAMES = {1: "Fx", 2: "Fy", 3: "Fz", 4: "Tx", 5: "Ty", 6: "Tz", 7: "CoPx", 8: "CoPy",
@@ -74,78 +77,63 @@ DEFAULT_TPDO = (3, 7, 8, STATE, COUNT)
 PARAM_SUBS = ("taxel_contact_N", "onset_N", "release_N", "friction", "near_slip_margin")
 PARAM_SCALE = 1e-3
 """Every 0x2009 sub-index counts thousandths: mN for the thresholds, 0.001 for the rest."""
-_PLANS: dict[tuple[int, ...], tuple[tuple[int, ...], NDArray[np.float64],
-                                     NDArray[np.intp]]] = {}
-
-
-def _plan(subs: tuple[int, ...]) -> tuple[tuple[int, ...], NDArray[np.float64], NDArray[np.intp]]:
-    """The scaled sub-indices among ``subs``, their counts' sizes and their columns."""
-    plan = _PLANS.get(subs)
-    if plan is None:
-        scaled = tuple(s for s in subs if 1 <= s <= 10)
-        plan = _PLANS[subs] = (scaled, np.array([SCALE[s] for s in scaled]),
-                               np.array([s - 1 for s in scaled], dtype=np.intp))
-    return plan
+PUBLISHED = (8, 7, 3)
+"""The scaled sub-indices among :data:`DEFAULT_TPDO`, in the order of the rows of
+:attr:`skin.contact_sums.SumsKernel.published` (CoP y, CoP x, net Fz)."""
+NO_COUNT = 0x7FFF
+"""The largest INTEGER16 count a value may round to (beyond it: no value, never clipped)."""
 
 
 def encode(batch: ContactBatch, subs: Sequence[int]) -> NDArray[np.int64]:
     """``(n, len(subs))``: the values of sub-indices ``subs`` of 0x2008 for every sample, as
     the objects hold them (only those asked for are computed)."""
-    return columns(batch, subs)[:, [s - 1 for s in subs]]
+    out = np.empty((len(batch), len(subs)), dtype=np.int64)
+    for j, sub in enumerate(subs):
+        out[:, j] = _column(batch, sub)
+    return out
 
 
 def columns(batch: ContactBatch, subs: Sequence[int]) -> NDArray[np.int64]:
     """``(n, 15)``: sub-index 1..15 of 0x2008 in column 0..14, those of ``subs`` filled in
     (the others 0)."""
-    instant = batch.instant
-    n = len(batch)
-    out = np.zeros((n, SUBS), dtype=np.int64)
-    scaled, scales, places = _plan(tuple(subs))
-    if scaled:
-        values = np.empty((n, len(scaled)))
-        has = np.empty((n, len(scaled)), dtype=bool)
-        for j, sub in enumerate(scaled):
-            values[:, j], has[:, j] = _source(batch, sub)
-        if instant.bounded:
-            counts = np.rint(values / scales)
-        else:
-            with np.errstate(over="ignore", invalid="ignore"):  # such values have no value
-                counts = np.rint(values / scales)
-        has &= np.abs(counts) <= 0x7FFF  # False for NaN and inf too: never clipped
-        out[:, places] = np.where(has, counts, NO_VALUE)
-    for sub in subs:
-        if sub <= 10:
-            continue
-        if sub == STATE:
-            out[:, STATE - 1] = batch.state_byte
-        elif sub == COUNT:
-            out[:, COUNT - 1] = instant.taxels_in_contact
-        elif sub == CONTACT_MASK:
-            out[:, CONTACT_MASK - 1] = _mask(instant.contact_taxels)
-        elif sub == SLIP_MASK:
-            out[:, SLIP_MASK - 1] = _mask(instant.taxel_slip)
-        elif sub == RATIO:
-            with np.errstate(over="ignore", invalid="ignore"):
-                counts = np.rint(instant.tangential_ratio / SCALE[RATIO])
-            out[:, RATIO - 1] = np.where(instant.cop_defined & (counts < NO_RATIO), counts,
-                                         NO_RATIO)
-        else:
-            raise ValueError(f"0x{CONTACT:04X} has no sub-index {sub}")
+    out = np.zeros((len(batch), SUBS), dtype=np.int64)
+    for sub in dict.fromkeys(subs):
+        out[:, sub - 1] = _column(batch, sub)
     return out
 
 
-def _source(batch: ContactBatch, sub: int) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """A scaled sub-index's SI values and where it has a value."""
+def _column(batch: ContactBatch, sub: int) -> NDArray[np.int64]:
     instant = batch.instant
+    if not 1 <= sub <= SUBS:
+        raise ValueError(f"0x{CONTACT:04X} has no sub-index {sub}")
+    if sub <= 10:
+        values, has = _source(instant, sub)
+        with np.errstate(over="ignore", invalid="ignore"):  # such values have no value
+            counts = np.rint(values * COUNTS_PER_UNIT[sub])
+        has = has & (np.abs(counts) <= NO_COUNT)  # False for NaN and inf too
+        return np.where(has, counts, NO_VALUE).astype(np.int64)
+    if sub == STATE:
+        return batch.state_byte.astype(np.int64)
+    if sub == COUNT:
+        return instant.taxels_in_contact
+    if sub == CONTACT_MASK:
+        return _mask(instant.contact_taxels)
+    if sub == SLIP_MASK:
+        return _mask(instant.taxel_slip)
+    with np.errstate(over="ignore", invalid="ignore"):
+        ratio = np.rint(instant.tangential_ratio * COUNTS_PER_UNIT[RATIO])
+    return np.where(instant.cop_defined & (ratio < NO_RATIO), ratio, NO_RATIO).astype(np.int64)
+
+
+def _source(instant: ContactInstant, sub: int) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """A scaled sub-index's SI values and where it has a value."""
     if sub in FORCE_SUBS:
         return instant.force_N[:, sub - 1], instant.known
     if sub in TORQUE_SUBS:
         return instant.torque_Nm[:, sub - 4], instant.known
     if sub in COP_SUBS:
         return instant.cop_m[:, sub - 7], instant.cop_defined
-    if sub in PLACED_SUBS:
-        return instant.cop_placed_m[:, sub - 9], instant.cop_defined
-    raise ValueError(f"0x{CONTACT:04X} has no sub-index {sub}")
+    return instant.cop_placed_m[:, sub - 9], instant.cop_defined
 
 
 def no_summary(subs: Sequence[int], n: int) -> NDArray[np.int64]:

@@ -33,38 +33,26 @@ not finite is treated as invalid.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH
+from skin.contact_sums import (
+    F64,
+    SMALLEST_N,
+    UNIT_XY,
+    Bools,
+    ContactInstant,
+    RowParams,
+    SumsKernel,
+)
 from skin.errors import ConfigError
 
-F64 = NDArray[np.float64]
-Bools = NDArray[np.bool_]
-
-_ROW, _COL = np.divmod(np.arange(TAXELS_PER_PATCH), 3)
-UNIT_XY: F64 = np.stack([_COL - 1.0, _ROW - 1.0], axis=1)
-"""(9, 2) taxel centres in pitches, patch frame."""
-
-
-def _linear_map() -> F64:
-    """(27, 6): flattened (9, 3) forces -> ΣFx, ΣFy, ΣFz, Σux·Fz, Σuy·Fz, Σ(ux·Fy − uy·Fx)."""
-    w = np.zeros((TAXELS_PER_PATCH, 3, 6))
-    w[:, 0, 0] = w[:, 1, 1] = w[:, 2, 2] = 1.0
-    w[:, 2, 3] = UNIT_XY[:, 0]
-    w[:, 2, 4] = UNIT_XY[:, 1]
-    w[:, 1, 5] = UNIT_XY[:, 0]
-    w[:, 0, 5] = -UNIT_XY[:, 1]
-    return w.reshape(3 * TAXELS_PER_PATCH, 6)
-
-
-_LINEAR = _linear_map()
-SMALLEST_N = 5e-324
-"""The smallest positive float64: a normal force at or above it is a normal force."""
+__all__ = ["F64", "SMALLEST_N", "UNIT_XY", "Bools", "ContactInstant", "ContactParams",
+           "PatchGeometry", "RowParams", "summarize", "summarize_rows", "taxel_xy"]
 
 
 def taxel_xy(pitch_m: float) -> F64:
@@ -136,125 +124,6 @@ class ContactParams:
         return (1.0 - self.near_slip_margin) * self.friction
 
 
-class ContactInstant:
-    """What ``n`` samples say on their own (no history): see the module docstring.
-
-    The figures a force node's default contact PDO carries are computed at once; the rest
-    (torque, placed frame, slip tests) when first read.
-    """
-
-    def __init__(self, on: F64, contact: Bools, linear: F64, valid_taxels: NDArray[np.int64],
-                 pitch: F64, friction: F64, near_slip_ratio: F64, position: F64,
-                 rotation: F64, bounded: bool = False) -> None:
-        self.bounded = bounded
-        """Every figure is far inside float64's range (a decoder's forces)."""
-        self._on = on  # (n, 9, 3) the forces of the taxels in contact, 0 elsewhere
-        self._linear = linear  # (n, 6) sums: Fx, Fy, Fz, ux·Fz, uy·Fz, ux·Fy - uy·Fx
-        self._pitch = pitch
-        self.friction: F64 = friction  # (n,) μ of each row
-        self.near_slip_ratio: F64 = near_slip_ratio  # (n,) (1 - margin)·μ of each row
-        self._position = position  # (2,) or (n, 2)
-        self._rotation = rotation  # (2, 2) or (n, 2, 2)
-        self.contact_taxels: Bools = contact  # (n, 9)
-        self.valid_taxels: NDArray[np.int64] = valid_taxels  # (n,) taxels it rests on
-        # a taxel in contact has Fz > taxel_contact_N >= 0, so their sum is > 0 exactly then
-        self.cop_defined: Bools = linear[:, 2] > 0  # (n,) a taxel is in contact
-        self.force_N: F64 = linear[:, :3]  # (n, 3) net force over the taxels in contact
-        # 0 where no taxel is in contact: 0 / the smallest subnormal is 0; divided first, so
-        # a vanishing normal force gives a bounded CoP, never 0·inf
-        denominator = np.maximum(linear[:, 2], SMALLEST_N)
-        self.cop_m: F64 = linear[:, 3:5] / denominator[:, None] * pitch[:, None]  # 0 if none
-        self.tangential_ratio: F64 = np.hypot(linear[:, 0], linear[:, 1]) / denominator
-        """(n,) |(Fx, Fy)| / Fz of the net force; 0 where the CoP is not defined (+inf for
-        shear over a vanishing normal force, possible only with ``taxel_contact_N`` = 0)."""
-
-    @functools.cached_property
-    def contact_area_m2(self) -> F64:
-        """(n,) the taxels in contact times a taxel's share of the patch (pitch²)."""
-        out: F64 = self.taxels_in_contact * self._pitch ** 2
-        return out
-
-    @functools.cached_property
-    def known(self) -> Bools:
-        """(n,) a valid taxel: the sample says something."""
-        out: Bools = self.valid_taxels > 0
-        return out
-
-    @functools.cached_property
-    def taxels_in_contact(self) -> NDArray[np.int64]:
-        """(n,)"""
-        out: NDArray[np.int64] = self.contact_taxels.sum(axis=1)
-        return out
-
-    def __len__(self) -> int:
-        return int(self._linear.shape[0])
-
-    @functools.cached_property
-    def near_slip(self) -> Bools:
-        """(n,) the net force within the margin of the friction cone, or beyond it."""
-        out: Bools = self.cop_defined & (self.tangential_ratio >= self.near_slip_ratio)
-        return out
-
-    @functools.cached_property
-    def slip(self) -> Bools:
-        """(n,) the net force on or beyond the friction cone (the cone alone: the host's
-        slip state adds hysteresis, :mod:`skin.contact_state`)."""
-        out: Bools = self.cop_defined & (self.tangential_ratio >= self.friction)
-        return out
-
-    @functools.cached_property
-    def torque_Nm(self) -> F64:
-        """(n, 3) about the patch centre, on the surface, patch frame."""
-        linear, pitch = self._linear, self._pitch
-        with np.errstate(over="ignore"):
-            out: F64 = np.stack([linear[:, 4], -linear[:, 3], linear[:, 5]], axis=1) \
-                * pitch[:, None]
-        return out
-
-    @functools.cached_property
-    def cop_placed_m(self) -> F64:
-        """(n, 2) the CoP in the placed frame (the patch's position where not defined)."""
-        with np.errstate(over="ignore", invalid="ignore"):
-            return _turn(self._rotation, self.cop_m) + self._position
-
-    @functools.cached_property
-    def force_placed_N(self) -> F64:
-        """(n, 3) the net force with (Fx, Fy) turned into the placed frame."""
-        out = self.force_N.copy()
-        with np.errstate(over="ignore", invalid="ignore"):
-            out[:, :2] = _turn(self._rotation, self.force_N[:, :2])
-        return out
-
-    @functools.cached_property
-    def taxel_shear_N(self) -> F64:
-        with np.errstate(over="ignore"):
-            out: F64 = np.hypot(self._on[:, :, 0], self._on[:, :, 1])
-        return out
-
-    @functools.cached_property
-    def taxel_near_slip(self) -> Bools:
-        """(n, 9) taxels in contact within the margin of their own friction cone."""
-        with np.errstate(over="ignore"):
-            out: Bools = self.contact_taxels & (
-                self.taxel_shear_N >= self.near_slip_ratio[:, None] * self._on[:, :, 2])
-        return out
-
-    @functools.cached_property
-    def taxel_slip(self) -> Bools:
-        """(n, 9) taxels in contact at or beyond their own friction cone."""
-        with np.errstate(over="ignore"):
-            out: Bools = self.contact_taxels & (
-                self.taxel_shear_N >= self.friction[:, None] * self._on[:, :, 2])
-        return out
-
-
-def _turn(rotation: F64, vectors: F64) -> F64:
-    if rotation.ndim == 2:
-        out: F64 = vectors @ rotation.T
-        return out
-    return np.asarray(np.einsum("nij,nj->ni", rotation, vectors), dtype=np.float64)
-
-
 def _per_row(value: ArrayLike, n: int) -> F64:
     """A scalar, or one value per row, as ``(n,)`` float64."""
     if isinstance(value, np.ndarray) and value.shape == (n,) and value.dtype == np.float64:
@@ -278,49 +147,40 @@ def summarize(force_N: ArrayLike, valid: ArrayLike, *,
     are finite and far inside float64's range (a decoder's, 0 where invalid) and that every
     ``taxel_contact_N`` is positive, so nothing can overflow: the checks are skipped.
     """
-    force = np.asarray(force_N, dtype=np.float64)
+    force = np.array(force_N, dtype=np.float64)  # a copy: the summary reads it later
     if force.ndim != 3 or force.shape[1:] != (TAXELS_PER_PATCH, 3):
         raise ValueError(f"force_N must be (n, 9, 3), got {force.shape}")
     n = force.shape[0]
-    ok = np.asarray(valid, dtype=bool)
+    ok = np.array(valid, dtype=bool)
     if ok.shape != (n, TAXELS_PER_PATCH):
         raise ValueError(f"valid must be ({n}, 9), got {ok.shape}")
     g = geometry or PatchGeometry()
     p = params or ContactParams()
-    rows = (_per_row(p.taxel_contact_N if taxel_contact_N is None else taxel_contact_N, n),
-            _per_row(g.pitch_m if pitch_m is None else pitch_m, n),
-            _per_row(p.friction if friction is None else friction, n),
-            _per_row(p.near_slip_ratio if near_slip_ratio is None else near_slip_ratio, n),
-            np.asarray(g.position_m if position_m is None else position_m, dtype=np.float64),
-            g.rotation if rotation is None else np.asarray(rotation, dtype=np.float64))
+    rows = RowParams(
+        _per_row(p.taxel_contact_N if taxel_contact_N is None else taxel_contact_N, n),
+        _per_row(g.pitch_m if pitch_m is None else pitch_m, n),
+        _per_row(p.friction if friction is None else friction, n),
+        _per_row(p.near_slip_ratio if near_slip_ratio is None else near_slip_ratio, n),
+        np.asarray(g.position_m if position_m is None else position_m, dtype=np.float64),
+        g.rotation if rotation is None else np.asarray(rotation, dtype=np.float64))
+    return summarize_rows(force, ok, rows, bounded=bounded)
+
+
+def summarize_rows(force: F64, ok: Bools, rows: RowParams, *, bounded: bool = False
+                   ) -> ContactInstant:
+    """:func:`summarize` of ``(n, 9, 3)`` float64 forces and ``(n, 9)`` valid that the
+    caller no longer changes, with each row's parameters."""
+    kernel = SumsKernel(rows)
     if bounded:
-        return summarize_rows(force, ok, *rows)
+        return kernel.instant(force, ok, bounded=True)
     with np.errstate(all="ignore"):  # what overflows is found and said, never warned
-        if not np.isfinite(force).all():
-            finite = np.asarray(np.isfinite(force).all(axis=2), dtype=bool)
+        finite = np.asarray(np.isfinite(force).all(axis=2), dtype=bool)
+        if not finite.all():
             ok = ok & finite
             force = np.where(finite[..., None], force, 0.0)
-        instant = summarize_rows(force, ok, *rows, bounded=False)
-        linear = instant._linear
-        if np.isfinite(linear).all():
-            return instant
-        # sums beyond float64: such a row says nothing
-        beyond = np.asarray(~np.isfinite(linear).all(axis=1), dtype=bool)
-        return summarize_rows(np.where(beyond[:, None, None], 0.0, force),
-                              ok & ~beyond[:, None], *rows, bounded=False)
-
-
-def summarize_rows(force: F64, ok: Bools, threshold: F64, pitch: F64, friction: F64,
-                   near: F64, position: F64, rotation: F64, bounded: bool = True
-                   ) -> ContactInstant:
-    """:func:`summarize` without a check: ``(n, 9, 3)`` forces that are finite and far inside
-    float64's range, ``(n, 9)`` valid, and per row (``(n,)``) the threshold (> 0), pitch,
-    friction and near-slip ratio; the position ``(2,)`` or ``(n, 2)``, the rotation
-    ``(2, 2)`` or ``(n, 2, 2)``. The host's batches come this way. ``bounded`` False: the
-    caller checks for what overflowed."""
-    contact = force[:, :, 2] > threshold[:, None]
-    contact &= ok
-    on = force * contact[:, :, None]
-    linear = on.reshape(-1, 3 * TAXELS_PER_PATCH) @ _LINEAR
-    return ContactInstant(on, contact, linear, ok.sum(axis=1), pitch, friction, near,
-                          position, rotation, bounded)
+        kernel.run(force, ok, checked=True)
+        beyond = ~np.asarray(np.isfinite(kernel.sums[:3]).all(axis=(0, 2)), dtype=bool)
+        if beyond.any():  # sums beyond float64: such a row says nothing
+            ok = ok & ~beyond[:, None]
+            force = np.where(beyond[:, None, None], 0.0, force)
+        return kernel.instant(force, ok, bounded=False, checked=True)

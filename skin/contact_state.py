@@ -21,13 +21,16 @@ row of a :class:`ContactBatch`, built without copying.
 
 from __future__ import annotations
 
-from typing import Any
+import functools
+import itertools
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from skin.constants import TAXELS_PER_PATCH
-from skin.contact import F64, SMALLEST_N, Bools, ContactInstant, ContactParams
+from skin.contact import F64, Bools, ContactInstant, ContactParams
+from skin.contact_sums import FZ
 
 IN_CONTACT, SLIPPING = 1, 2
 """The state's bits."""
@@ -61,29 +64,72 @@ def _tables() -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
 
 
 NEXT_STATE, STATE_BYTE = _tables()
-_WEIGHTS = 1 << np.arange(2, 9)
-_SOURCES = np.array([0, 0, 1, 1, 2, 0, 2])  # net Fz, ratio, valid taxels -> the 7 tests
+TESTS = 12
+"""What a sample says, as :func:`sample_tests` lays it out: ``(4, 3, n)`` flattened to ``(12, n)``,
+three tests on each of net Fz, the taxels in contact, the valid taxels and the ratio (the
+rows of :attr:`~skin.contact_sums.SumsKernel.tested`)."""
+DEFINED_TESTS, KNOWN_TEST = slice(4, 6), 6
+"""The tests "a taxel in contact" (twice) and "a valid taxel", adjacent: what the CoP and
+the net force of the default contact PDO need to have a value."""
+_WEIGHTS = np.zeros(TESTS, dtype=np.intp)
+_WEIGHTS[[0, 1, 9, 10, KNOWN_TEST, 5, 7]] = 4, 8, 16, 32, 64, 128, 256
+"""Each test's bit in a table index (:func:`_tables`): net Fz >= onset, release; ratio >=
+μ, (1 - margin)·μ; valid taxels >= 1; taxels in contact >= 1; valid taxels >= 9."""
 
 
 def thresholds(onset_N: ArrayLike, release_N: ArrayLike, friction: ArrayLike,
                near_slip_ratio: ArrayLike, n: int) -> F64:
-    """``(n, 7)``: what :func:`conditions` compares each sample with."""
-    columns = (onset_N, release_N, friction, near_slip_ratio, 1.0, SMALLEST_N,
-               float(TAXELS_PER_PATCH))
-    return np.column_stack([np.broadcast_to(np.asarray(c, dtype=np.float64), (n,))
-                            for c in columns])
-
-
-def conditions(instant: ContactInstant, limits: F64) -> NDArray[np.intp]:
-    """(n,) what each sample says, as bits 2-8 of an index into the tables (the state goes
-    in bits 0-1): its net Fz, tangential ratio and valid taxels against ``limits``
-    (:func:`thresholds`)."""
-    values = np.empty((len(instant), 3))
-    values[:, 0] = instant.force_N[:, 2]
-    values[:, 1] = instant.tangential_ratio
-    values[:, 2] = instant.valid_taxels
-    out: NDArray[np.intp] = (values[:, _SOURCES] >= limits) @ _WEIGHTS
+    """``(4, 3, n)``: what :func:`sample_tests` compares each sample's net Fz (with onset,
+    release), taxels in contact (1, twice), valid taxels (1, 9) and ratio (μ, (1 -
+    margin)·μ) with; +inf where nothing is tested."""
+    out = np.full((4, 3, n), np.inf)
+    out[0, 0] = onset_N
+    out[0, 1] = release_N
+    out[1, 1:] = 1.0
+    out[2, 0] = 1.0
+    out[2, 1] = float(TAXELS_PER_PATCH)
+    out[3, 0] = friction
+    out[3, 1] = near_slip_ratio
     return out
+
+
+def tested(instant: ContactInstant) -> F64:
+    """``(4, 1, n)`` the figures the tests read (the sums' net Fz, taxels in contact, valid
+    taxels and ratio)."""
+    out: F64 = instant.sums[FZ:, None, :, 0]
+    return out
+
+
+def sample_tests(figures: F64, limits: F64) -> Bools:
+    """``(12, n)`` what each sample says: ``figures`` (:func:`tested`) against ``limits``
+    (:func:`thresholds`), in one comparison."""
+    said: Bools = np.greater_equal(figures, limits)
+    return said.reshape(TESTS, -1)
+
+
+def conditions(said: Bools) -> NDArray[np.intp]:
+    """(n,) the tests as bits 2-8 of an index into the tables (the state goes in bits 0-1)."""
+    index: NDArray[np.intp] = np.matmul(_WEIGHTS, said)
+    return index
+
+
+class StateTests:
+    """:func:`sample_tests` and :func:`conditions` of ``n`` rows into buffers of their own, on
+    ``figures`` (a view the summary fills anew for every batch)."""
+
+    def __init__(self, figures: F64, limits: F64) -> None:
+        self._figures = figures
+        self._limits = limits
+        self._said = np.empty(limits.shape, dtype=bool)
+        self.said = self._said.reshape(TESTS, -1)
+        """(12, n) what the last batch said (:func:`sample_tests`)."""
+        self._index = np.empty(limits.shape[-1], dtype=np.intp)
+
+    def run(self) -> list[int]:
+        """Each row's table index (without its state) for what ``figures`` hold now."""
+        np.greater_equal(self._figures, self._limits, out=self._said)
+        index: list[int] = np.matmul(_WEIGHTS, self.said, out=self._index).tolist()
+        return index
 
 
 class ContactBatch:
@@ -95,12 +141,14 @@ class ContactBatch:
     def __init__(self, instant: ContactInstant, state_byte: NDArray[np.uint8]) -> None:
         self.instant = instant
         self.state_byte = state_byte  # (n,)
-        self._flags: dict[int, Bools] = {}
+        self._flags: dict[int, Bools] | None = None
 
     def __len__(self) -> int:
         return len(self.instant)
 
     def _flag(self, bit: int) -> Bools:
+        if self._flags is None:
+            self._flags = {}
         flag = self._flags.get(bit)
         if flag is None:
             flag = self._flags[bit] = (self.state_byte & bit) != 0
@@ -138,7 +186,7 @@ class ContactBatch:
         return ContactSummary(self, i)
 
     def rows(self) -> list[ContactSummary]:
-        return [ContactSummary(self, i) for i in range(len(self))]
+        return list(map(_summary, zip(itertools.repeat(self), range(len(self)))))
 
 
 def step(state: ArrayLike, instant: ContactInstant, *, onset_N: F64 | float,
@@ -149,7 +197,8 @@ def step(state: ArrayLike, instant: ContactInstant, *, onset_N: F64 | float,
     ``state`` ``(n,)`` (0 for a patch never seen); the thresholds scalars or ``(n,)``.
     """
     limits = thresholds(onset_N, release_N, friction, near_slip_ratio, len(instant))
-    index = conditions(instant, limits) + np.asarray(state, dtype=np.intp)
+    said = sample_tests(tested(instant), limits)
+    index = conditions(said) + np.asarray(state, dtype=np.intp)
     return NEXT_STATE[index], ContactBatch(instant, STATE_BYTE[index])
 
 
@@ -159,80 +208,73 @@ def track(instant: ContactInstant, params: ContactParams, state: int = 0
     the last one and every sample's :class:`ContactBatch` row."""
     limits = thresholds(params.onset_N, params.release_N, params.friction,
                         params.near_slip_ratio, len(instant))
-    return sequence(conditions(instant, limits).tolist(), state, instant)
-
-
-def sequence(index: list[int], state: int, instant: ContactInstant) -> tuple[int, ContactBatch]:
-    """The samples of one patch one after the other (each one's state is the last's)."""
     nxt, table = NEXT_STATE.tolist(), STATE_BYTE.tolist()
     out = []
-    for i in index:
+    for i in conditions(sample_tests(tested(instant), limits)).tolist():
         out.append(table[i + state])
         state = nxt[i + state]
     return state, ContactBatch(instant, np.array(out, dtype=np.uint8))
 
 
-class ContactSummary:
-    """One patch-sample's contact (a view of a :class:`ContactBatch` row).
+class ContactSummary(NamedTuple):
+    """One patch-sample's contact: row ``row`` of ``batch``, read from it when asked.
 
     Forces in N, torques in N·m, positions in m; the CoP is 0 (placed: the patch's
     position) where ``cop_defined`` is False. ``partial``: some taxel was invalid, the
     figures rest on the others; ``unknown``: none was valid, every figure is 0 and the
-    contact state is the one held from before.
+    contact state is the one held from before. A pair, so that the host makes a batch's
+    summaries at the cost of tuples (:meth:`ContactBatch.rows`).
     """
 
-    __slots__ = ("_batch", "_i")
-
-    def __init__(self, batch: ContactBatch, i: int) -> None:
-        self._batch = batch
-        self._i = i
+    batch: ContactBatch
+    row: int
 
     @property
     def force_N(self) -> F64:
-        out: F64 = self._batch.instant.force_N[self._i]
+        out: F64 = self.batch.instant.force_N[self.row]
         return out
 
     @property
     def torque_Nm(self) -> F64:
-        out: F64 = self._batch.instant.torque_Nm[self._i]
+        out: F64 = self.batch.instant.torque_Nm[self.row]
         return out
 
     @property
     def cop_m(self) -> F64:
-        out: F64 = self._batch.instant.cop_m[self._i]
+        out: F64 = self.batch.instant.cop_m[self.row]
         return out
 
     @property
     def cop_placed_m(self) -> F64:
-        out: F64 = self._batch.instant.cop_placed_m[self._i]
+        out: F64 = self.batch.instant.cop_placed_m[self.row]
         return out
 
     @property
     def force_placed_N(self) -> F64:
-        out: F64 = self._batch.instant.force_placed_N[self._i]
+        out: F64 = self.batch.instant.force_placed_N[self.row]
         return out
 
     @property
     def cop_defined(self) -> bool:
-        return bool(self._batch.instant.cop_defined[self._i])
+        return bool(self.batch.instant.cop_defined[self.row])
 
     @property
     def contact_taxels(self) -> Bools:
-        out: Bools = self._batch.instant.contact_taxels[self._i]
+        out: Bools = self.batch.instant.contact_taxels[self.row]
         return out
 
     @property
     def taxels_in_contact(self) -> int:
-        return int(self._batch.instant.taxels_in_contact[self._i])
+        return int(self.batch.instant.taxels_in_contact[self.row])
 
     @property
     def contact_area_m2(self) -> float:
         """The taxels in contact times pitch²: the area the contact covers, to a taxel."""
-        return float(self._batch.instant.contact_area_m2[self._i])
+        return float(self.batch.instant.contact_area_m2[self.row])
 
     @property
     def valid_taxels(self) -> int:
-        return int(self._batch.instant.valid_taxels[self._i])
+        return int(self.batch.instant.valid_taxels[self.row])
 
     @property
     def partial(self) -> bool:
@@ -244,41 +286,41 @@ class ContactSummary:
 
     @property
     def tangential_ratio(self) -> float:
-        return float(self._batch.instant.tangential_ratio[self._i])
+        return float(self.batch.instant.tangential_ratio[self.row])
 
     @property
     def taxel_slip(self) -> Bools:
-        out: Bools = self._batch.instant.taxel_slip[self._i]
+        out: Bools = self.batch.instant.taxel_slip[self.row]
         return out
 
     @property
     def taxel_near_slip(self) -> Bools:
-        out: Bools = self._batch.instant.taxel_near_slip[self._i]
+        out: Bools = self.batch.instant.taxel_near_slip[self.row]
         return out
 
     @property
     def in_contact(self) -> bool:
-        return bool(self._batch.in_contact[self._i])
+        return bool(self.batch.in_contact[self.row])
 
     @property
     def onset(self) -> bool:
-        return bool(self._batch.onset[self._i])
+        return bool(self.batch.onset[self.row])
 
     @property
     def release(self) -> bool:
-        return bool(self._batch.release[self._i])
+        return bool(self.batch.release[self.row])
 
     @property
     def slipping(self) -> bool:
-        return bool(self._batch.slipping[self._i])
+        return bool(self.batch.slipping[self.row])
 
     @property
     def slip_onset(self) -> bool:
-        return bool(self._batch.slip_onset[self._i])
+        return bool(self.batch.slip_onset[self.row])
 
     @property
     def near_slip(self) -> bool:
-        return bool(self._batch.near_slip[self._i])
+        return bool(self.batch.near_slip[self.row])
 
     def to_dict(self) -> dict[str, Any]:
         """Plain Python values (JSON-ready): every field."""
@@ -303,3 +345,7 @@ class ContactSummary:
         state = "slipping" if self.slipping else "contact" if self.in_contact else "free"
         return (f"ContactSummary(fz={fz:.3f} N, {where}, {state}, "
                 f"taxels={self.taxels_in_contact}, valid={self.valid_taxels})")
+
+
+_summary = functools.partial(tuple.__new__, ContactSummary)
+"""A :class:`ContactSummary` of a ``(batch, row)`` pair, made by the tuple type itself."""

@@ -27,9 +27,7 @@ from __future__ import annotations
 
 import functools
 import logging
-import weakref
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -41,13 +39,26 @@ from canbus.device.local_device import LocalDevice
 from canbus.device.nmt_slave import OPERATIONAL, START
 from canbus.device.nv_store import NvStore
 from canbus.mappings import force_fd_entries
-from canbus.master.contact import PatchContact
+from canbus.master.contact import PatchContact, judges_changed
+from canbus.master.forceframes import (
+    ANSWERED,
+    COMPLETE,
+    FORCES,
+    MAX_MN,
+    NO_VALUE,
+    STATUS,
+    UNSPECIFIED,
+    VALID,
+    Frame,
+    batch_frames,
+    forces_to_mN,
+    valid_bits,
+)
 from canbus.od import load_od
 from canbus.pdo_codec import (
     COB_ID_INVALID,
     TPDO_COMM,
     TPDO_MAP,
-    MappedEntry,
     PdoCodec,
     read_defaults,
     read_layouts,
@@ -55,7 +66,12 @@ from canbus.pdo_codec import (
 from skin.contact_state import ContactBatch
 from skin.errors import BusError, ConfigError, SkinError
 
-FORCES, SOURCE, STATUS, VALID, ANSWERED, TARE = 0x2000, 0x2001, 0x2004, 0x2005, 0x2006, 0x2007
+__all__ = ["ANSWERED", "COMPLETE", "CONTACT", "CONTACT_PARAMS", "CONTACT_TPDO", "FORCES",
+           "MAX_MN", "NO_VALUE", "SOURCE", "STATUS", "TARE", "TARE_COMMAND", "TPDO_COUNT",
+           "UNSPECIFIED", "VALID", "ForceNode", "Frame", "batch_frames", "force_node_cob_ids",
+           "forces_to_mN", "map_fd", "valid_bits"]
+
+SOURCE, TARE = 0x2001, 0x2007
 CONTACT, CONTACT_PARAMS = contact_record.CONTACT, contact_record.CONTACT_PARAMS
 TPDO_COUNT = 8
 """The force node's TPDOs: 1..7 the forces, 8 the contact."""
@@ -66,135 +82,6 @@ DEVICE_STATE = 0x0800_0022
 """SDO abort: the data cannot be stored because of the present device state (CiA 301)."""
 INVALID_VALUE = 0x0609_0030
 logger = logging.getLogger(__name__)
-
-NO_VALUE = -0x8000
-"""INTEGER16 0x8000: the component has no value (invalid taxel or beyond +-32.767 N)."""
-COMPLETE = 1 << 15
-"""Bit 15 of 0x2005: every PDO of the patch arrived exactly once in the SYNC cycle."""
-MAX_MN = 0x7FFF
-UNSPECIFIED = 0xFF
-"""0x2004 of an invalid taxel when the caller gives no reason code."""
-Frame = tuple[int, bytes]
-
-
-def forces_to_mN(force_N: ArrayLike, valid: ArrayLike) -> tuple[NDArray[np.int16],
-                                                                 NDArray[np.bool_]]:
-    """``(..., 9, 3)`` N and ``(..., 9)`` valid -> INTEGER16 mN and the taxels valid on the bus.
-
-    A component is ``NO_VALUE`` when its taxel is invalid or its value is not finite or
-    rounds beyond +-32767 mN; such a taxel is not valid on the bus.
-    """
-    f = np.asarray(force_N, dtype=np.float64)
-    ok = np.asarray(valid, dtype=bool)
-    mN = np.rint(f * 1000.0)
-    fits = np.abs(mN) <= MAX_MN  # False for NaN and inf too
-    usable = fits & ok[..., None]
-    out = np.where(usable, mN, NO_VALUE).astype(np.int16)
-    return out, usable.all(axis=-1)
-
-
-def valid_bits(valid: ArrayLike, complete: ArrayLike) -> NDArray[np.uint16]:
-    """Object 0x2005: ``(..., 9)`` valid and ``(...)`` complete -> UNSIGNED16."""
-    v = np.asarray(valid, dtype=np.uint16)
-    bits = (v << np.arange(v.shape[-1], dtype=np.uint16)).sum(axis=-1, dtype=np.uint16)
-    complete_bit = np.where(np.asarray(complete, dtype=bool), COMPLETE, 0).astype(np.uint16)
-    return np.asarray(bits | complete_bit, dtype=np.uint16)
-
-
-def batch_frames(nodes: Sequence[ForceNode], force_N: NDArray[np.float64],
-                 valid: NDArray[np.bool_], complete: NDArray[np.bool_],
-                 reason: NDArray[np.uint8] | None = None,
-                 answered: ArrayLike = 0, contact: ContactBatch | None = None,
-                 ) -> list[list[Frame]]:
-    """:meth:`ForceNode.frames` of ``n`` nodes at once: ``(n, 9, 3)``, ``(n, 9)``, ``(n,)``;
-    ``answered``: the counter byte of the SYNC each sample answers (0x2006), ``(n,)`` or
-    one for all; ``contact``: the samples' contact summaries (0x2008; None: no summary).
-
-    Nodes whose TPDOs are mapped alike are packed by one ``PdoCodec.pack`` call.
-    """
-    n = len(nodes)
-    mN, bus_valid = forces_to_mN(force_N, valid)
-    bits = valid_bits(bus_valid, complete)
-    status = (np.where(bus_valid, 0, UNSPECIFIED).astype(np.uint8) if reason is None
-              else np.asarray(reason, dtype=np.uint8))
-    flat_mN, bits_list = mN.reshape(n, 27), bits.tolist()
-    counters = np.broadcast_to(np.asarray(answered, dtype=np.int64), (n,))
-    groups: dict[_Layout, list[tuple[int, PdoCodec]]] = {}
-    counter_list = counters.tolist()
-    for i, node in enumerate(nodes):
-        codec = node._adopt(flat_mN[i], status[i], bits_list[i], counter_list[i], contact, i)
-        groups.setdefault(_layout(codec), []).append((i, codec))
-    subs = sorted({s for key in groups for s in key.contact_subs})
-    table = np.concatenate([flat_mN, status, bits[:, None], np.zeros((n, 1), dtype=np.int64),
-                            counters[:, None], _contact_columns(contact, subs, nodes)],
-                           axis=1, dtype=np.int64)
-    out: list[list[Frame]] = [[] for _ in range(n)]
-    for key, members in groups.items():
-        rows = table if len(members) == n else table[[i for i, _ in members]]
-        payload = members[0][1].pack(rows[:, key.gather]).tobytes()
-        width = key.width * len(key.sizes)
-        for m, (i, codec) in enumerate(members):
-            at = m * width
-            out[i] = [(cob, payload[at + start:at + end])
-                      for cob, (start, end) in zip(codec.cob_ids.tolist(), key.spans, strict=True)]
-    return out
-
-
-def _contact_columns(contact: ContactBatch | None, subs: list[int],
-                     nodes: Sequence[ForceNode]) -> NDArray[np.int64]:
-    """``(n, 15)``: 0x2008 sub 1..15, the mapped ones (``subs``) filled in; a node without
-    a contact judge holds no summary."""
-    n = len(nodes)
-    if contact is None or not subs:
-        out = np.zeros((n, contact_record.SUBS), dtype=np.int64)
-        if subs:
-            out[:, [s - 1 for s in subs]] = contact_record.no_summary(subs, n)
-        return out
-    out = contact_record.columns(contact, subs)
-    if not all(node.contact is not None for node in nodes):
-        none = [i for i, node in enumerate(nodes) if node.contact is None]
-        out[np.ix_(none, [s - 1 for s in subs])] = contact_record.no_summary(subs, len(none))
-    return out
-
-
-@dataclass(frozen=True, eq=False)
-class _Layout:
-    """A mapping shape: nodes with the same one (identity) are packed together."""
-
-    sizes: tuple[int, ...]
-    gather: NDArray[np.intp]  # row columns ``[forces (27), status (9), 0x2005, 0x1001, 0x2006,
-    # 0x2008 (15)]``
-    width: int  # the codec's bytes per PDO
-    spans: tuple[tuple[int, int], ...]  # each PDO's bytes in its node's packed width * P
-    contact_subs: tuple[int, ...]  # the 0x2008 sub-indices it maps
-
-
-_LAYOUTS: weakref.WeakKeyDictionary[PdoCodec, _Layout] = weakref.WeakKeyDictionary()
-_SHAPES: dict[tuple[tuple[MappedEntry, ...], ...], _Layout] = {}
-_FIRST_COLUMN = {FORCES: 0, STATUS: 27, VALID: 36, 0x1001: 37, ANSWERED: 38, CONTACT: 39}
-
-
-def _layout(codec: PdoCodec) -> _Layout:
-    """The codec's shape, one object per distinct mapping (computed once per codec)."""
-    layout = _LAYOUTS.get(codec)
-    if layout is None:
-        entries = tuple(lay.entries for lay in codec.layouts)
-        layout = _SHAPES.get(entries)
-        if layout is None:
-            gather = []
-            for obj, sub in codec.variables:
-                if obj not in _FIRST_COLUMN:  # TpdoTable admits only the EDS's mappable objects
-                    raise ConfigError("pdo mapping", f"0x{obj:04X}:{sub:02X} is not published")
-                gather.append(_FIRST_COLUMN[obj] + max(sub - 1, 0))
-            sizes, width = tuple(int(size) for size in codec.sizes), codec.width
-            contact_subs = tuple(sorted({sub for obj, sub in codec.variables if obj == CONTACT}))
-            layout = _Layout(sizes, np.array(gather, dtype=np.intp), width,
-                             tuple((width * p, width * p + size) for p, size in enumerate(sizes)),
-                             contact_subs)
-            _SHAPES[entries] = layout
-        _LAYOUTS[codec] = layout
-    return layout
-
 
 FD_MAPPING = force_fd_entries()
 """A whole sample in one CAN FD TPDO: 27 forces, 0x2005, 0x2006, and the contact's net Fz,
@@ -252,14 +139,23 @@ class ForceNode(LocalDevice):
         self.on_tare: Callable[[], None] | None = None
         """Called when a master writes 1 to 0x2007 (on the SDO server's thread); an
         exception refuses the write: :class:`SkinError` with abort 0x08000022."""
-        self.contact: PatchContact | None = (PatchContact() if contact is True else
-                                             contact if isinstance(contact, PatchContact)
-                                             else None)
+        self.contact = (PatchContact() if contact is True else
+                        contact if isinstance(contact, PatchContact) else None)
         self._clear_application()
         super().__init__(node_id, "skin-forces", TPDO_COUNT, serial=node_id, nv=nv)
 
     def _on_store_built(self) -> None:
         self.store.validators.append(self._tare)
+
+    @property
+    def contact(self) -> PatchContact | None:
+        """The patch's contact judge (None: no contact summary)."""
+        return self._contact
+
+    @contact.setter
+    def contact(self, judge: PatchContact | None) -> None:
+        self._contact = judge
+        judges_changed()
 
     @property
     def codec(self) -> PdoCodec:
@@ -306,7 +202,7 @@ class ForceNode(LocalDevice):
             contact = summarize_batch([self.contact], f, v, decoded=False)
         return batch_frames([self], f, v, np.array([complete]), r, answered, contact)[0]
 
-    def _adopt(self, forces_mN: NDArray[np.int16], status: NDArray[np.uint8],
+    def adopt(self, forces_mN: NDArray[np.int16], status: NDArray[np.uint8],
                valid: int, answered: int, contact: ContactBatch | None = None,
                row: int = 0) -> PdoCodec:
         """Take one sample's object values; the codec to pack them with."""

@@ -29,7 +29,7 @@ PARAMS = ContactParams(taxel_contact_N=0.1, onset_N=0.25, release_N=0.15, fricti
 
 def _expected(c: ContactSummary) -> list[int]:
     """CoP x, y in 0.01 mm, the state byte, taxels in contact, the contact mask."""
-    cop = [int(np.rint(v / 1e-5)) if c.cop_defined else NO_VALUE for v in c.cop_m]
+    cop = [int(np.rint(v * 1e5)) if c.cop_defined else NO_VALUE for v in c.cop_m]
     flags = (c.in_contact, c.onset, c.release, c.near_slip, c.slipping, c.slip_onset,
              c.partial, c.unknown)
     state = sum(1 << k for k, on in enumerate(flags) if on)
