@@ -40,7 +40,8 @@ from canbus import codes, contact_record
 from canbus.device.patch_node import PatchNode
 from canbus.master.contact import PatchContact, summarize_batch
 from canbus.master.dataplane import DataPlane, PatchChannel
-from canbus.master.forcenode import VALID, ForceNode, forces_to_mN, valid_bits
+from canbus.master.forceframes import VALID, forces_to_mN, valid_bits
+from canbus.master.forcenode import ForceNode
 from canbus.od import load_od
 from decoder.protocol import Decoder
 from decoder.registry import create_decoder

@@ -23,7 +23,7 @@ import numpy as np
 
 from canbus.codes import code_to_resistance
 from canbus.master.cobids import predefined_tpdo_cob_ids
-from canbus.master.forcenode import forces_to_mN
+from canbus.master.forceframes import forces_to_mN
 from canbus.master.hostconfig import FORCE_NODE_OFFSET
 from canbus.od import load_od
 from canbus.tools.replay import Recording

@@ -42,17 +42,12 @@ from canbus.mappings import force_fd_entries
 from canbus.master.contact import PatchContact, judges_changed
 from canbus.master.forceframes import (
     ANSWERED,
-    COMPLETE,
     FORCES,
-    MAX_MN,
     NO_VALUE,
     STATUS,
-    UNSPECIFIED,
     VALID,
     Frame,
     batch_frames,
-    forces_to_mN,
-    valid_bits,
 )
 from canbus.od import load_od
 from canbus.pdo_codec import (
@@ -65,11 +60,6 @@ from canbus.pdo_codec import (
 )
 from skin.contact_state import ContactBatch
 from skin.errors import BusError, ConfigError, SkinError
-
-__all__ = ["ANSWERED", "COMPLETE", "CONTACT", "CONTACT_PARAMS", "CONTACT_TPDO", "FORCES",
-           "MAX_MN", "NO_VALUE", "SOURCE", "STATUS", "TARE", "TARE_COMMAND", "TPDO_COUNT",
-           "UNSPECIFIED", "VALID", "ForceNode", "Frame", "batch_frames", "force_node_cob_ids",
-           "forces_to_mN", "map_fd", "valid_bits"]
 
 SOURCE, TARE = 0x2001, 0x2007
 CONTACT, CONTACT_PARAMS = contact_record.CONTACT, contact_record.CONTACT_PARAMS

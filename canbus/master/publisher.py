@@ -32,7 +32,8 @@ from canbus.master.channel import (
     Subscriber,
 )
 from canbus.master.contact import contact_rows, summarize_nodes
-from canbus.master.forcenode import ForceNode, batch_frames
+from canbus.master.forceframes import batch_frames
+from canbus.master.forcenode import ForceNode
 from canbus.txmessage import TxMessage
 from decoder.protocol import Decoder
 from decoder.reasons import Reason

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
-from canbus.master.forcenode import ForceNode, forces_to_mN
+from canbus.master.forceframes import forces_to_mN
+from canbus.master.forcenode import ForceNode
 from canbus.master.hostconfig import HostConfig, PatchConfig
 from canbus.master.patch_setup import tpdo_layouts
 from canbus.od import load_od

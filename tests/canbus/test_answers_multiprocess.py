@@ -24,7 +24,7 @@ from bench.rigs.answer_audit import audit
 from bench.rigs.children import run, spawn
 from bench.rigs.waiting import wait_until
 from canbus.master.dataplane import ForceFrame
-from canbus.master.forcenode import forces_to_mN
+from canbus.master.forceframes import forces_to_mN
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import load_host_config
 from canbus.tools.recorder import DEFAULT_RCVBUF, enlarge_receive_buffer

@@ -15,7 +15,8 @@ from hypothesis.extra.numpy import arrays
 
 from canbus import contact_record
 from canbus.master.contact import PatchContact, summarize_batch, summarize_nodes
-from canbus.master.forcenode import CONTACT_TPDO, ForceNode, batch_frames, forces_to_mN
+from canbus.master.forceframes import batch_frames, forces_to_mN
+from canbus.master.forcenode import CONTACT_TPDO, ForceNode
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM, TPDO_MAP
 from skin.contact import ContactParams, PatchGeometry, summarize
 from skin.contact_state import ContactBatch, track

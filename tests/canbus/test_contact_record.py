@@ -12,7 +12,8 @@ from hypothesis.extra.numpy import arrays
 
 from canbus import contact_record
 from canbus.master.contact import PatchContact, summarize_batch
-from canbus.master.forcenode import ForceNode, batch_frames
+from canbus.master.forceframes import batch_frames
+from canbus.master.forcenode import ForceNode
 from canbus.od import load_od
 from skin.contact import ContactParams, PatchGeometry
 

@@ -18,7 +18,8 @@ from canbus.device.nmt_slave import OPERATIONAL, STOPPED
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
-from canbus.master.forcenode import COMPLETE, NO_VALUE, ForceNode
+from canbus.master.forceframes import COMPLETE, NO_VALUE
+from canbus.master.forcenode import ForceNode
 from canbus.od import load_od
 from canbus.pdo_codec import TPDO_MAP
 from decoder.protocol import Decoded

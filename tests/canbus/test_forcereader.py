@@ -18,7 +18,8 @@ from hypothesis.extra.numpy import arrays
 
 from bench.rigs.waiting import wait_until
 from canbus import codes
-from canbus.master.forcenode import ForceNode, forces_to_mN
+from canbus.master.forceframes import forces_to_mN
+from canbus.master.forcenode import ForceNode
 from canbus.master.patch_setup import tpdo_layouts
 from canbus.od import eds_file, load_od
 from canbus.pdo_codec import PdoCodec

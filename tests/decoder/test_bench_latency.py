@@ -2,7 +2,8 @@
 
 Run with -n 0 --benchmark-enable to measure (docs/decoders.md quotes the medians)::
 
-    pytest tests/decoder/test_bench_latency.py -n 0 --benchmark-enable --benchmark-columns=min,median
+    pytest tests/decoder/test_bench_latency.py -n 0 --benchmark-enable \
+        --benchmark-columns=min,median
 
 In the normal suite each runs once, unmeasured. The sample is a (1, 9, P) array
 of ordinary readings, so it takes the fast path (asserted).

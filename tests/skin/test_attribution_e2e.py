@@ -26,7 +26,7 @@ from canbus import codes
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.dataplane import ForceFrame
-from canbus.master.forcenode import forces_to_mN
+from canbus.master.forceframes import forces_to_mN
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, load_host_config
 from canbus.tools.attribution import Attribution

@@ -20,7 +20,7 @@ from matplotlib import colormaps
 from PIL import Image
 
 from bench.rigs.view import HostRun, record_host_run, until
-from canbus.master.forcenode import forces_to_mN
+from canbus.master.forceframes import forces_to_mN
 from canbus.tools.replay import Recording
 from sim import Simulator
 from skin.cli import main
