@@ -20,7 +20,8 @@ A block may carry a marker, an HTML comment on the line before its fence:
   (``$CAN_INTERFACE``, ``$CAN_CHANNEL``, ``$CAN_CONFIG``): a multicast group and UDP port of
   its own, so commands as written (``-i udp_multicast``, or no flag at all) meet there;
 - ``with="cmd; cmd"``: commands running in the background for the block's length (a
-  simulated robot for a live example), stopped by SIGTERM after it;
+  simulated robot for a live example), stopped by SIGTERM after it; the block starts once
+  each has said it is up (``Ctrl-C stops``, as ``skin sim run`` and ``skin run`` print);
 - ``stop=S``: a command that runs until it is stopped is stopped after S seconds by
   SIGTERM, as ``timeout`` does (every ``skin`` the block runs);
 - ``together=yes``: the lines run at once ("in two terminals");
@@ -154,6 +155,21 @@ def bus_env(block: Block, base: dict[str, str]) -> dict[str, str]:
         env["CAN_CHANNEL"] = f"239.74.{200 + pid % 50}.{n % 250 + 1}"
         env["CAN_CONFIG"] = json.dumps({"port": 32000 + (pid % 500) * 8 + n % 8})
     return env
+
+
+def work(document: Path) -> int:
+    """How much a document runs, roughly: its commands and Python examples, and what runs
+    beside them (a ``with`` background)."""
+    total = 0
+    for block in blocks(document):
+        if "skip" in block.marker or "long" in block.marker:
+            continue
+        if block.lang in SHELL:
+            total += len(commands(block))
+        elif block.lang == "python":
+            total += 3
+        total += 3 * bool(block.marker.get("with"))
+    return total
 
 
 def held_back(block: Block) -> str | None:

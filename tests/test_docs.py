@@ -93,7 +93,7 @@ def results(tmp_path_factory: pytest.TempPathFactory) -> dict[Path, Future[Resul
     """Every document's blocks, the documents run at once (most of a block's time is
     processes starting and commands waiting out their --seconds), each on a bus of its own;
     the ones with the most to run start first, so that the last to start is a short one."""
-    jobs = int(os.environ.get("SKIN_DOCS_JOBS", "4"))
+    jobs = int(os.environ.get("SKIN_DOCS_JOBS", "3"))
     pool = ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="docs")
     futures = {doc: pool.submit(_run_document, doc, tmp_path_factory.mktemp(doc.stem))
                for doc in sorted(docblocks.documents(), key=docblocks.work, reverse=True)}
