@@ -11,27 +11,11 @@ faulty taxels and samples that cannot be joined are counted and left out.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import logging
-from collections.abc import Iterator
 from typing import Any
 
 from skin.commands.common import argtypes
 
 _SOURCES = {"sdo": "the SDO writes", "eds": "the EDS default", "option": "--mapping"}
-
-
-@contextlib.contextmanager
-def _quiet_host() -> Iterator[None]:
-    """The listen-only host logs a live bus's events (a patch lost where the recording
-    ends, a masked taxel); here they are counted in the summary instead."""
-    logger = logging.getLogger("canbus.master")
-    level = logger.level
-    logger.setLevel(logging.ERROR)
-    try:
-        yield
-    finally:
-        logger.setLevel(level)
 
 
 def _from_recording(args: argparse.Namespace) -> int:
@@ -46,7 +30,9 @@ def _from_recording(args: argparse.Namespace) -> int:
         raise ConfigError("-o", f"a dataset is an .npz file, got {args.output!r}")
     how = JoinChoice(args.join, args.tolerance_ms, args.clock_offset_ms)
     nodes = tuple(args.node) if args.node else None
-    with _quiet_host():
+    from skin.commands.decode_report import quiet_host
+
+    with quiet_host():
         made = dataset_from_recording(args.recording, args.reference, nodes=nodes,
                                       mapping=args.mapping, how=how,
                                       sync_window_ms=args.sync_window_ms,
