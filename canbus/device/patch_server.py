@@ -134,13 +134,15 @@ class PatchServer:
     def start(self) -> None:
         self._tick()  # nodes hold a real sample before anyone can read them
         for bus in self.buses:
+            # SYNC is followed before any node boots: a master that starts on a boot-up
+            # finds every SYNC it sends counted (each SYNC reads its own simulator step)
+            bus.on_sync = self._sync_handler(bus)
+            follow_sync(bus)
             for node in bus.nodes:
                 node.on_node_id_changed = self._node_id_changed
                 node.on_cob_ids_changed = functools.partial(self._cob_ids_changed, bus)
                 node.attach(bus.network)
             self._claim(bus)
-            bus.on_sync = self._sync_handler(bus)
-            follow_sync(bus)
         if self._event_rate_hz > 0:
             self._sampler.start()
 

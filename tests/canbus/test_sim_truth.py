@@ -36,7 +36,9 @@ def test_the_truth_of_every_answer(request: pytest.FixtureRequest, tmp_path: Pat
         for counter in (1, 2):  # pre-operational: no answer, no truth
             master.send_message(0x080, bytes([counter]))
             time.sleep(0.01)  # pacing: SYNCs 10 ms apart
-        master.send_message(0x000, bytes([0x01, 1]))  # NMT start node 1 (before the next)
+        master.send_message(0x000, bytes([0x01, 1]))  # NMT start node 1
+        wait_until(lambda: any(m.arbitration_id == 0x701 and m.data[0] == 0x05
+                               for m in answers), what="node 1's heartbeat: operational")
         for counter in range(3, 43):
             master.send_message(0x080, bytes([counter]))
             sent.append(counter)
