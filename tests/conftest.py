@@ -63,3 +63,9 @@ def pytest_runtest_makereport(item: pytest.Item,
         children.reap()
         for child in children.started:
             report.sections.append((f"child pid {child.pid}", child.output()))
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The documentation's test first: its documents run for minutes in a pool of their own,
+    so with two workers (a test file each) the other files run beside it, not after it."""
+    items.sort(key=lambda item: item.path.name != "test_docs.py")
