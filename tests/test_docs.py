@@ -122,3 +122,17 @@ def test_markers_are_read(tmp_path: Path) -> None:
     assert docblocks.commands(block) == [("skin sniff -i udp_multicast  # exit 0", 0),
                                          ("skin x &", 0)]
     assert "timeout -s TERM --preserve-status 2 skin" in docblocks.script(block)
+
+
+def test_a_background_command_is_waited_for_and_checked(tmp_path: Path) -> None:
+    """``cmd &  # why`` runs in the background like ``cmd &``; ``wait`` waits for it and
+    fails the block on its exit status."""
+    text = ("```\nsleep 0.2; exit 3 &  # in the background, with a comment\n"
+            "touch started\nwait\ntest -e started && touch after\n```\n")
+    path = tmp_path / "probe.md"
+    path.write_text(text, encoding="utf-8")
+    block, = docblocks.blocks(path)
+    got = docblocks.run(["bash", "-c", docblocks.script(block)], tmp_path, dict(os.environ),
+                        30.0)
+    assert got.code == 1 and "background command 1" in got.stderr
+    assert (tmp_path / "after").exists()
