@@ -89,14 +89,18 @@ def _run_document(document: Path, tmp: Path) -> Result:
 
 
 @pytest.fixture(scope="module")
-def results(tmp_path_factory: pytest.TempPathFactory) -> dict[Path, Future[Result]]:
-    """Every document's blocks, the documents run at once (most of a block's time is
-    processes starting and commands waiting out their --seconds), each on a bus of its own;
-    the ones with the most to run start first, so that the last to start is a short one."""
+def results(request: pytest.FixtureRequest,
+            tmp_path_factory: pytest.TempPathFactory) -> dict[Path, Future[Result]]:
+    """The blocks of every document a selected test names (``-k zenoh``: that one alone),
+    the documents run at once (most of a block's time is processes starting and commands
+    waiting out their --seconds), each on a bus of its own; the ones with the most to run
+    start first, so that the last to start is a short one."""
+    selected = {item.callspec.params["document"] for item in request.session.items
+                if "document" in getattr(getattr(item, "callspec", None), "params", {})}
     jobs = int(os.environ.get("SKIN_DOCS_JOBS", "4"))
     pool = ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="docs")
     futures = {doc: pool.submit(_run_document, doc, tmp_path_factory.mktemp(doc.stem))
-               for doc in sorted(docblocks.documents(), key=docblocks.work, reverse=True)}
+               for doc in sorted(selected, key=docblocks.work, reverse=True)}
     pool.shutdown(wait=False)
     return futures
 
