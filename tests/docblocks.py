@@ -226,8 +226,8 @@ def script(block: Block) -> str:
         return "\n".join(parts) + '\nexit "$fails"\n'
     background, waiting = 0, []
     for line, want in lines:
-        if line.rstrip().endswith("&"):
-            parts.append(f"{line} bg{background}=$!")
+        if _in_background(line):
+            parts.append(f"{line}\nbg{background}=$!")  # a line of its own: after a comment
             waiting.append(background)
             background += 1
         elif line.split("#", 1)[0].strip() == "wait":  # every background command: checked
@@ -237,6 +237,15 @@ def script(block: Block) -> str:
             parts.append(_check(line, line, want))
     parts += [_check(f"wait $bg{k}", f"background command {k + 1}", 0) for k in waiting]
     return "\n".join(parts) + '\nexit "$fails"\n'
+
+
+def _in_background(line: str) -> bool:
+    """The line ends in ``&``, before any comment (``cmd &  # why``)."""
+    try:
+        words = shlex.split(line, comments=True)
+    except ValueError:
+        return line.rstrip().endswith("&")
+    return bool(words) and words[-1] == "&"
 
 
 def _check(run: str, what: str, want: int) -> str:

@@ -89,14 +89,18 @@ def _run_document(document: Path, tmp: Path) -> Result:
 
 
 @pytest.fixture(scope="module")
-def results(tmp_path_factory: pytest.TempPathFactory) -> dict[Path, Future[Result]]:
-    """Every document's blocks, the documents run at once (most of a block's time is
-    processes starting and commands waiting out their --seconds), each on a bus of its own;
-    the ones with the most to run start first, so that the last to start is a short one."""
+def results(request: pytest.FixtureRequest,
+            tmp_path_factory: pytest.TempPathFactory) -> dict[Path, Future[Result]]:
+    """The blocks of every document a selected test names (``-k zenoh``: that one alone),
+    the documents run at once (most of a block's time is processes starting and commands
+    waiting out their --seconds), each on a bus of its own; the ones with the most to run
+    start first, so that the last to start is a short one."""
+    selected = {item.callspec.params["document"] for item in request.session.items
+                if "document" in getattr(getattr(item, "callspec", None), "params", {})}
     jobs = int(os.environ.get("SKIN_DOCS_JOBS", "3"))
     pool = ThreadPoolExecutor(max_workers=jobs, thread_name_prefix="docs")
     futures = {doc: pool.submit(_run_document, doc, tmp_path_factory.mktemp(doc.stem))
-               for doc in sorted(docblocks.documents(), key=docblocks.work, reverse=True)}
+               for doc in sorted(selected, key=docblocks.work, reverse=True)}
     pool.shutdown(wait=False)
     return futures
 
@@ -122,3 +126,17 @@ def test_markers_are_read(tmp_path: Path) -> None:
     assert docblocks.commands(block) == [("skin sniff -i udp_multicast  # exit 0", 0),
                                          ("skin x &", 0)]
     assert "timeout -s TERM --preserve-status 2 skin" in docblocks.script(block)
+
+
+def test_a_background_command_is_waited_for_and_checked(tmp_path: Path) -> None:
+    """``cmd &  # why`` runs in the background like ``cmd &``; ``wait`` waits for it and
+    fails the block on its exit status."""
+    text = ("```\nsleep 0.2; exit 3 &  # in the background, with a comment\n"
+            "touch started\nwait\ntest -e started && touch after\n```\n")
+    path = tmp_path / "probe.md"
+    path.write_text(text, encoding="utf-8")
+    block, = docblocks.blocks(path)
+    got = docblocks.run(["bash", "-c", docblocks.script(block)], tmp_path, dict(os.environ),
+                        30.0)
+    assert got.code == 1 and "background command 1" in got.stderr
+    assert (tmp_path / "after").exists()
