@@ -118,6 +118,7 @@ def test_nothing_put_or_asked_on_zenoh_reaches_the_host_or_the_bus() -> None:
         try:
             wait_until(lambda: list(session.info.peers_zid()), what="the reader's session "
                        "connected to the host")
+            wait_until(rig.by_cycle, what="a first sample of the host")
             with can_side(rig) as side:
                 replies = []
                 forged = schema.encode_forces(rig.by_cycle()[next(iter(rig.by_cycle()))],
