@@ -42,11 +42,16 @@ def open_can_bus(kwargs: Mapping[str, Any], what: str) -> can.BusABC:
         raise BusError(f"cannot open {what}: {problem}") from err
 
 
-def configured_interface() -> str | None:
-    """The interface python-can's own configuration (files, ``CAN_INTERFACE``) names, or
-    None: ``can.util.load_config`` raises when none is configured at all."""
+def python_can_config() -> dict[str, Any]:
+    """What python-can's own configuration (files, ``CAN_INTERFACE``, ``CAN_CHANNEL``)
+    names; empty when it names no interface (``can.util.load_config`` raises then)."""
     try:
-        interface = can.util.load_config().get("interface")
+        return dict(can.util.load_config())
     except Exception:  # python-can raises CanInterfaceNotImplementedError for "none"
-        return None
+        return {}
+
+
+def configured_interface() -> str | None:
+    """The interface python-can's own configuration names, or None."""
+    interface = python_can_config().get("interface")
     return interface if isinstance(interface, str) else None

@@ -72,6 +72,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         with configured_logging(args), stop_signals_interrupt():
             code = args.func(args)
     except KeyboardInterrupt as err:
+        if getattr(args, "runs_until_stopped", False):  # stopped while starting or ending:
+            # still how such a command is meant to end (docs/cli.md, exit status)
+            print(f"skin: stopped ({stop_signal_name(err)})", file=sys.stderr)
+            return 0
         print(f"skin: interrupted ({stop_signal_name(err)})", file=sys.stderr)
         return 130
     except (SkinError, OSError) as err:

@@ -62,6 +62,10 @@ class BusError(SkinError, RuntimeError):
     """Something on the CAN bus went wrong."""
 
 
+class SourceError(SkinError, RuntimeError):
+    """What feeds the patches their resistances (the simulator, a replay) failed."""
+
+
 class RecordingError(SkinError, ValueError):
     """A recording is truncated, corrupt or of an unsupported kind; names the frame."""
 

@@ -97,6 +97,14 @@ class PatchNode(LocalDevice):
             self.faults.update(status, self.network if emcy_live else None,
                                int(self.store.value(0x1014)), self.history)
 
+    def halt(self) -> None:
+        """The patch can no longer take samples (its source failed): EMCY 0x6100, and the
+        error register says so; its server answers no SYNC for it from then on."""
+        with self.lock:
+            emcy_live = self.nmt.state in (OPERATIONAL, PRE_OPERATIONAL)
+            self.faults.halt(self.network if emcy_live else None,
+                             int(self.store.value(0x1014)), self.history)
+
     def values(self) -> NDArray[np.float64]:
         """The current values of the variables the TPDOs map, in codec column order."""
         flat: dict[int, NDArray[np.generic]] = {RESISTANCES: self.codes.reshape(-1),

@@ -126,6 +126,10 @@ class PatchServer:
         self._event_rate_hz = event_rate_hz
         self._accept_only_consumed = accept_only_consumed
         self._sampler = Worker(self._sample_loop, "patch-samples")
+        self.failure: Exception | None = None
+        """Why the patches stopped taking samples (None: they take them): from then on no
+        SYNC is answered, so no master decodes a frozen sample as a live one."""
+        self.failed = threading.Event()
 
     @property
     def frames_sent(self) -> int:
@@ -234,8 +238,24 @@ class PatchServer:
             if stopping.is_set():
                 break
             self._wait_quiet(deadline, period)
-            self._tick()
+            try:
+                self._tick()
+            except Exception as err:
+                self._fail(err)
+                return
             self._send_events(time.monotonic())
+
+    def _fail(self, err: Exception) -> None:
+        """The source failed: every patch halts (EMCY 0x6100) and answers no more SYNCs."""
+        with self._lock:
+            if self.failure is not None:
+                return
+            self.failure = err
+        logger.error("patch server: the source failed, the patches answer no more SYNCs: "
+                     "%s: %s", type(err).__name__, err)
+        for node in self.nodes:
+            node.halt()
+        self.failed.set()
 
     def _wait_quiet(self, since: float, period: float) -> None:
         """While SYNCs come, wait (at most a period) until every bus that has them answered
@@ -318,8 +338,17 @@ class PatchServer:
             bus.syncs += 1
             counter = bus.syncs
             reads = not self._sampler.running  # no sample clock: every SYNC reads a sample
-            remapped = reads and self._take(self._read())
+            try:
+                remapped = reads and self.failure is None and self._take(self._read())
+            except Exception as err:
+                failed: Exception | None = err
+            else:
+                failed = None
             prepared = self._prepared
+        if failed is not None:
+            self._fail(failed)
+        if self.failure is not None:
+            return
         if remapped:
             self._claim(bus)
         messages: list[can.Message] = []

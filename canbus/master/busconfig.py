@@ -23,7 +23,7 @@ from typing import Any
 
 import can
 
-from canbus.busopen import configured_interface, open_can_bus
+from canbus.busopen import configured_interface, open_can_bus, python_can_config
 from skin.errors import BusError, ConfigError
 from skin.inputs import fields
 
@@ -45,8 +45,17 @@ class BusConfig:
 
     @property
     def described(self) -> str:
-        """``interface:channel`` for messages (``?`` where not set)."""
-        return f"{self.interface or '?'}:{self.channel if self.channel is not None else '?'}"
+        """``interface:channel`` for messages; what python-can's own configuration names
+        where the config sets neither (said so), ``?`` for what nothing names."""
+        interface, channel = self.interface, self.channel
+        if interface is not None:
+            return f"{interface}:{'?' if channel is None else channel}"
+        configured = python_can_config()
+        interface = configured.get("interface")
+        if channel is None:
+            channel = configured.get("channel")
+        named = f"{interface or '?'}:{'?' if channel is None else channel}"
+        return f"{named} (python-can's configuration)" if interface else named
 
     def kwargs(self) -> dict[str, Any]:
         """The keyword arguments of ``can.Bus`` for this bus."""

@@ -117,4 +117,4 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
                         help="write the figures as JSON")
     argtypes.add_bus_arguments(parser)
-    parser.set_defaults(func=_replay)
+    parser.set_defaults(func=_replay, runs_until_stopped=True)

@@ -346,4 +346,4 @@ def add_subparser(subparsers: Any) -> None:
     add_cpu_argument(parser, default="all")
     add_rcvbuf_argument(parser)
     argtypes.add_bus_arguments(parser)
-    parser.set_defaults(func=_run)
+    parser.set_defaults(func=_run, runs_until_stopped=True)

@@ -311,3 +311,14 @@ def test_bit_errors_on_a_timed_bus_never_mix_a_sample(request: pytest.FixtureReq
     assert len(complete) > len(frames) // 2
     for frame in complete:
         assert any(np.allclose(frame.force_N, a, rtol=1e-12, atol=1e-12) for a in answers)
+
+
+def test_a_bus_left_to_python_can_names_what_its_configuration_opens(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A config without interface opens what python-can's configuration names, and the
+    messages say which, not "?:?"."""
+    monkeypatch.setenv("CAN_INTERFACE", "virtual")
+    monkeypatch.setenv("CAN_CHANNEL", "arm0")
+    assert BusConfig().described == "virtual:arm0 (python-can's configuration)"
+    assert BusConfig(channel="arm1").described == "virtual:arm1 (python-can's configuration)"
+    assert BusConfig(interface="udp_multicast").described == "udp_multicast:?"

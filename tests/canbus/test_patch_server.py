@@ -389,3 +389,54 @@ def test_a_mapping_written_while_samples_are_taken_never_stops_them(
             wait_until(lambda: server.samples > taken, what="the sample thread still sampling")
     finally:
         sys.setswitchinterval(switch)
+
+
+class _FailingSource(ArraySource):
+    """Replays samples, then fails from its ``fails_at``-th read on."""
+
+    def __init__(self, resistance_ohm: np.ndarray, node_ids: tuple[int, ...],
+                 fails_at: int) -> None:
+        super().__init__(resistance_ohm, node_ids)
+        self.reads = 0
+        self.fails_at = fails_at
+
+    def read(self) -> np.ndarray:
+        self.reads += 1
+        if self.reads >= self.fails_at:
+            raise RuntimeError("the simulated ADC stopped")
+        return super().read()
+
+
+@pytest.mark.parametrize("event_rate_hz", [0.0, 500.0])
+def test_a_source_that_fails_halts_its_patches_with_an_emcy_instead_of_a_frozen_sample(
+        virtual: tuple[canopen.Network, Master], event_rate_hz: float) -> None:
+    """Once the source fails, each patch sends EMCY 0x6100 with its error register set and
+    answers no SYNC: a master never decodes the last sample as a live one."""
+    network, master = virtual
+    node_ids = (1, 2)
+    source = _FailingSource(_samples(8, len(node_ids)), node_ids, fails_at=4)
+    server = PatchServer(network, source, event_rate_hz=event_rate_hz)
+    with server:
+        master.start_all()
+        _operational(server)
+        counter = 0
+        while not server.failed.is_set():  # SYNCs make a SYNC-driven server read
+            counter += 1
+            master.sync(counter % 256)
+            server.failed.wait(0.01)
+            assert counter < 10_000, "the source never failed"
+        wait_until(lambda: len([m for m in master.seen.frames
+                                if 0x081 <= m.arbitration_id <= 0x0FF]) == len(node_ids),
+                   what="one EMCY from each patch")
+        emcys = [m for m in master.seen.frames if 0x081 <= m.arbitration_id <= 0x0FF]
+        assert sorted(m.arbitration_id - 0x080 for m in emcys) == list(node_ids)
+        assert {bytes(m.data[:3]) for m in emcys} == {b"\x00\x61\x81"}
+        sent = server.frames_sent
+        before = len(master.seen.frames)
+        for k in range(5):
+            master.sync(k)
+        wait_until(lambda: len(master.seen.frames) >= before + 5, what="the five SYNCs")
+        assert server.frames_sent == sent, "a halted patch answered a SYNC"
+        assert [int(n.store.value(0x1003, 1)) & 0xFFFF for n in server.nodes] == [0x6100] * 2
+    assert isinstance(server.failure, RuntimeError)
+    assert "ADC stopped" in str(server.failure)

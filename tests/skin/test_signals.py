@@ -66,3 +66,24 @@ def test_sigterm_in_a_finite_command_exits_130_and_leaves_no_file(
     assert code == 130
     assert capsys.readouterr().err == "skin: interrupted (SIGTERM)\n"
     assert list(tmp_path.iterdir()) == []  # neither d.npz nor its temporary file
+
+
+def test_sigterm_while_a_long_running_command_starts_is_still_a_clean_stop(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """docs/cli.md: stopping is how `skin sim run` (and the other long-running commands)
+    end, exit status 0, whatever they are doing: while they set up too."""
+    import skin.commands.sim.run as sim_run
+
+    real = sim_run.plan_for
+
+    def stopped_while_planning(*args: object, **kwargs: object) -> object:
+        _signal_self(signal.SIGTERM)  # as systemd stops it before it serves
+        return real(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(sim_run, "plan_for", stopped_while_planning)
+    code = main(["sim", "run", "indenter", "-i", "virtual", "-c", "signals-start",
+                 "--seconds", "1", "--json", str(tmp_path / "run.json")])
+    assert code == 0
+    assert capsys.readouterr().err.endswith("skin: stopped (SIGTERM)\n")
+    assert list(tmp_path.iterdir()) == []  # nothing half-written

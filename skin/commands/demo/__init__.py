@@ -360,4 +360,4 @@ def add_subparser(subparsers: Any) -> None:
     add_cpu_argument(parser, default="last with --bus virtual, else all")
     # On the zero-time bus one CPU for every thread keeps a cycle's hand-offs in one cache;
     # the timed bus adds a wire thread per bus, and the run needs both CPUs of a small host.
-    parser.set_defaults(func=_demo, cpu=None)
+    parser.set_defaults(func=_demo, cpu=None, runs_until_stopped=True)

@@ -198,7 +198,7 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
     from skin.atomic import atomic_write
     from skin.commands.common.signals import until_stopped
     from skin.commands.sim.identity import patch_identities
-    from skin.errors import BusError
+    from skin.errors import BusError, SourceError
 
     simulator = Simulator(scene, seed=args.seed)
     truth = TruthSource(simulator) if args.truth else None
@@ -217,7 +217,7 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
                       else contextlib.nullcontext()) as log, until_stopped() as stopped:
             started, cpu0 = time.monotonic(), os.times()
             _announce(scene, server, flags)
-            _until(args.seconds, started, networks)
+            _until(args.seconds, started, networks, server.failed)
     finally:
         gc.unfreeze()
     elapsed, cpu1 = time.monotonic() - started, os.times()
@@ -239,27 +239,32 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
         record = _record(scene, server, flags, planned, elapsed, cpu)
         record["stopped_by"] = stopped.signal
         record["bus_gone"] = gone(n.bus for n in networks)
+        record["source_failed"] = None if server.failure is None else repr(server.failure)
         if log is not None:
             record.update(truth_samples=log.writer.samples, truth_late=log.late)
         with atomic_write(args.json) as handle:
             handle.write(json.dumps(record, indent=2).encode() + b"\n")
+    if server.failure is not None:
+        raise SourceError(f"the simulator failed ({type(server.failure).__name__}: "
+                          f"{server.failure}): the patches sent EMCY 0x6100 and stopped "
+                          "answering")
     lost = gone(n.bus for n in networks)
     if lost is not None:
         raise BusError(f"{lost}: the patches cannot be heard")
     return 0
 
 
-def _until(seconds: float | None, started: float, networks: list[canopen.Network]) -> None:
+def _until(seconds: float | None, started: float, networks: list[canopen.Network],
+           failed: threading.Event) -> None:
     """Wait out ``seconds`` from ``started`` (None: until a stop signal), or until a bus is
-    gone for good."""
+    gone for good or the patches' source ``failed``."""
     from canbus.busio import gone
 
-    stop = threading.Event()
     deadline = None if seconds is None else started + seconds
     while (deadline is None or time.monotonic() < deadline) and \
-            gone(n.bus for n in networks) is None:
-        stop.wait(_POLL_S if deadline is None else
-                  max(0.0, min(_POLL_S, deadline - time.monotonic())))
+            gone(n.bus for n in networks) is None and not failed.is_set():
+        failed.wait(_POLL_S if deadline is None else
+                    max(0.0, min(_POLL_S, deadline - time.monotonic())))
 
 
 def _record(scene: Scene, server: Any, flags: list[argparse.Namespace], planned: Plan,
@@ -327,4 +332,4 @@ def add_subparser(group_subparsers: Any) -> None:
     add_identity_arguments(parser)
     add_cpu_argument(parser, default="all")
     argtypes.add_bus_arguments(parser)
-    parser.set_defaults(func=_run)
+    parser.set_defaults(func=_run, runs_until_stopped=True)

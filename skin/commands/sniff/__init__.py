@@ -282,4 +282,4 @@ def add_subparser(subparsers: Any) -> None:
                         help="write the summary as JSON")
     add_config_arguments(parser)
     argtypes.add_bus_arguments(parser, filter_arg=True)
-    parser.set_defaults(func=_sniff)
+    parser.set_defaults(func=_sniff, runs_until_stopped=True)
