@@ -87,3 +87,17 @@ def test_sigterm_while_a_long_running_command_starts_is_still_a_clean_stop(
     assert code == 0
     assert capsys.readouterr().err.endswith("skin: stopped (SIGTERM)\n")
     assert list(tmp_path.iterdir()) == []  # nothing half-written
+
+
+def test_a_stop_signal_the_process_was_started_ignoring_stays_ignored() -> None:
+    """``nohup skin run &`` outlives its terminal: nohup's ignored SIGHUP is not a stop."""
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with stop_signals_interrupt():
+            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+            assert signal.getsignal(signal.SIGTERM) is not signal.SIG_IGN  # still a stop
+            os.kill(os.getpid(), signal.SIGHUP)
+            holds_for(lambda: True, 0.05, what="an ignored SIGHUP changing nothing")
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, previous)

@@ -8,7 +8,8 @@ turns both into :class:`Stopped`, a ``KeyboardInterrupt``, in the main thread, s
 ``skin.cli.main`` holds it around every command; :func:`until_stopped` marks the part of
 a long-running command that a stop ends normally (its summary and ``--json`` follow).
 
-Only the first SIGTERM or SIGHUP interrupts: later ones are ignored until the command
+A stop signal the process was started with ignored (``nohup`` ignores SIGHUP) stays
+ignored. Only the first SIGTERM or SIGHUP interrupts: later ones are ignored until the command
 ends, so a service manager that signals twice does not cut the clean stop short
 (Ctrl-C, SIGINT, still interrupts it, as Python does by default; SIGKILL always works).
 """
@@ -52,11 +53,14 @@ def stop_signals_interrupt() -> Iterator[None]:
         return
 
     def interrupt(signum: int, frame: FrameType | None) -> None:
-        for sig in STOP_SIGNALS:  # one stop: a second signal must not cut the clean stop
+        for sig in previous:  # one stop: a second signal must not cut the clean stop
             signal.signal(sig, signal.SIG_IGN)
         raise Stopped(signum)
 
-    previous = {sig: signal.signal(sig, interrupt) for sig in STOP_SIGNALS}
+    # A signal the process was started with ignored stays ignored: ``nohup skin run`` must
+    # outlive its terminal's SIGHUP
+    previous = {sig: signal.signal(sig, interrupt) for sig in STOP_SIGNALS
+                if signal.getsignal(sig) is not signal.SIG_IGN}
     try:
         yield
     finally:
