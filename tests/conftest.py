@@ -22,12 +22,16 @@ settings.load_profile(os.environ.get("CANSKIN_HYPOTHESIS_PROFILE", "dev"))
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Ctrl-C raises KeyboardInterrupt here however the suite was started: a shell without
-    job control starts a background command (``.ci/run &``, ``nohup``) with SIGINT ignored,
-    which Python then leaves ignored, and the tests that stop a command as a user does
-    (SIGINT) would wait for ever. Children started from here get it back as well."""
-    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+    """The stop signals act as on a terminal however the suite was started: a shell without
+    job control starts a background command (``.ci/run &``) with SIGINT ignored, ``nohup``
+    ignores SIGHUP, and a command leaves a signal it was started ignoring ignored
+    (``skin.commands.common.signals``), so the tests that stop a command as a user does
+    would wait for ever. Children started from here get them back as well."""
+    defaults = {signal.SIGINT: signal.default_int_handler, signal.SIGHUP: signal.SIG_DFL,
+                signal.SIGTERM: signal.SIG_DFL}
+    for sig, handler in defaults.items():
+        if signal.getsignal(sig) is signal.SIG_IGN:
+            signal.signal(sig, handler)
 
 
 @pytest.fixture

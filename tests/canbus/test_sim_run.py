@@ -171,3 +171,32 @@ def test_the_planner_warns_of_a_target_only_where_there_is_a_wire(
     err = capsys.readouterr().err
     assert ("is above the 70 % target" in err) == warned
     assert "cannot carry" not in err
+
+
+def test_sim_run_whose_simulator_fails_ends_with_one_line_and_its_json(
+        request: pytest.FixtureRequest, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A simulator that raises mid-run does not leave the patches answering with a frozen
+    sample for ever: the run ends, exit status 1, one line naming the error, --json says so."""
+    from canbus.device.source import SimulatorSource
+
+    real = SimulatorSource.read
+    reads = [0]
+
+    def failing(self: SimulatorSource) -> object:
+        reads[0] += 1
+        if reads[0] > 5:
+            raise FloatingPointError("the contact solve diverged")
+        return real(self)
+
+    monkeypatch.setattr(SimulatorSource, "read", failing)
+    out = tmp_path / "run.json"
+    code = main(["sim", "run", "indenter", "-i", "virtual", "-c", f"fail-{request.node.name}",
+                 "--seconds", "60", "--json", str(out)])
+    assert code == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == ("skin: error: the simulator failed (FloatingPointError: the contact "
+                       "solve diverged): the patches sent EMCY 0x6100 and stopped answering")
+    record = json.loads(out.read_text())
+    assert record["source_failed"] == "FloatingPointError('the contact solve diverged')"
+    assert record["seconds"] < 60

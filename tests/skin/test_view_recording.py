@@ -85,15 +85,26 @@ def test_the_reader_gets_every_published_sample_of_the_run_bit_for_bit(run: Host
 
 
 def test_decoding_the_recording_here_gives_the_host_s_own_frames(run: HostRun) -> None:
+    """Every sample the live host completed is decoded offline bit for bit. The live host
+    closes a cycle when it sends the next SYNC, so on a busy machine, whose receive thread
+    had not yet taken the cycle's last frames then, it has fewer valid taxels than the
+    recording holds: then the offline decode has every taxel the host had, alike."""
     decoded = recorded_samples(run.path, decode=run.config)
+    complete = 0
     for patch in (1, 2):
         want = [f for f in run.frames if f.patch == patch]
         got = [f for f in decoded if f.patch == patch]
         assert [f.cycle for f in got] == [f.cycle for f in want]
         for a, b in zip(got, want, strict=True):
-            np.testing.assert_array_equal(a.force_N, b.force_N)
-            np.testing.assert_array_equal(a.valid, b.valid)
-            assert a.complete == b.complete
+            if b.complete:
+                complete += 1
+                np.testing.assert_array_equal(a.force_N, b.force_N)
+                np.testing.assert_array_equal(a.valid, b.valid)
+                assert a.complete
+            else:
+                assert not (b.valid & ~a.valid).any(), "a taxel only the live host had"
+                np.testing.assert_array_equal(a.force_N[b.valid], b.force_N[b.valid])
+    assert complete >= len(run.frames) // 2, "the host completed too few samples to compare"
 
 
 def _pressed_moment(run: HostRun) -> tuple[float, int, int, float]:

@@ -198,7 +198,6 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
     from skin.atomic import atomic_write
     from skin.commands.common.signals import until_stopped
     from skin.commands.sim.identity import patch_identities
-    from skin.errors import BusError, SourceError
 
     simulator = Simulator(scene, seed=args.seed)
     truth = TruthSource(simulator) if args.truth else None
@@ -222,6 +221,23 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
         gc.unfreeze()
     elapsed, cpu1 = time.monotonic() - started, os.times()
     cpu = (cpu1.user - cpu0.user + cpu1.system - cpu0.system) / max(elapsed, 1e-9)
+    _summary(args, server, log, elapsed, cpu)
+    if args.json:
+        record = _record(scene, server, flags, planned, elapsed, cpu)
+        record["stopped_by"] = stopped.signal
+        record["bus_gone"] = gone(n.bus for n in networks)
+        record["source_failed"] = None if server.failure is None else repr(server.failure)
+        if log is not None:
+            record.update(truth_samples=log.writer.samples, truth_late=log.late)
+        with atomic_write(args.json) as handle:
+            handle.write(json.dumps(record, indent=2).encode() + b"\n")
+    _raise_if_failed(server, networks)
+    return 0
+
+
+def _summary(args: argparse.Namespace, server: Any, log: Any, elapsed: float,
+             cpu: float) -> None:
+    """What was served, and a warning if answers came late."""
     p50, p99 = server.answer_ms()
     answers = (f"; SYNC to its answer's last send p50 {p50:.2f} ms, p99 {p99:.2f} ms"
                if server.sync_count else "")
@@ -235,15 +251,13 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
     if log is not None:
         print(f"truth: {log.writer.samples} samples -> {args.truth} ({log.late} answers sent "
               "over half a SYNC period late: no truth)")
-    if args.json:
-        record = _record(scene, server, flags, planned, elapsed, cpu)
-        record["stopped_by"] = stopped.signal
-        record["bus_gone"] = gone(n.bus for n in networks)
-        record["source_failed"] = None if server.failure is None else repr(server.failure)
-        if log is not None:
-            record.update(truth_samples=log.writer.samples, truth_late=log.late)
-        with atomic_write(args.json) as handle:
-            handle.write(json.dumps(record, indent=2).encode() + b"\n")
+
+
+def _raise_if_failed(server: Any, networks: list[canopen.Network]) -> None:
+    """The run's end was a failure: the simulator's, or a bus gone for good."""
+    from canbus.busio import gone
+    from skin.errors import BusError, SourceError
+
     if server.failure is not None:
         raise SourceError(f"the simulator failed ({type(server.failure).__name__}: "
                           f"{server.failure}): the patches sent EMCY 0x6100 and stopped "
@@ -251,7 +265,6 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
     lost = gone(n.bus for n in networks)
     if lost is not None:
         raise BusError(f"{lost}: the patches cannot be heard")
-    return 0
 
 
 def _until(seconds: float | None, started: float, networks: list[canopen.Network],
