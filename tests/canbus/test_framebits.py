@@ -25,15 +25,14 @@ from canbus.framebits import (
     F_REMOTE,
     FD_LENGTHS,
     FrameBits,
-    WireFrame,
     arbitration_key,
     bits_unchecked,
     crc15,
     fd_dlc,
     frame_bits,
     stuff_count,
-    wire_frame,
 )
+from canbus.wireframe import WireFrame, wire_frame
 
 GRAY = {0b000: 0, 0b001: 1, 0b011: 2, 0b010: 3, 0b110: 4, 0b111: 5, 0b101: 6, 0b100: 7}
 
