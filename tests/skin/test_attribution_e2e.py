@@ -36,8 +36,8 @@ from canbus.tools.replay import Recording, Replayer
 from canbus.tools.services import ServiceDecoder
 from skin.cli import main
 from skin.commands.common.known_nodes import known_nodes
-from skin.commands.view import moment_view
 from skin.commands.view.layout import Layout
+from skin.commands.view.recorded import moment_view
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 

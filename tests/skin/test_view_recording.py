@@ -25,9 +25,10 @@ from canbus.tools.replay import Recording
 from sim import Simulator
 from skin.cli import main
 from skin.commands.demo import demo_scene
-from skin.commands.view import moment_view, title
 from skin.commands.view.layout import Layout
 from skin.commands.view.plot import moment_picture
+from skin.commands.view.recorded import moment_view
+from skin.commands.view.report import title
 from skin.commands.view.sources import (
     force_specs,
     recorded_resistances,

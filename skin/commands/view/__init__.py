@@ -13,7 +13,6 @@ Rendering: :mod:`skin.commands.view.term` (terminal), :mod:`skin.commands.view.p
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
@@ -22,14 +21,14 @@ from typing import TYPE_CHECKING, Any
 
 from skin.commands.common import argtypes
 from skin.commands.view.layout import Layout, layout_from_positions, parse_layout
+from skin.commands.view.recorded import DEFAULT_FPS, animation, moment, trace
+from skin.commands.view.report import report, view_title
 from skin.commands.view.term import DEFAULT_SCALE_N, SkinView
 
 if TYPE_CHECKING:
     from canbus.master.hostconfig import HostConfig
-    from skin.commands.view.live import LiveStats
     from skin.commands.view.sources import BusDecode, BusForces, Playback, RecordingTimes
 
-DEFAULT_FPS = 10
 SNAPSHOT_SECONDS = 1.0
 _TICK_S = 0.05
 
@@ -145,36 +144,13 @@ def _view(args: argparse.Namespace) -> int:
 
         times = recording_times(args.file)  # the file is checked before anything else
         if args.plot:
-            return _trace(args, config, times)
+            return trace(args, config, times)
         if args.png or args.snapshot:
-            return _moment(args, config, layout, times)
+            return moment(args, config, layout, times)
         if args.gif or args.mp4:
-            return _animation(args, config, layout, times)
+            return animation(args, config, layout, times)
         return _play(args, config, layout, times)
     return _bus(args, config, layout)
-
-
-def title(file: str | None, decode: bool) -> str:
-    """The view's title: ``skin view run.log (decoded)``."""
-    how = " (decoded)" if decode else ""
-    return f"skin view {Path(file).name}{how}" if file else f"skin view{how}"
-
-
-def _title(args: argparse.Namespace) -> str:
-    return title(args.file, args.decode)
-
-
-def moment_view(path: str, t: float, layout: Layout, scale_N: float, *,
-                config: HostConfig | None = None, decode: bool = False) -> SkinView:
-    """The view of recording ``path`` at bus time ``t``: every sample up to ``t`` filed."""
-    from skin.commands.view.sources import force_specs, recorded_samples
-
-    samples = recorded_samples(path, until=t, specs=force_specs(config),
-                               decode=config if decode else None)
-    view = SkinView(layout, scale_N, title=title(path, decode))
-    for sample in samples:
-        view.update(sample)
-    return view
 
 
 # -- live ----------------------------------------------------------------------------------
@@ -223,7 +199,7 @@ def _live(args: argparse.Namespace, source: BusForces | BusDecode | Playback, la
     from skin.commands.view.live import LiveStats, draw_live, short_switch_interval
     from skin.errors import BusError
 
-    view = SkinView(layout, args.scale, title=_title(args))
+    view = SkinView(layout, args.scale, title=view_title(args))
     stats = LiveStats()
     started = time.monotonic()
     deadline = None if seconds is None else started + seconds
@@ -251,7 +227,7 @@ def _live(args: argparse.Namespace, source: BusForces | BusDecode | Playback, la
     error = _failed(source)
     if not interactive:
         print(view.text(view.now(), label(view, started)), end="")
-    _report(args, view, source.figures(), elapsed, where, stats)
+    report(args, view, source.figures(), elapsed, where, stats)
     if error is not None:
         raise BusError(f"reading stopped: {error}") from error
     return 0
@@ -260,168 +236,6 @@ def _live(args: argparse.Namespace, source: BusForces | BusDecode | Playback, la
 def _failed(source: BusForces | BusDecode | Playback) -> BaseException | None:
     error = getattr(source, "error", None)
     return error() if callable(error) else error
-
-
-def _report(args: argparse.Namespace, view: SkinView, figures: dict[str, Any], elapsed: float,
-            where: str, stats: LiveStats | None, extra: dict[str, Any] | None = None,
-            now: float | None = None) -> None:
-    from skin.atomic import atomic_write
-
-    patches = view.summary(now)
-    samples = sum(p["samples"] for p in patches.values())
-    incomplete = sum(p["incomplete"] for p in patches.values())
-    print(f"{len(patches)} patch{'es' if len(patches) != 1 else ''}: {samples:,} samples, "
-          f"{incomplete:,} incomplete, in {elapsed:.1f} s from {where}")
-    for patch, p in patches.items():
-        node = f" (force node {p['force_node']})" if p["force_node"] is not None else ""
-        print(f"  patch {patch}{node}: {p['state']}, {p['samples']:,} samples, "
-              f"{p['incomplete']:,} incomplete, {p['rate_hz']:.1f} Hz, "
-              f"{p['complete_pct']:.0f} % complete in the last second")
-    if stats is not None and stats.redraws:
-        print(f"view: {stats.redraws} redraws ({stats.redraws_skipped} skipped)")
-    if figures.get("unattributed"):
-        from skin.commands.view.sources import warn_unattributed
-
-        warn_unattributed(where, {int(c, 16): n for c, n in figures["unattributed"].items()})
-    if args.json:
-        record = {"source": where, "decode": bool(args.decode), "seconds": round(elapsed, 3),
-                  "scale_N": args.scale, "samples": samples, "incomplete": incomplete,
-                  "patches": patches, "figures": figures,
-                  "view": None if stats is None else
-                  {"redraws": stats.redraws, "redraws_skipped": stats.redraws_skipped}}
-        record |= extra or {}
-        with atomic_write(args.json) as handle:
-            handle.write(json.dumps(record, indent=2).encode() + b"\n")
-
-
-# -- recordings: snapshot, pictures, trace ----------------------------------------------------
-
-
-def _at(args: argparse.Namespace, times: RecordingTimes, value: float | None,
-        flag: str) -> float:
-    """A time in s from the recording's first frame -> bus time; refused past its end."""
-    from skin.errors import ConfigError
-
-    duration = times.last - times.first
-    if value is None:
-        return times.last
-    if value > duration + 1e-9:
-        raise ConfigError(flag, f"{value:g} s is past the recording's end ({duration:.3f} s)")
-    return times.first + value
-
-
-def _moment(args: argparse.Namespace, config: HostConfig | None, layout: Layout,
-            times: RecordingTimes) -> int:
-    started = time.monotonic()
-    t = _at(args, times, args.at, "--at")
-    view = moment_view(args.file, t, layout, args.scale, config=config, decode=args.decode)
-    label = f"t {t - times.first:.3f} s"
-    extra: dict[str, Any] = {"at_s": round(t - times.first, 6)}
-    if args.snapshot:
-        print(view.text(t, label), end="")
-    else:
-        from skin.commands.view.plot import moment_picture, pyplot, save_png
-
-        picture = moment_picture(view.state(t), scale_N=args.scale, time_s=t - times.first,
-                                 title=_title(args))
-        try:
-            save_png(picture, args.png)
-        finally:
-            pyplot("--png").close(picture.figure)
-        print(f"wrote {args.png} (t = {t - times.first:.3f} s)")
-        extra["png"] = args.png
-    if args.json or not args.snapshot:
-        _report(args, view, {"frames": times.frames}, time.monotonic() - started, args.file,
-                None, extra, now=t)
-    return 0
-
-
-def _animation(args: argparse.Namespace, config: HostConfig | None, layout: Layout,
-               times: RecordingTimes) -> int:
-    from skin.commands.view.plot import figure_size, save_animation
-    from skin.commands.view.sources import force_specs, recorded_samples
-
-    started = time.monotonic()
-    begin = _at(args, times, args.start or 0.0, "--from")
-    end = _at(args, times, args.end, "--to")
-    fps = args.fps or DEFAULT_FPS
-    samples = recorded_samples(args.file, until=end, specs=force_specs(config),
-                               decode=config if args.decode else None)
-    whole = layout.including({s.patch for s in samples})
-    view = SkinView(whole, args.scale, title=_title(args))
-    size = figure_size(view.state(begin))
-    path = args.gif or args.mp4
-
-    def moments() -> Any:
-        k, frame = 0, 0
-        while (t := begin + frame / fps) <= end + 1e-9:
-            while k < len(samples) and samples[k].timestamp <= t:
-                view.update(samples[k])
-                k += 1
-            yield view.state(t), t - times.first
-            frame += 1
-
-    frames = save_animation(moments(), path, fps=fps, scale_N=args.scale, title=_title(args),
-                            size=size)
-    print(f"wrote {path}: {frames} frames at {fps} fps, t = {begin - times.first:.3f} to "
-          f"{end - times.first:.3f} s")
-    _report(args, view, {"frames": times.frames}, time.monotonic() - started, args.file, None,
-            {"animation": path, "animation_frames": frames, "fps": fps}, now=end)
-    return 0
-
-
-def _trace(args: argparse.Namespace, config: HostConfig | None, times: RecordingTimes) -> int:
-    import numpy as np
-
-    from skin.commands.view.plot import save_trace
-    from skin.commands.view.sources import (
-        force_specs,
-        recorded_resistances,
-        recorded_samples,
-        unattributed_text,
-        warn_unattributed,
-    )
-    from skin.errors import ConfigError
-
-    begin = _at(args, times, args.start or 0.0, "--from")
-    end = _at(args, times, args.end, "--to")
-    unattributed: dict[int, int] = {}
-    samples = [s for s in recorded_samples(args.file, until=end, specs=force_specs(config),
-                                           decode=config if args.decode else None,
-                                           unattributed=unattributed)
-               if s.patch == args.patch and s.timestamp >= begin]
-    if not samples:
-        raise ConfigError("--patch", f"patch {args.patch} has no force sample in {args.file} "
-                          f"between {begin - times.first:g} and {end - times.first:g} s"
-                          + (f"; {unattributed_text(unattributed)}" if unattributed else ""))
-    warn_unattributed(args.file, unattributed)
-    t = [s.timestamp - times.first for s in samples]
-    force = np.array([s.force_N[args.taxel] for s in samples])
-    valid = np.array([bool(s.valid[args.taxel]) for s in samples])
-    raw_t, raw = None, None
-    if args.raw:
-        raws = [r for r in recorded_resistances(args.file, args.patch, until=end,
-                                                config=config) if r.timestamp >= begin]
-        if not raws:
-            raise ConfigError("--raw", f"patch {args.patch} sent no resistance PDO in "
-                              f"{args.file} in that span")
-        raw_t = [r.timestamp - times.first for r in raws]
-        raw = np.array([r.resistance_ohm[args.taxel] for r in raws])
-    save_trace(args.plot, times=t, force_N=force, valid=valid, patch=args.patch,
-               taxel=args.taxel, title=_title(args), raw_times=raw_t, raw_ohm=raw)
-    print(f"wrote {args.plot}: patch {args.patch} taxel {args.taxel}, {len(samples)} samples"
-          f" ({int((~valid).sum())} invalid){f', {len(raw_t)} raw' if raw_t else ''}")
-    if args.json:
-        from skin.atomic import atomic_write
-
-        record = {"source": args.file, "patch": args.patch, "taxel": args.taxel,
-                  "samples": len(samples), "invalid": int((~valid).sum()),
-                  "raw_samples": 0 if raw_t is None else len(raw_t), "plot": args.plot,
-                  "peak_Fz_N": float(np.max(np.where(valid, force[:, 2], -np.inf)))
-                  if valid.any() else None}
-        with atomic_write(args.json) as handle:
-            handle.write(json.dumps(record, indent=2).encode() + b"\n")
-    return 0
 
 
 _SCALE = argtypes.number("force", above=0.0, high=1e4, unit="N")
