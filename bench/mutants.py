@@ -83,6 +83,13 @@ MUTANTS = (
            "FLUSH_S = 0.1",
            "FLUSH_S = 0.5",
            ("tests/canbus/test_record_stream.py",)),
+    Mutant("halted-patch-answers",
+           "a patch whose source failed answers no SYNC: never a frozen sample as a live one",
+           "canbus/device/patch_server.py",
+           "        if failed is not None:\n            self._fail(failed)\n"
+           "        if self.failure is not None:\n            return\n",
+           "        if failed is not None:\n            self._fail(failed)\n",
+           ("tests/canbus/test_patch_server.py",)),
     Mutant("os-error-as-a-traceback",
            "an OS error ends a command in one line on stderr",
            "skin/cli.py",
