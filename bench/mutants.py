@@ -121,8 +121,12 @@ def pytest_in(tree: Path, tests: list[str], *, stop_first: bool) -> tuple[int, s
     done = subprocess.run(argv, cwd=tree, env=env, capture_output=True, text=True,
                           timeout=3600)
     lines = done.stdout.splitlines()
-    failed = next((line for line in lines if line.startswith(("FAILED", "ERROR"))), None)
-    return done.returncode, failed or (lines[-1] if lines else done.stderr.strip()[-300:])
+    failed = next((line for line in lines if line.startswith(("FAILED tests", "ERROR tests"))),
+                  None)
+    code = done.returncode
+    if code == 2 and failed is not None:  # xdist ends a -x run as "Interrupted" (2)
+        code = 1
+    return code, failed or (lines[-1] if lines else done.stderr.strip()[-300:])
 
 
 def apply(tree: Path, mutant: Mutant) -> str:
