@@ -15,8 +15,9 @@ cannot be told from the next one's: an answer that arrives after the step that a
 it (on udp_multicast the simulated patches answer one after the other, from another
 process) would pass for a match of the next step and invent a node. A step that was
 answered therefore takes its answers until the bus is quiet for ``SETTLE_S``, and every
-identity the walk ends on is confirmed by LSS identify remote slave (the exact identity)
-after a whole time-out of quiet: a node is listed only if it answers to its own identity.
+identity the walk ends on is confirmed after a whole time-out of quiet by the one exchange
+whose answers carry the identity (:meth:`Fastscan.present`: switch state selective, LSS
+inquire, back to waiting): a node is listed only if it tells its own identity back.
 """
 
 from __future__ import annotations
@@ -34,9 +35,12 @@ from canbus.device.local_device import eds_identity
 from canbus.device.lss_slave import (
     FASTSCAN,
     FASTSCAN_CONFIRM,
-    IDENTIFY,
     IDENTIFY_ANSWER,
+    INQUIRE,
     LSS_MASTER,
+    SELECTIVE,
+    SWITCH_GLOBAL,
+    WAITING,
 )
 from canbus.master.discovery import Identity, read_identity, scan, sdo_client
 
@@ -95,15 +99,32 @@ class Fastscan:
         return True
 
     def present(self, identity: Identity) -> bool:
-        """LSS identify remote slave over exactly ``identity``, after a time-out of quiet:
-        True if a node answers."""
+        """Whether a node has exactly ``identity``: after a time-out of quiet, LSS switch
+        state selective to it, then LSS inquire of each part of its identity, then every
+        node back to waiting. Only that node enters the configuration state, and only a node
+        in it answers an inquiry, with the value it holds: no late or repeated answer to a
+        fastscan step or identify request (cs 0x4F), nor another node's inquiry answer, can
+        pass for it. Nothing is configured on the way."""
         self._quiet(self.timeout_s)
-        i = identity
-        for k, value in enumerate((i.vendor, i.product, i.revision, i.revision, i.serial,
-                                   i.serial)):
-            self.network.send_message(LSS_MASTER, struct.pack("<BI3x", IDENTIFY.start + k,
+        parts = (identity.vendor, identity.product, identity.revision, identity.serial)
+        for k, value in enumerate(parts):
+            self.network.send_message(LSS_MASTER, struct.pack("<BI3x", SELECTIVE.start + k,
                                                               value))
-        return self._answered()
+        try:
+            return all(self._told(INQUIRE.start + k, value) for k, value in enumerate(parts))
+        finally:
+            self.network.send_message(LSS_MASTER, struct.pack("<BB6x", SWITCH_GLOBAL, WAITING))
+
+    def _told(self, cs: int, value: int) -> bool:
+        """LSS inquire ``cs``: True if ``value`` comes back within the time-out."""
+        self.network.send_message(LSS_MASTER, struct.pack("<B7x", cs))
+        want = struct.pack("<BI", cs, value)
+        try:
+            while True:
+                if self._answers.get(timeout=self.timeout_s)[:5] == want:
+                    return True
+        except queue.Empty:
+            return False
 
     def _answered(self) -> bool:
         """An answer within the time-out (other frames on 0x7E4 are skipped)."""
