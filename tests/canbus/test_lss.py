@@ -24,7 +24,7 @@ from canbus.device.patch_node import PatchNode
 from canbus.device.patch_server import PatchServer
 from canbus.master.discovery import Identity as FoundIdentity
 from canbus.master.lss_assign import assign
-from canbus.master.lss_scan import lss_scan, unconfigured
+from canbus.master.lss_scan import Fastscan, lss_scan, unconfigured
 from canbus.od import load_od
 from canbus.tools.lss_names import describe_lss
 from skin.cli import main
@@ -401,3 +401,29 @@ def test_lss_scan_on_an_empty_bus_is_empty(request: pytest.FixtureRequest) -> No
         assert lss_scan(net, timeout_s=0.05, scan_s=0.05) == []
     finally:
         net.disconnect()
+
+
+
+class StaleNetwork(MemoryNetwork):
+    """After every request, stale answers arrive too: a fastscan or identify answer (0x4F)
+    to an earlier request, and an answer of the request's own kind from another node."""
+
+    def send_message(self, cob_id: int, data: bytes) -> None:
+        super().send_message(cob_id, data)
+        if cob_id == 0x7E5:
+            for callback in self.subscribers.get(0x7E4, []):
+                callback(0x7E4, bytearray(b"\x4f" + bytes(7)), 0.0)
+                callback(0x7E4, bytearray(struct.pack("<BI3x", data[0], 0x5100_0009)), 0.0)
+
+
+def test_only_a_node_telling_its_own_identity_back_confirms_it() -> None:
+    """The walk's last check: with stale answers after every request, an identity nobody
+    has is refused and each real one confirmed, and every node is left waiting."""
+    serials = [0x5100_0001, 0x5100_0008]
+    patches = [PatchNode(0xFF, serial=serial) for serial in serials]
+    scan_ = Fastscan(StaleNetwork(patches), timeout_s=0.01)  # type: ignore[arg-type]
+    with scan_.listening():
+        for serial in (0x5100_0009, 0x5100_0000, *serials):
+            found = scan_.present(FoundIdentity(VENDOR, PRODUCT, REVISION, serial))
+            assert found == (serial in serials), hex(serial)
+    assert all(p.lss is not None and p.lss.state == WAITING for p in patches)
