@@ -55,11 +55,12 @@ from canbus.device.server_bus import (
     ServerBus,
     SyncCallback,
     answer_order,
+    claim_own_frames,
     follow_sync,
     patch_identity,
+    release_own_frames,
 )
 from canbus.device.source import ResistanceSource
-from canbus.rxfilter import OwnFrameGate, receive_filter
 from canbus.txmessage import TxMessage
 from canbus.worker import Worker
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
@@ -429,38 +430,12 @@ class PatchServer:
     def _claim(self, bus: ServerBus) -> None:
         """Claim the COB-IDs the bus's nodes send, where the bus echoes them (and accept
         only what they consume, if asked)."""
-        network_bus = bus.network.bus
-        if network_bus is None:
-            return
-        if bus.own is None:
-            bus.own = receive_filter(network_bus)
-            if self._accept_only_consumed:
-                bus.own.accept_only(self.consumed_cob_ids(self.buses.index(bus)))
-        if not bus.own.echoes:
-            return
-        bus.own.claim(bus, {c for node in bus.nodes for c in node.transmitted_cob_ids()})
-        notifier = bus.network.notifier
-        if bus.own.in_kernel or notifier is None or bus.gate is not None:
-            return
-        for k, listener in enumerate(notifier.listeners):
-            if isinstance(listener, canopen.network.MessageListener):
-                bus.gate = OwnFrameGate(listener, bus.own)
-                notifier.listeners[k] = bus.gate
+        consumed = self.consumed_cob_ids(self.buses.index(bus)) \
+            if self._accept_only_consumed else None
+        claim_own_frames(bus, consumed)
 
     def _release(self, bus: ServerBus) -> None:
-        if bus.own is None:
-            return
-        bus.own.release(bus)
-        if self._accept_only_consumed:
-            bus.own.accept_only(None)
-        notifier = bus.network.notifier
-        if bus.gate is not None and notifier is not None:
-            listeners = notifier.listeners
-            if bus.gate in listeners:
-                listeners[listeners.index(bus.gate)] = bus.gate.listener
-        bus.gate = None
-        bus.own = None
-
+        release_own_frames(bus, accepted_only=self._accept_only_consumed)
 
 def _answered(ready: _Prepared, sync_byte: int) -> list[bytes]:
     """The payloads with 0x2006 set to ``sync_byte`` wherever it is mapped."""

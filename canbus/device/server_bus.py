@@ -1,5 +1,6 @@
 """One bus of a :class:`~canbus.device.patch_server.PatchServer`: its nodes, counters, the SYNC
-COB-IDs its nodes consume (0x1005, followed as they change) and what a patch is by LSS."""
+COB-IDs its nodes consume (0x1005, followed as they change), its own frames (claimed where the
+bus echoes them) and what a patch is by LSS."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import canopen
 from canbus.device.local_device import eds_identity
 from canbus.device.nv_store import Identity
 from canbus.device.patch_node import PatchNode
-from canbus.rxfilter import OwnFrameGate, ReceiveFilter
+from canbus.rxfilter import OwnFrameGate, ReceiveFilter, receive_filter
 
 SYNC_COB_ID = 0x080
 SyncCallback = Callable[[int, bytearray, float], None]
@@ -60,6 +61,46 @@ def follow_sync(bus: ServerBus) -> None:
         for cob_id in bus.sync_subscribed - wanted:
             bus.network.unsubscribe(cob_id, bus.on_sync)
         bus.sync_subscribed = wanted
+
+
+def claim_own_frames(bus: ServerBus, consumed: set[int] | None = None) -> None:
+    """Claim the COB-IDs the bus's nodes send, where the bus echoes them, so that its nodes
+    never take their own frames for another node's; and accept only ``consumed`` (None:
+    everything)."""
+    network_bus = bus.network.bus
+    if network_bus is None:
+        return
+    if bus.own is None:
+        bus.own = receive_filter(network_bus)
+        if consumed is not None:
+            bus.own.accept_only(consumed)
+    if not bus.own.echoes:
+        return
+    bus.own.claim(bus, {c for node in bus.nodes for c in node.transmitted_cob_ids()})
+    notifier = bus.network.notifier
+    if bus.own.in_kernel or notifier is None or bus.gate is not None:
+        return
+    for k, listener in enumerate(notifier.listeners):
+        if isinstance(listener, canopen.network.MessageListener):
+            bus.gate = OwnFrameGate(listener, bus.own)
+            notifier.listeners[k] = bus.gate
+
+
+def release_own_frames(bus: ServerBus, *, accepted_only: bool = False) -> None:
+    """Undo :func:`claim_own_frames` (``accepted_only``: it was given ``consumed``): the
+    bus's receive filter and gate as they were."""
+    if bus.own is None:
+        return
+    bus.own.release(bus)
+    if accepted_only:
+        bus.own.accept_only(None)
+    notifier = bus.network.notifier
+    if bus.gate is not None and notifier is not None:
+        listeners = notifier.listeners
+        if bus.gate in listeners:
+            listeners[listeners.index(bus.gate)] = bus.gate.listener
+    bus.gate = None
+    bus.own = None
 
 
 def answer_order(node: PatchNode) -> int:
