@@ -53,6 +53,7 @@ class Run:
     config: HostConfig
     frames: list[ForceFrame]
     stats: dict[str, int]
+    lost: list[int]
 
 
 def _samples() -> np.ndarray:
@@ -70,7 +71,10 @@ def _samples() -> np.ndarray:
 def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
     folder = tmp_path_factory.mktemp("example")
     channel = "example-bus"
-    config = replace(load_host_config(EXAMPLE), scan_ms=100)
+    # heartbeats 1 s apart: a patch is lost after 1.5 s without one, which a loaded machine
+    # does not stall for; at the example's 100 ms one late heartbeat loses a patch for a
+    # moment, and its PDOs of that moment are, rightly, no channel's (unknown_frames)
+    config = replace(load_host_config(EXAMPLE), scan_ms=100, heartbeat_ms=1000)
     listen = can.Bus(interface="virtual", channel=channel)
     recorder = Recorder(folder / "example.log")
     notifier = can.Notifier(listen, [recorder], timeout=0.05)
@@ -83,6 +87,9 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
         with PatchServer(device, ArraySource(_samples(), (1, 2, 3))):
             host = HostManager(bus, config)
             host.on_forces(frames.append)
+            lost: list[int] = []
+            host.on_event(lambda event: lost.append(event.patch)
+                          if getattr(event, "state", None) == "lost" else None)
             host.start()
             try:
                 assert host.wait_operational(timeout=15.0), host.health()
@@ -95,7 +102,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
         notifier.stop(timeout=1.0)
         listen.shutdown()
         bus.shutdown()
-    return Run(folder / "example.log", config, frames, host.stats())
+    return Run(folder / "example.log", config, frames, host.stats(), lost)
 
 
 def _sniff_lines(run: Run, *extra: str) -> list[str]:
@@ -192,5 +199,6 @@ def test_view_snapshot_shows_only_what_each_force_node_sent(
 def test_a_clean_run_counts_no_unknown_frame(run: Run) -> None:
     """The patches' heartbeats, the start-up's SDO scan and set-up, SYNC and NMT are the
     bus's own traffic (bus_frames), not unknown."""
+    assert run.lost == [], "a patch was lost during the run: not a clean run"
     assert run.stats["unknown_frames"] == 0
     assert run.stats["bus_frames"] > 2 * CYCLES  # SYNCs at least
