@@ -437,6 +437,7 @@ class PatchServer:
     def _release(self, bus: ServerBus) -> None:
         release_own_frames(bus, accepted_only=self._accept_only_consumed)
 
+
 def _answered(ready: _Prepared, sync_byte: int) -> list[bytes]:
     """The payloads with 0x2006 set to ``sync_byte`` wherever it is mapped."""
     answered = ready.plan.layout.answered
