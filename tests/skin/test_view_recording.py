@@ -108,18 +108,40 @@ def test_decoding_the_recording_here_gives_the_host_s_own_frames(run: HostRun) -
     assert complete >= len(run.frames) // 2, "the host completed too few samples to compare"
 
 
+def _latest(samples: list, t: float) -> dict[int, object]:
+    """Each patch's last sample at or before bus time ``t``."""
+    out: dict[int, object] = {}
+    for sample in samples:
+        if sample.timestamp <= t:
+            out[sample.patch] = sample
+    return out
+
+
+def _on_bus(sample: object) -> tuple[list[int], list[bool]]:
+    mN, valid = forces_to_mN(sample.force_N, sample.valid)  # type: ignore[attr-defined]
+    return mN.ravel().tolist(), valid.tolist()
+
+
 def _pressed_moment(run: HostRun) -> tuple[float, int, int, float]:
     """A time (s from the start) at which patch 1 is pressed: (t, pressed taxel, idle
-    taxel, its Fz). Just before the next SYNC: every patch's sample of the cycle is in."""
+    taxel, its Fz). Just before a SYNC, where every patch's last sample read from the force
+    PDOs is the one decoding the patches gives: a cycle the host published late or
+    incomplete (a loaded machine) is no such moment."""
     times = recording_times(run.path)
     with Recording(run.path) as recording:
         syncs = np.array([m.timestamp for m in recording if m.arbitration_id == 0x80])
-    for sample in recorded_samples(run.path):
-        fz = sample.force_N[:, 2]
-        later = syncs[syncs > sample.timestamp]
-        if sample.patch == 1 and fz.max() >= 1.5 and np.abs(fz).min() < 0.1 and later.size:
-            return (later[0] - 0.0005 - times.first, int(fz.argmax()),
-                    int(np.abs(fz).argmin()), float(fz.max()))
+    on_bus = recorded_samples(run.path)
+    decoded = recorded_samples(run.path, decode=run.config)
+    for sync in syncs[1:]:
+        t = sync - 0.0005
+        bus, dec = _latest(on_bus, t), _latest(decoded, t)
+        if set(bus) != {1, 2} or set(dec) != set(bus) or \
+                any(_on_bus(bus[p]) != _on_bus(dec[p]) for p in bus):
+            continue
+        fz = bus[1].force_N[:, 2]  # type: ignore[attr-defined]
+        if fz.max() >= 1.5 and np.abs(fz).min() < 0.1:
+            return (t - times.first, int(fz.argmax()), int(np.abs(fz).argmin()),
+                    float(fz.max()))
     raise AssertionError("the indenter never pressed patch 1 to 1.5 N")
 
 
