@@ -81,6 +81,7 @@ def _one_line(code: int, err: str, names: str, *, status: int = 1) -> None:
     lines = err.strip("\n").splitlines()
     assert len(lines) == 1 and lines[0].startswith("skin") and ": error: " in lines[0], err
     assert names in lines[0] and "Traceback" not in err, err
+    assert "unexpected" not in lines[0], err  # an OS error is said as one, not as a surprise
 
 
 def _nothing_left(folder: Path, before: set[str]) -> None:
