@@ -165,3 +165,21 @@ def test_an_output_on_a_full_disk_is_one_line_and_leaves_nothing(name: str, tmp_
     _one_line(code, err, command.output or "")
     # a recording is written as it goes: it keeps what reached the disk (docs/sniffer.md)
     assert list(folder.iterdir()) == [] or name == "sniff-record", list(folder.iterdir())
+
+
+@pytest.mark.parametrize("error", [PermissionError(13, "Permission denied", "/dev/can0"),
+                                   OSError(100, "Network is down"),
+                                   FileNotFoundError(2, "No such file or directory", "x.dbc")])
+def test_an_os_error_no_command_foresaw_is_still_one_line(
+        error: OSError, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The last line of defence: an OS error that escapes a command (a library's, from a
+    path no command wraps) is said as an OS error in one line, exit status 1."""
+    import skin.commands.plan as plan
+
+    def fails(args: object) -> int:
+        raise error
+
+    monkeypatch.setattr(plan, "_plan", fails)
+    code = main(["plan", "--patches", "16", "--rate", "100"])
+    _one_line(code, capsys.readouterr().err, error.strerror or "")
