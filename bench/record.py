@@ -75,7 +75,7 @@ def check(path: Path, sent: list[can.Message]) -> tuple[int, int]:
     On Linux a socket bound to udp_multicast's port receives every group joined on that
     port by any process, so other tests' traffic can show up: it is counted, not ours.
     """
-    from canbus.tools.replay import Recording
+    from canbus.tools.recording import Recording
 
     index = {(m.arbitration_id, bytes(m.data)): k for k, m in enumerate(sent)
              if m.arbitration_id != 0x080}  # TPDO payloads are numbered; SYNCs repeat

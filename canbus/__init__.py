@@ -23,7 +23,8 @@ if TYPE_CHECKING:
     from canbus.master.host import HostManager, PatchHealth
     from canbus.master.hostconfig import HostConfig, PatchConfig, load_host_config
     from canbus.tools.recorder import Recorder
-    from canbus.tools.replay import Recording, Replayer
+    from canbus.tools.recording import Recording
+    from canbus.tools.replay import Replayer
     from canbus.tools.sniffer import Sniffer
 
 _PUBLIC = {
@@ -34,7 +35,7 @@ _PUBLIC = {
     "HostManager": "canbus.master.host", "PatchHealth": "canbus.master.host",
     "HostConfig": "canbus.master.hostconfig", "PatchConfig": "canbus.master.hostconfig",
     "load_host_config": "canbus.master.hostconfig",
-    "Recorder": "canbus.tools.recorder", "Recording": "canbus.tools.replay",
+    "Recorder": "canbus.tools.recorder", "Recording": "canbus.tools.recording",
     "Replayer": "canbus.tools.replay", "Sniffer": "canbus.tools.sniffer",
 }
 __all__ = [

@@ -26,7 +26,7 @@ from canbus.master.cobids import predefined_tpdo_cob_ids
 from canbus.master.forceframes import forces_to_mN
 from canbus.master.hostconfig import FORCE_NODE_OFFSET
 from canbus.od import load_od
-from canbus.tools.replay import Recording
+from canbus.tools.recording import Recording
 from decoder.registry import create_decoder
 from skin.constants import DEFAULT_CONSTANTS
 

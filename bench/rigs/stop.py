@@ -28,7 +28,7 @@ import can
 
 from bench.rigs.children import Child, spawn
 from bench.rigs.ports import udp_bus
-from canbus.tools.replay import Recording
+from canbus.tools.recording import Recording
 
 IDS = frozenset((0x181, 0x182, 0x183))
 

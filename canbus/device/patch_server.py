@@ -430,8 +430,8 @@ class PatchServer:
     def _claim(self, bus: ServerBus) -> None:
         """Claim the COB-IDs the bus's nodes send, where the bus echoes them (and accept
         only what they consume, if asked)."""
-        consumed = self.consumed_cob_ids(self.buses.index(bus)) \
-            if self._accept_only_consumed else None
+        first = bus.own is None and self._accept_only_consumed  # later: claims only
+        consumed = self.consumed_cob_ids(self.buses.index(bus)) if first else None
         claim_own_frames(bus, consumed)
 
     def _release(self, bus: ServerBus) -> None:

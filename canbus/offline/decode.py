@@ -23,7 +23,7 @@ import can
 from canbus.master.dataplane import ForceFrame
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig
-from canbus.tools.replay import Recording
+from canbus.tools.recording import Recording
 from skin.errors import BusError
 
 

@@ -14,7 +14,7 @@ reads the same files and yields the same messages, but:
   than it declares;
 - an unknown compression method, a header of a size it cannot have, or an object
   without its ``LOBJ`` signature is a ``BLFParseError``, which
-  :class:`canbus.tools.replay.Recording` reports naming the frame.
+  :class:`canbus.tools.recording.Recording` reports naming the frame.
 """
 
 from __future__ import annotations

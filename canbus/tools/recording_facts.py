@@ -21,7 +21,7 @@ from canbus.patch_constants import decode_si
 from canbus.pdo_codec import TpdoLayout
 from canbus.tools.pdo_dictionary import Dictionary
 from canbus.tools.pdo_names import NodeView
-from canbus.tools.replay import Recording
+from canbus.tools.recording import Recording
 from canbus.tools.services import SdoDecoder
 
 SYNC_COB_ID = 0x080

@@ -20,7 +20,7 @@ _SOURCES = {"sdo": "the SDO writes", "eds": "the EDS default", "option": "--mapp
 
 def _from_recording(args: argparse.Namespace) -> int:
     from canbus.offline.dataset import JoinChoice, dataset_from_recording
-    from canbus.tools.replay import recording_reader
+    from canbus.tools.recording import recording_reader
     from skin.commands.calibrate.output import write_json
     from skin.dataset import write_dataset
     from skin.errors import ConfigError

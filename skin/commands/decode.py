@@ -41,7 +41,7 @@ FORMATS = (".csv", ".npz")
 def _decode(args: argparse.Namespace) -> int:
     from canbus.master.hostconfig import load_host_config
     from canbus.offline.decode import decode_recording
-    from canbus.tools.replay import recording_reader
+    from canbus.tools.recording import recording_reader
     from skin.atomic import atomic_write
     from skin.commands.decode_report import first_frame_time, lines, quiet_host, report, to_json
     from skin.errors import ConfigError

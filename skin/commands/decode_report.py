@@ -53,7 +53,7 @@ def quiet_host() -> Iterator[None]:
 
 def first_frame_time(path: str) -> float:
     """The bus time of a recording's first frame (0 for an empty one)."""
-    from canbus.tools.replay import Recording
+    from canbus.tools.recording import Recording
 
     with Recording(path) as recording:
         for msg in recording:

@@ -20,11 +20,12 @@ from skin.commands.common import argtypes
 
 
 def _replay(args: argparse.Namespace) -> int:
-    from canbus.tools.replay import Recording, RecordingError, Replayer
+    from canbus.tools.recording import Recording
+    from canbus.tools.replay import Replayer
     from skin.atomic import atomic_write
     from skin.commands.common.busopen import open_command_bus
     from skin.commands.common.signals import until_stopped
-    from skin.errors import ConfigError
+    from skin.errors import ConfigError, RecordingError
 
     if args.loop is not None and args.loop < 0:
         raise ConfigError("--loop", f"must be 0 (for ever) or a positive count, got {args.loop}")

@@ -28,7 +28,7 @@ from canbus.master.forceframes import forces_to_mN
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import load_host_config
 from canbus.tools.recorder import DEFAULT_RCVBUF, enlarge_receive_buffer
-from canbus.tools.replay import Recording
+from canbus.tools.recording import Recording
 
 ANSWERS = 700  # the patch's answers before the host stops: 100 split, 54 held back
 

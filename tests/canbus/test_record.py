@@ -16,7 +16,7 @@ from canbus.tools.recorder import (
     log_channel_name,
     recording_format,
 )
-from canbus.tools.replay import Recording
+from canbus.tools.recording import Recording
 from skin.errors import ConfigError
 
 T0 = 1_700_000_000.0

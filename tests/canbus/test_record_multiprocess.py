@@ -16,7 +16,7 @@ import can
 
 from bench.rigs.children import spawn
 from bench.rigs.waiting import wait_until
-from canbus.tools.replay import Recording
+from canbus.tools.recording import Recording
 
 FRAMES = 300
 

@@ -14,7 +14,7 @@ import pytest
 from bench.rigs.waiting import wait_until
 from canbus.tools import recorder as recorder_module
 from canbus.tools.recorder import Recorder, rotated_path
-from canbus.tools.replay import Recording
+from canbus.tools.recording import Recording
 from skin.errors import RecordingError
 
 PROMISED_LOSS_S = 0.1

@@ -12,9 +12,10 @@ import can.cli
 import pytest
 
 from canbus.tools.recorder import Recorder
-from canbus.tools.replay import Recording, RecordingError, Replayer
+from canbus.tools.recording import Recording
+from canbus.tools.replay import Replayer
 from skin.cli import main
-from skin.errors import ConfigError
+from skin.errors import ConfigError, RecordingError
 
 FILES = Path(__file__).parents[1] / "files" / "recordings"
 DAMAGED = [  # file, first bad frame, what the error says

@@ -31,7 +31,7 @@ from canbus.device.patch_server import PatchServer
 from canbus.od import load_od
 from canbus.tools.attribution import Attribution, KnownNode
 from canbus.tools.pdo_dictionary import Dictionary
-from canbus.tools.replay import Recording
+from canbus.tools.recording import Recording
 from canbus.tools.services import Service, ServiceDecoder, route
 from canbus.tools.sniffer import FrameFilter, Sniffer, frame_bits
 from skin.cli import main

@@ -41,7 +41,8 @@ from canbus.master.dataplane import ForceFrame
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, PatchConfig
 from canbus.tools.recorder import CandumpLogWriter, Recorder
-from canbus.tools.replay import Recording, Replayer
+from canbus.tools.recording import Recording
+from canbus.tools.replay import Replayer
 from canbus.tools.services import Service, route
 from canbus.tools.sniffer import Sniffer
 from decoder.reasons import Reason

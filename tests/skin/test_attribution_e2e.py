@@ -32,7 +32,8 @@ from canbus.master.hostconfig import HostConfig, load_host_config
 from canbus.tools.attribution import Attribution
 from canbus.tools.pdo_dictionary import Dictionary
 from canbus.tools.recorder import Recorder
-from canbus.tools.replay import Recording, Replayer
+from canbus.tools.recording import Recording
+from canbus.tools.replay import Replayer
 from canbus.tools.services import ServiceDecoder
 from skin.cli import main
 from skin.commands.common.known_nodes import known_nodes

@@ -21,7 +21,7 @@ from PIL import Image
 
 from bench.rigs.view import HostRun, record_host_run, until
 from canbus.master.forceframes import forces_to_mN
-from canbus.tools.replay import Recording
+from canbus.tools.recording import Recording
 from sim import Simulator
 from skin.cli import main
 from skin.commands.demo import demo_scene

@@ -212,7 +212,7 @@ class RecordingTimes:
 
 
 def recording_times(path: str | os.PathLike[str]) -> RecordingTimes:
-    from canbus.tools.replay import Recording
+    from canbus.tools.recording import Recording
     from skin.errors import RecordingError
 
     first = last = 0.0
@@ -229,7 +229,7 @@ def recording_times(path: str | os.PathLike[str]) -> RecordingTimes:
 
 
 def _messages(path: str | os.PathLike[str], until: float | None) -> Iterator[can.Message]:
-    from canbus.tools.replay import Recording
+    from canbus.tools.recording import Recording
 
     with Recording(path) as recording:
         for msg in recording:
