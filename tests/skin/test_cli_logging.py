@@ -39,7 +39,7 @@ def test_q_hides_warnings(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     replay = ["replay", "--partial", "--fast", "-i", "virtual", "-c", "logq", str(cut)]
     assert main(replay) == 0
     captured = capsys.readouterr()
-    assert re.search(rf"^{STAMP} WARNING canbus\.tools\.replay: .*cut\.log: frame 2: line 2: "
+    assert re.search(rf"^{STAMP} WARNING canbus\.tools\.recording: .*cut\.log: frame 2: line 2: "
                      r"cut short before its end of line \(truncated file\); the 1 whole "
                      "frames before it are kept$", captured.err, re.M), captured.err
     assert "sent 1 frames" in captured.out
