@@ -15,13 +15,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from bench.judge import FACTOR, HOME_SHARE, TRAINED, judge_pair
+from bench.judge import HOME_SHARE, TRAINED, bar_pct, judge_pair
 from bench.pairs import PAIRS, ScenePair, random_pair
-
-
-def _bar(deconv: float | None, home: float | None) -> float | None:
-    known = [v for v in (deconv, home) if v is not None]
-    return FACTOR * max(known) if known else None
 
 
 def promise_rows(cells: Sequence[Mapping[str, Any]],
@@ -45,7 +40,7 @@ def row(decoder: str, mode: str, train: str, test: str, home: Mapping[str, Any],
         away: Mapping[str, Any], deconv: Mapping[str, Any]) -> dict[str, Any]:
     """One promise row from three cells: the decoder at home and away, deconv away."""
     err_home, err_away = home["ave_rel_err_floored_pct"], away["ave_rel_err_floored_pct"]
-    bar = _bar(deconv["ave_rel_err_floored_pct"], err_home)
+    bar = bar_pct(deconv["ave_rel_err_floored_pct"], err_home)
     return {"decoder": decoder, "mode": mode, "train": train, "test": test,
             "flagged_home": home["flagged_share"], "flagged_away": away["flagged_share"],
             "error_home_pct": err_home, "error_away_pct": err_away,

@@ -24,6 +24,13 @@ FACTOR = 2.0
 TRAINED = ("deconv", "lm-mlp", "hybrid")
 
 
+def bar_pct(deconv_away_pct: float | None, home_pct: float | None) -> float | None:
+    """The away bar: ``FACTOR`` x the larger of deconv's error away and the decoder's own at
+    home (None when neither is known)."""
+    known = [v for v in (deconv_away_pct, home_pct) if v is not None]
+    return FACTOR * max(known) if known else None
+
+
 def flagged_share(decoded: Decoded) -> float:
     return float(np.mean(decoded.reason == Reason.EXTRAPOLATED))
 
@@ -46,8 +53,7 @@ def judge(name: str, decoder: Decoder, reference: Decoder, data: PairData,
     compared = evaluate(data.away[1], away.force_N, away.valid, mode=mode).floored
     ref = floored(data.away[1], ref_away, mode)
     ref_same = floored(data.away[1], ref_away, mode, away.valid & ref_away.valid)
-    known = [v for v in (ref, own_home) if v is not None]
-    bar = FACTOR * max(known) if known else None
+    bar = bar_pct(ref, own_home)
     return {"decoder": name, "flagged_home": flagged_share(home),
             "flagged_away": flagged_share(away), "error_home_pct": own_home,
             "error_away_pct": own_away, "deconv_away_pct": ref,

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bench.judge import FACTOR, HOME_SHARE, floored
+from bench.judge import HOME_SHARE, bar_pct, floored
 from bench.pairs import ScenePair, pair_data, random_pair
 from decoder.lmmlp import LMMLPDecoder
 from decoder.metrics import FLOOR_FRACTION
@@ -41,6 +41,7 @@ from decoder.reasons import Reason
 from decoder.registry import create_decoder
 from decoder.unmix import apply_unmix
 from skin.atomic import atomic_write
+from skin.commands.common.argtypes import count
 
 F64 = NDArray[np.float64]
 Mask = NDArray[np.bool_]
@@ -74,14 +75,20 @@ class PairStats:
     away: Side
 
 
+def _departure(dec: LMMLPDecoder, r: F64) -> tuple[F64, F64, Mask]:
+    """The network's departure from the physics reading (n, 9·P), the physics reading, and
+    which taxels have one (n, 9), as decode computes them (readings outside the box clamped
+    into it)."""
+    assert dec.unmix_ is not None
+    effective, ok = dec.inverse(dec.pillars_).full(r)
+    physics = features(apply_unmix(dec.unmix_, effective), dec.pillars_)
+    return dec._net(dec.domain_.inputs.clamp(r.reshape(r.shape[0], -1))) - physics, physics, ok
+
+
 def _side(dec: LMMLPDecoder, check: DepartureCheck, r: F64, force: F64, mode: str) -> Side:
-    pillars = dec.pillars_
-    assert dec.unmix_ is not None and dec.domain_.pattern is not None
+    assert dec.domain_.pattern is not None
     decoded = dec.decode(r)
-    effective, ok = dec.inverse(pillars).full(r)
-    physics = features(apply_unmix(dec.unmix_, effective), pillars)
-    # the network's answer as decode computes it: readings outside the box clamped into it
-    departure = dec._net(dec.domain_.inputs.clamp(r.reshape(r.shape[0], -1))) - physics
+    departure, physics, ok = _departure(dec, r)
     comps = slice(2, 3) if mode == "z" else slice(0, 3)
     true, got = force[..., comps], decoded.force_N[..., comps]
     loaded = np.abs(true) >= FLOOR_FRACTION * dec.constants.full_scale_force_N
@@ -104,10 +111,7 @@ def pair_stats(index: int, n_train: int = 1000, n_test: int = 300) -> PairStats:
     assert pattern is not None
     check = domain.departure
     if check is None:  # a few long episodes: a check of its fitted rows, only to be scaled
-        r = data.train[0]
-        effective, _ = dec.inverse(dec.pillars_).full(r)
-        physics = features(apply_unmix(dec.unmix_, effective), dec.pillars_)  # type: ignore[arg-type]
-        departure = dec._net(r.reshape(r.shape[0], -1)) - physics
+        departure, physics, _ = _departure(dec, data.train[0])
         check = DepartureCheck.fit(departure, departure, physics,
                                    FLOOR_FRACTION * dec.constants.full_scale_force_N)
     dec.domain_ = dataclasses.replace(
@@ -131,25 +135,29 @@ def _stream(side: Side, window: int) -> F64:
     return np.array([np.median(mean[max(0, t - window + 1):t + 1]) for t in range(mean.size)])
 
 
+def as_fitted(stats: PairStats) -> tuple[float, float, float]:
+    """The scale of the limits as lm-mlp fitted them (no departure check for episodes)."""
+    return (1.0, np.inf, np.inf) if stats.episodes else (1.0, 1.0, 1.0)
+
+
 def judge_scaled(stats: PairStats, scale: tuple[float, float, float],
                  window: int | None = None) -> dict[str, Any]:
     """Both halves of the promise with the three limits times ``scale`` (and the stream check
     of ``window`` samples, if given)."""
     out: dict[str, Any] = {}
-    stream_limit = None if window is None else float(_stream(stats.home, window).max())
+    stream_limit = np.inf if window is None else float(_stream(stats.home, window).max())
     for name, side in (("home", stats.home), ("away", stats.away)):
         bad = ((side.pattern > scale[0] * stats.limits[0])[:, None]
                | (side.patch > scale[1] * stats.limits[1])[:, None]
                | (side.taxel > scale[2] * stats.limits[2]))
-        if stream_limit is not None:
-            bad |= (_stream(side, window or 1) > stream_limit)[:, None]
+        if window is not None:
+            bad |= (_stream(side, window) > stream_limit)[:, None]
         bad &= side.whole[:, None]
         valid = side.valid & ~bad
         count = int(side.err_count[valid].sum())
         out[f"flagged_{name}"] = float(np.mean(side.boxed | bad))
         out[f"error_{name}_pct"] = 100 * float(side.err_sum[valid].sum()) / count if count else None
-    known = [v for v in (stats.deconv_away_pct, out["error_home_pct"]) if v is not None]
-    bar = FACTOR * max(known) if known else None
+    bar = bar_pct(stats.deconv_away_pct, out["error_home_pct"])
     err = out["error_away_pct"]
     out["home_met"] = out["flagged_home"] <= HOME_SHARE
     out["away_met"] = err is None or (bar is not None and err <= bar)
@@ -171,18 +179,16 @@ def reach(stats: list[PairStats], window: int | None = None) -> dict[str, Any]:
     """The pairs met as fitted, by the best common setting, and by any setting at all."""
     grid = settings()
     met = np.array([[_met(s, g) for g in grid] for s in stats])  # (pairs, settings)
-    as_fitted = [_met(s, (1.0, 1.0, 1.0) if not s.episodes else (1.0, np.inf, np.inf))
-                 for s in stats]
+    fitted = [_met(s, as_fitted(s)) for s in stats]
     best = int(np.argmax(met.sum(axis=0)))
     out: dict[str, Any] = {
-        "pairs": len(stats), "met_as_fitted": int(sum(as_fitted)),
+        "pairs": len(stats), "met_as_fitted": int(sum(fitted)),
         "best_common": {"scale": grid[best], "met": int(met[:, best].sum())},
         "reachable": int(met.any(axis=1).sum()),
         "unreachable": [{"pair": s.index, "scene": s.label, "episodes": s.episodes}
                         for s, m in zip(stats, met, strict=True) if not m.any()]}
     if window is not None:
-        with_stream = [_met(s, (1.0, 1.0, 1.0) if not s.episodes else (1.0, np.inf, np.inf),
-                            window) for s in stats]
+        with_stream = [_met(s, as_fitted(s), window) for s in stats]
         out["stream"] = {"window": window, "met": int(sum(with_stream)),
                          "missed": [s.index for s, m in zip(stats, with_stream, strict=True)
                                     if not m]}
@@ -191,19 +197,24 @@ def reach(stats: list[PairStats], window: int | None = None) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--pairs", type=int, default=120, help="random_pair(0..N-1)")
-    parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--window", type=int, default=None)
+    parser.add_argument("--pairs", type=count("--pairs", 1, 100_000), default=120,
+                        help="random_pair(0..N-1)")
+    parser.add_argument("--jobs", type=count("--jobs", 1, 256), default=2)
+    parser.add_argument("--window", type=count("--window", 1, 100_000), default=None)
     parser.add_argument("--json", default=None)
     args = parser.parse_args(argv)
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         stats = list(pool.map(pair_stats, range(args.pairs)))
     result = reach(stats, args.window)
     text = json.dumps(result, indent=2)
-    print(text)
+    print(text)  # first: a --json that cannot be written loses no result
     if args.json:
-        with atomic_write(args.json) as out:
-            out.write((text + "\n").encode())
+        try:
+            with atomic_write(args.json) as out:
+                out.write((text + "\n").encode())
+        except OSError as err:
+            print(f"limits_reach: error: {err}", file=sys.stderr)
+            return 1
     return 0
 
 

@@ -41,8 +41,6 @@ class PatchAudit:
     samples: int = 0
     complete: int = 0
     mixed: list[int] = field(default_factory=list)  # complete samples matching no answer
-    published: list[tuple[bool, tuple[int, ...]]] = field(default_factory=list)
-    """Every force sample in order: complete, and its 27 forces in mN."""
     first_sync: int | None = None  # SYNCs counted from the patch's first answer
     split: int = 0  # whole answers with a SYNC between their first and last TPDO
     doubled: int = 0  # SYNC periods holding two whole answers (one of them late)
@@ -132,7 +130,6 @@ def audit(path: str | Path, patches: list[int]) -> Audit:
 def _force_sample(patch: PatchAudit, node: canopen.RemoteNode, frames: dict[int, bytes]) -> None:
     patch.samples += 1
     if len(frames) != 7:
-        patch.published.append((False, ()))
         return
     values: dict[tuple[int, int], int] = {}
     for k, pdo in enumerate(list(node.tpdo.values())[:7]):  # the forces (TPDO 8: contact)
@@ -140,7 +137,6 @@ def _force_sample(patch: PatchAudit, node: canopen.RemoteNode, frames: dict[int,
         values.update({(v.index, v.subindex): v.raw for v in pdo})
     forces = tuple(values[(0x2000, s)] for s in range(1, 28))
     complete = bool(values[(0x2005, 0)] & COMPLETE)
-    patch.published.append((complete, forces))
     if not complete:
         return
     patch.complete += 1

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from bench.judge import judge
-from bench.limits_reach import PairStats, judge_scaled, pair_stats, reach
+from bench.limits_reach import PairStats, as_fitted, judge_scaled, pair_stats, reach
 from bench.pairs import pair_data, random_pair
 from decoder.registry import create_decoder
 
@@ -30,8 +30,7 @@ def test_the_limits_as_fitted_judge_a_pair_as_bench_cross_does(index: int) -> No
     deconv = create_decoder("deconv").fit(*data.train)
     fitted = judge("lm-mlp", create_decoder("lm-mlp").fit(*data.train), deconv, data, pair.mode)
     assert stats.episodes == (index == 1)
-    scale = (1.0, np.inf, np.inf) if stats.episodes else (1.0, 1.0, 1.0)
-    scaled = judge_scaled(stats, scale)
+    scaled = judge_scaled(stats, as_fitted(stats))
     for key in ("flagged_home", "flagged_away", "error_home_pct", "error_away_pct", "bar_pct",
                 "home_met", "away_met"):
         expected = fitted[key]
