@@ -46,6 +46,13 @@ MUTANTS = (
            "        if slot.done:",
            ("tests/canbus/test_dataplane_answers.py",
             "tests/canbus/test_answers_multiprocess.py")),
+    Mutant("cycle-closes-when-sync-is-sent",
+           "a receive thread behind the bus loses nothing: a cycle closes where the bus "
+           "passed the next SYNC",
+           "canbus/master/dataplane.py",
+           "            if self._cycle is None and not self._unpassed:",
+           "            if True:",
+           ("tests/canbus/test_dataplane_answers.py",)),
     Mutant("window-ignored",
            "answers never mixed: a frame stamped after its cycle's window is not its cycle's",
            "canbus/master/dataplane.py",

@@ -142,7 +142,7 @@ class BusLink:
 
     def produce_sync(self, period_s: float, counter: bool) -> SyncProducer:
         assert self.dataplane is not None, "listen() first"
-        producer = SyncProducer(self.bus, period_s, on_sync=self.dataplane.on_sync,
+        producer = SyncProducer(self.bus, period_s, on_sync=self.dataplane.on_sync_sent,
                                 counter=counter)
         self.sync = producer
         return producer

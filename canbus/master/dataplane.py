@@ -36,6 +36,18 @@ docs/host.md). Frames stamped after the window are held until the next SYNC, whi
 takes the ones inside its own window (a patch may answer SYNC k+1 before the host has
 called :meth:`DataPlane.on_sync`) and counts the rest ``late``.
 
+When a cycle closes. SYNC ``k+1`` closes cycle ``k`` where the bus passed it, not where
+the host decided to send it: the SYNC producer announces each SYNC with
+:meth:`DataPlane.on_sync_sent` before sending it, and the cycle stays open until the data
+plane takes a frame stamped at or after that SYNC (its echo, a patch's answer to it, any
+later frame: the bus's own order), so frames of cycle ``k`` that were on the bus before
+SYNC ``k+1`` but reached the receive thread after it was sent (behind the GIL, on a busy
+machine) still count for cycle ``k``. A bus that shows nothing for ``max_bus_lag_s``
+after a SYNC has its cycle opened anyway, at the next SYNC sent or :meth:`flush`.
+:meth:`DataPlane.on_sync` opens the cycle at once: for a SYNC heard on the bus (a listen-only
+host's :class:`~canbus.master.sync_producer.SyncFollower`), where it is already in the
+bus's order.
+
 A complete patch is published at once; every other patch is published when the next
 SYNC (or :meth:`flush`) closes the cycle, incomplete: taxels carried by a missing PDO
 are invalid with ``Reason.MISSING`` (every taxel, when nothing usable arrived). So each
@@ -52,6 +64,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
+from collections import deque
 from collections.abc import Sequence
 
 import can
@@ -76,7 +89,10 @@ __all__ = ["DataPlane", "DataPlaneStats", "ForceFrame", "PatchChannel", "Subscri
 
 logger = logging.getLogger(__name__)
 
-
+MAX_BUS_LAG_S = 0.05
+"""How long after a SYNC the data plane waits for the bus to show it passed before opening
+its cycle anyway: far above a receive thread's lag on a busy machine, and only a bus that
+carries no frame at all waits it out."""
 
 _Entry = tuple[AnswerSlot, int, int, int, int]  # slot, PDO bit, byte offset, mapped size, place
 
@@ -85,11 +101,14 @@ class DataPlane(can.Listener):
     """Patch TPDOs -> forces -> force TPDOs on ``bus``; see the module docstring."""
 
     def __init__(self, bus: can.BusABC, *, sync_window_s: float,
-                 background: bool = True) -> None:
+                 background: bool = True, max_bus_lag_s: float = MAX_BUS_LAG_S) -> None:
         if not (math.isfinite(sync_window_s) and sync_window_s >= 0):
             raise ConfigError("sync_window_s", f"must be >= 0 s, got {sync_window_s}")
+        if not (math.isfinite(max_bus_lag_s) and max_bus_lag_s >= 0):
+            raise ConfigError("max_bus_lag_s", f"must be >= 0 s, got {max_bus_lag_s}")
         self.bus = bus
         self.sync_window_s = sync_window_s
+        self.max_bus_lag_s = max_bus_lag_s
         self.stats = DataPlaneStats()
         self.bus_traffic: frozenset[int] = SERVICE_COB_IDS
         """COB-IDs of the bus's own traffic beside the patches' PDOs: counted as
@@ -100,6 +119,8 @@ class DataPlane(can.Listener):
         self._slots: dict[int, AnswerSlot] = {}
         self._shapes: dict[object, int] = {}  # PDO layout and pillars -> slot key
         self._cycle: tuple[int, int, float] | None = None
+        self._unpassed: deque[tuple[int, int, float]] = deque()  # SYNCs sent, not yet passed
+        self._next_sync_t = math.inf  # the oldest of them: a frame stamped from here passes it
         self._start, self._end = math.inf, -math.inf  # no cycle open
         self._held: list[tuple[_Entry, bytes, float]] = []
         self._queue: list[SampleJob] = []
@@ -156,6 +177,13 @@ class DataPlane(can.Listener):
                 slot.active = False
                 self._rebuild_table()
 
+    @property
+    def steady_from_cycle(self) -> int | None:
+        """The first cycle opened with every patch of the bus online (operational): its
+        samples and the later ones are the steady state's (``stats.steady_samples``); None
+        until then. Set up is over for good: a patch lost later counts against it."""
+        return self._publisher.steady_from_cycle
+
     def channel(self, node_id: int) -> PatchChannel:
         try:
             return self._slots[node_id].channel
@@ -180,6 +208,8 @@ class DataPlane(can.Listener):
 
     def take(self, msg: can.Message) -> bool:
         """Handle ``msg`` if it is a PDO of a channel; False (and counted unknown) if not."""
+        if msg.timestamp >= self._next_sync_t:
+            self._bus_passed(msg.timestamp)
         entry = self._table.get(msg.arbitration_id)
         if entry is None or msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
             # only the notifier thread writes these counters
@@ -253,19 +283,54 @@ class DataPlane(can.Listener):
     # -- cycles -----------------------------------------------------------------------------
 
     def on_sync(self, cycle: int, sync_counter: int, timestamp: float) -> None:
-        """SYNC ``cycle`` was sent at ``timestamp``: close the previous cycle, open this one."""
+        """SYNC ``cycle`` passed on the bus at ``timestamp``: close the previous cycle (and
+        any announced by :meth:`on_sync_sent` before it), open this one."""
         with self._lock:
-            self._close()
-            self._cycle = (cycle, sync_counter, timestamp)
-            self._start = timestamp
-            self._end = timestamp + self.sync_window_s if self.sync_window_s else math.inf
-            held, self._held = self._held, []
-            for entry, data, t in held:
-                if self._start <= t <= self._end:
-                    self._accept(entry, data)
-                else:
-                    self.stats.late_frames += 1
+            self._open_unpassed(math.inf)
+            self._open(cycle, sync_counter, timestamp)
         self._publish_now()
+
+    def on_sync_sent(self, cycle: int, sync_counter: int, timestamp: float) -> None:
+        """This host sends SYNC ``cycle`` at ``timestamp``: the open cycle closes when the bus
+        shows it passed (module docstring), or at the latest ``max_bus_lag_s`` after it."""
+        with self._lock:
+            if self._cycle is None and not self._unpassed:
+                self._open(cycle, sync_counter, timestamp)
+            else:
+                self._unpassed.append((cycle, sync_counter, timestamp))
+                self._next_sync_t = self._unpassed[0][2]
+                self._open_unpassed(timestamp - self.max_bus_lag_s)
+        self._publish_now()
+
+    def _bus_passed(self, timestamp: float) -> None:
+        """A frame stamped ``timestamp`` was taken: every SYNC sent before it has passed."""
+        with self._lock:
+            self._open_unpassed(timestamp)
+        if self._queue and not self._wake.is_set():
+            self._publish_now()
+
+    def _open_unpassed(self, until: float) -> None:
+        """Open, in turn, every announced SYNC sent at or before ``until`` (lock held)."""
+        unpassed = self._unpassed
+        while unpassed and unpassed[0][2] <= until:
+            self._open(*unpassed.popleft())
+        self._next_sync_t = unpassed[0][2] if unpassed else math.inf
+
+    def _open(self, cycle: int, sync_counter: int, timestamp: float) -> None:
+        """Close the open cycle, open ``cycle`` and judge the frames held for it (lock held)."""
+        self._close()
+        self._cycle = (cycle, sync_counter, timestamp)
+        if self._publisher.steady_from_cycle is None and self._slots and all(
+                slot.online and slot.active for slot in self._slots.values()):
+            self._publisher.steady_from_cycle = cycle
+        self._start = timestamp
+        self._end = timestamp + self.sync_window_s if self.sync_window_s else math.inf
+        held, self._held = self._held, []
+        for entry, data, t in held:
+            if self._start <= t <= self._end:
+                self._accept(entry, data)
+            else:
+                self.stats.late_frames += 1
 
     def answered(self) -> bool:
         """No cycle is open, or every patch that can still answer it has: a whole answer,
@@ -278,6 +343,7 @@ class DataPlane(can.Listener):
     def flush(self) -> None:
         """Close the current cycle now and publish everything queued before returning."""
         with self._lock:
+            self._open_unpassed(math.inf)
             self._close()
             self._cycle = None
             self._start, self._end = math.inf, -math.inf

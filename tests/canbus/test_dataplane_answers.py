@@ -213,6 +213,74 @@ def test_no_sample_is_made_of_two_answers(plan_a: dict, plan_b: dict,
         host.plane.stop()
 
 
+def _run(host: Host, frames: list[can.Message], *, lag_s: list[float] | None) -> list[tuple]:
+    """What the data plane publishes for ``frames`` (in bus order) and SYNCs 1..CYCLES.
+
+    ``lag_s=None``: each SYNC opens its cycle where it lies in the bus's order (a listen-only
+    host). Otherwise the host sends SYNC k at ``sync_time(k)`` (``on_sync_sent``) while its
+    receive thread takes frame i ``lag_s[i]`` after it crossed the bus, in bus order.
+    """
+    host.reset()
+    try:
+        if lag_s is None:
+            events = [(msg.timestamp, 1, msg) for msg in frames]
+        else:
+            events, taken = [], 0.0
+            for msg, lag in zip(frames, lag_s, strict=True):
+                taken = max(taken, msg.timestamp + lag)
+                events.append((taken, 1, msg))
+        events += [(sync_time(k), 0, None) for k in range(1, CYCLES + 1)]
+        cycle = 0
+        for _, _, msg in sorted(events, key=lambda e: (e[0], e[1])):
+            if msg is not None:
+                host.plane.on_message_received(msg)
+                continue
+            cycle += 1
+            sync = host.plane.on_sync if lag_s is None else host.plane.on_sync_sent
+            sync(cycle, cycle % 240 + 1, sync_time(cycle))
+        host.plane.flush()
+        return [(f.patch, f.cycle, f.complete, f.force_N.tobytes(), f.valid.tobytes())
+                for f in host.out]
+    finally:
+        host.plane.stop()
+
+
+@settings(max_examples=100, deadline=None)
+@given(plan_a=_plans, plan_b=_plans,
+       lags=st.lists(st.floats(0.0, 2 * PERIOD_S), min_size=1, max_size=CYCLES * PDOS * 2))
+def test_a_receive_thread_behind_the_bus_loses_nothing(plan_a: dict, plan_b: dict,
+                                                       lags: list[float]) -> None:
+    """The host sends SYNC k+1 while frames of cycle k are still queued for its receive
+    thread (up to two periods behind): every sample is the one a host reading the bus in
+    its own order publishes, bit for bit (DESIGN: a cycle closes where the bus passed SYNC)."""
+    if not _RIG:
+        _RIG.append(Host())
+    host = _RIG[0]
+    frames = []
+    for p, (patch, plan) in enumerate(zip(host.patches, (plan_a, plan_b), strict=True)):
+        answers = [_answer(patch, k + 1, 0.3 + 0.1 * (p * CYCLES + k), host)[0]
+                   for k in range(CYCLES)]
+        frames += [msg for msg, _ in _stream(answers, plan)]
+    frames.sort(key=lambda m: m.timestamp)
+    lag_s = [lags[i % len(lags)] for i in range(len(frames))]
+    assert _run(host, frames, lag_s=lag_s) == _run(host, frames, lag_s=None)
+
+
+def test_a_silent_bus_opens_its_cycles_anyway(host: Host) -> None:
+    """No frame shows a SYNC passed: each cycle still gets its sample, every taxel missing,
+    once the bus has been silent for max_bus_lag_s after it."""
+    plane, lag = host.plane, host.plane.max_bus_lag_s
+    plane.on_sync_sent(1, 2, sync_time(1))
+    plane.on_sync_sent(2, 3, sync_time(2))
+    plane.on_sync_sent(3, 4, sync_time(2) + 0.5 * lag)
+    assert not host.out  # cycle 1 stays open: the bus may still hold its frames
+    plane.on_sync_sent(4, 5, sync_time(2) + lag + 1e-6)  # SYNC 2 unseen for max_bus_lag_s
+    assert [(f.patch, f.cycle) for f in host.out] == [(1, 1), (2, 1)]
+    assert all((f.reason == Reason.MISSING).all() for f in host.out)
+    plane.flush()
+    assert [f.cycle for f in host.out] == [1, 1, 2, 2, 3, 3, 4, 4]
+
+
 def teardown_module() -> None:
     for host in _RIG:
         host.close()
