@@ -85,6 +85,8 @@ class DataPlaneStats:
     batches: int = 0  # publishing rounds: samples / batches is the mean decode batch
     complete_samples: int = 0
     incomplete_samples: int = 0
+    steady_samples: int = 0  # of cycles opened once every patch of the bus was operational
+    steady_complete_samples: int = 0  # (DataPlane.steady_from_cycle): the steady state
     decode_errors: int = 0  # decoder raised: those samples are dropped (logged)
     send_errors: int = 0  # bus.send raised: that sample is not published (logged)
     callback_errors: int = 0  # a subscriber raised (logged)

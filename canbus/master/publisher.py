@@ -52,6 +52,8 @@ class Publisher:
         self._subscribers: tuple[Subscriber, ...] = ()  # replaced, never mutated
         self._subscribing = threading.Lock()
         self._raw: dict[int, NDArray[np.float64]] = {}
+        self.steady_from_cycle: int | None = None
+        """Samples of this cycle on are the steady state's (set by the data plane)."""
         self._last_complete: dict[int, ForceFrame] = {}
 
     # -- subscribers, tare state --------------------------------------------------------
@@ -208,6 +210,11 @@ class Publisher:
         stats.batches += 1
         stats.complete_samples += sum(complete)
         stats.incomplete_samples += len(out) - sum(complete)
+        steady_from = self.steady_from_cycle
+        if steady_from is not None:
+            steady = [f.complete for f in out if f.cycle >= steady_from]
+            stats.steady_samples += len(steady)
+            stats.steady_complete_samples += sum(steady)
         for callback in self._subscribers:
             try:
                 callback(out)

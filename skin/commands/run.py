@@ -16,7 +16,8 @@ restarts it.
 
 ``--listen-only`` (or ``host.listen_only = true``): decode what another master runs, or a
 recording ``skin replay`` sends, and transmit nothing. ``--cpu 3`` runs every thread of
-the host on CPU 3 (see ``skin.commands.common.cpu``).
+the host on CPU 3 (see ``skin.commands.common.cpu``), ``--realtime 50`` under SCHED_FIFO
+at priority 50 (``skin.commands.common.realtime``).
 """
 
 from __future__ import annotations
@@ -104,6 +105,7 @@ def _run(args: argparse.Namespace) -> int:
     from skin.commands.common.configpath import find_config
     from skin.commands.common.cpu import pinned
     from skin.commands.common.hostbus import resolve
+    from skin.commands.common.realtime import realtime
     from skin.errors import ConfigError
 
     if args.status_every is not None and not args.status_every > 0:
@@ -113,7 +115,7 @@ def _run(args: argparse.Namespace) -> int:
         from canbus.zenoh.config import require_zenoh
 
         require_zenoh("--zenoh" if args.zenoh else "zenoh")
-    with pinned(args.cpu):  # before the bus and the host start their threads
+    with pinned(args.cpu), realtime(args.realtime):  # before any thread starts
         return _run_host(args, config)
 
 
@@ -163,6 +165,7 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
         record: dict[str, Any] = {
             "config": config.source, "listen_only": host.listen_only,
             "seconds": round(elapsed, 3), "stopped_by": stopped.signal, "stats": stats,
+            "steady_complete_pct": steady_complete_pct(stats),
             "buses": buses_stats,
             "patches": {str(n): h.as_json() for n, h in health.items()},
             "unknown_nodes": sorted(host.unknown_nodes),
@@ -180,6 +183,7 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
 def _print_summary(listen_only: bool, stats: dict[str, int], elapsed: float,
                    publisher: ZenohPublisher | None) -> None:
     verb = "decoded" if listen_only else "published"
+    print(steady_state_line(stats))
     print(f"{verb} {stats['samples']} samples ({stats['complete_samples']} complete, "
           f"{stats['incomplete_samples']} incomplete) in {elapsed:.1f} s; frames in "
           f"{stats['frames_in']}, out {stats['frames_out']}, late {stats['late_frames']}, "
@@ -188,6 +192,24 @@ def _print_summary(listen_only: bool, stats: dict[str, int], elapsed: float,
         z = publisher.counters()
         print(f"zenoh: {z['sent']} samples sent on {publisher.settings.prefix}/"
               f"{publisher.host_name}/**, {z['dropped']} dropped, {z['events_sent']} events")
+
+
+def steady_complete_pct(stats: dict[str, int]) -> float | None:
+    """The steady state's complete share in %: samples of the cycles from the first one
+    with every patch operational (None: no such cycle, the set-up never ended)."""
+    steady = stats["steady_samples"]
+    return None if not steady else round(100.0 * stats["steady_complete_samples"] / steady, 3)
+
+
+def steady_state_line(stats: dict[str, int]) -> str:
+    setup = stats["samples"] - stats["steady_samples"]
+    pct = steady_complete_pct(stats)
+    if pct is None:
+        return (f"steady state: none (not every patch became operational); {setup} samples "
+                "during set-up")
+    incomplete = stats["steady_samples"] - stats["steady_complete_samples"]
+    return (f"steady state (every patch operational): {stats['steady_samples']} samples, "
+            f"{pct:.2f} % complete ({incomplete} incomplete); {setup} samples during set-up")
 
 
 def _write_json(path: str, record: dict[str, Any]) -> None:
@@ -321,6 +343,8 @@ def _hint_if_nobody_answered(host: HostManager, config: HostConfig) -> None:
 def add_subparser(subparsers: Any) -> None:
     from skin.commands.common.busargs import add_rcvbuf_argument
     from skin.commands.common.cpu import add_cpu_argument
+    from skin.commands.common.realtime import DEFAULT_PRIORITY
+    from skin.commands.common.realtime import priority as realtime_priority
 
     parser = subparsers.add_parser("run", help="the host manager on a bus (CONFIG.toml)")
     parser.add_argument("config", metavar="CONFIG", nargs="?", default=None,
@@ -344,6 +368,11 @@ def add_subparser(subparsers: Any) -> None:
                              "statistics on Zenoh (the config's [zenoh] table, else "
                              "defaults: listen on tcp/127.0.0.1:7447; docs/zenoh.md)")
     add_cpu_argument(parser, default="all")
+    parser.add_argument("--realtime", type=realtime_priority, nargs="?", const=DEFAULT_PRIORITY,
+                        default=None, metavar="PRIO",
+                        help="run every thread under SCHED_FIFO at PRIO (1..99, default "
+                             f"{DEFAULT_PRIORITY}), ahead of normal processes; where not "
+                             "permitted, one warning and normal priority (docs/host.md)")
     add_rcvbuf_argument(parser)
     argtypes.add_bus_arguments(parser)
     parser.set_defaults(func=_run, runs_until_stopped=True)

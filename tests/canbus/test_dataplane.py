@@ -390,3 +390,28 @@ def test_end_to_end_published_before_the_window_closes(request: pytest.FixtureRe
             force_node.detach()
         for net in (consumer, host_net, device):
             net.disconnect()
+
+
+def test_the_steady_state_begins_with_the_first_cycle_every_patch_is_online(host: Host) -> None:
+    """Samples made while a patch is still being set up are not the steady state's; from
+    the first cycle with every patch online on, every sample is, a lost patch's too."""
+    a = host.patches[0]
+    plane = host.plane
+    plane.set_online(2, False)  # patch 2 still configuring
+    for k in (1, 2):
+        host.sync(k)
+        host.feed(a.frames(load(0.5), k))
+    assert plane.steady_from_cycle is None
+    plane.set_online(2, True)
+    for k in (3, 4):
+        host.sync(k)
+        for patch in host.patches:
+            host.feed(patch.frames(load(0.5), k))
+    plane.set_online(2, False)  # lost in the steady state: its samples count against it
+    host.sync(5)
+    host.feed(a.frames(load(0.5), 5))
+    plane.flush()
+    assert plane.steady_from_cycle == 3
+    stats = plane.stats
+    assert (stats.samples, stats.complete_samples) == (10, 7)
+    assert (stats.steady_samples, stats.steady_complete_samples) == (6, 5)

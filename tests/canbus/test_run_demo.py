@@ -258,6 +258,14 @@ def test_skin_run_takes_its_bus_from_the_config_and_finds_the_config(
     record = json.loads(out.read_text())
     assert record["stats"]["complete_samples"] > 0
     assert record["buses"]["default"]["patches"] == [1]
+    # the steady state is told apart from the set-up, in the summary and the figures
+    stats = record["stats"]
+    assert 0 < stats["steady_complete_samples"] <= stats["steady_samples"] <= stats["samples"]
+    assert record["steady_complete_pct"] == round(
+        100 * stats["steady_complete_samples"] / stats["steady_samples"], 3)
+    setup = stats["samples"] - stats["steady_samples"]
+    assert f"{setup} samples during set-up" in text
+    assert f"steady state (every patch operational): {stats['steady_samples']} samples" in text
 
 
 def test_skin_run_refuses_bus_flags_for_a_config_of_several_buses(
