@@ -12,6 +12,24 @@ Defaults, and why:
 * ``resistance_lsb_ohm = 0.05 Ω``: the UNSIGNED16 code the patch sends; full
   scale 65535 · 0.05 = 3276.75 Ω covers the 20 %-stretched diagonal pillar
   (1.44 · 1414 Ω = 2036 Ω) with margin. Code 0xFFFF means over-range/open.
+
+The range a real patch can have (:data:`CONSTANT_RANGES`, :data:`R0_RANGE_OHM`): the one
+statement of the limits. Every constant built here, every value a patch node stores or a
+master writes (``canbus.patch_constants``, eds/skin-patch.eds's LowLimit/HighLimit) and
+every value a patch reports to the host is held to it; outside it, the value is refused:
+
+* E 10 kPa..1 GPa: the softest silicone that still stands as a pillar (gels are below)
+  up to a rigid plastic; rubbers, filled or not, lie between 0.1 and 100 MPa.
+* ρ 10 µΩ·m..1 kΩ·m: silver-filled silicones to the least conductive carbon-black ones;
+  above, the compound is an antistatic insulator.
+* L 0.1..100 mm, S 0.01..1000 mm², taxel pitch 1..100 mm: a skin's pillars and taxels,
+  a decade and more either side of the paper's 10 mm, 4 mm² and 15 mm.
+* max strain 1..90 %: below 1 % the pillar barely changes its resistance; an elastomer
+  pillar collapses before 90 % (the model's own limit is 20 %).
+* full-scale force 10 mN..32.767 N: a force node sends INTEGER16 mN, so no larger full
+  scale could be published; below 10 counts it is not resolved.
+* resistance LSB 100 µΩ..1 kΩ, R0 0.1 Ω..1 MΩ: a 16-bit ohmmeter's full scale from
+  6.5 Ω to 65 MΩ; a pillar below 0.1 Ω is a short, above 1 MΩ an open contact.
 """
 
 from __future__ import annotations
@@ -52,10 +70,14 @@ class SensorConstants:
         from skin.inputs.fields import integer, number
 
         for name, (low, high) in CONSTANT_RANGES.items():
-            number(getattr(self, name), name, high=high, above=low)
-        if not self.max_strain < 1:
-            raise _error("max_strain", f"must be in (0, 1), got {self.max_strain!r}")
+            number(getattr(self, name), name, low, high)
         integer(self.adc_bits, "adc_bits", 8, 32)
+        low, high = R0_RANGE_OHM
+        r0 = self.nominal_resistance_ohm
+        if not (low <= r0.min() and r0.max() <= high):
+            raise _error("resistivity_ohm_m", f"{self.resistivity_ohm_m!r} Ω·m over pillars of "
+                         f"{self.length_m!r} m and {self.area_m2!r} m² gives R0 "
+                         f"{r0.min():g}..{r0.max():g} Ω, outside {low:g}..{high:g} Ω")
 
     @property
     def axial_stiffness_N(self) -> float:
@@ -101,12 +123,14 @@ class SensorConstants:
 
 
 CONSTANT_RANGES: dict[str, tuple[float, float]] = {
-    "youngs_modulus_pa": (0.0, 1e12), "resistivity_ohm_m": (0.0, 1e9),
-    "length_m": (0.0, 1.0), "area_m2": (0.0, 1.0), "max_strain": (0.0, 1.0),
-    "resistance_lsb_ohm": (0.0, 1e6), "full_scale_force_N": (0.0, 1e4),
-    "taxel_pitch_m": (0.0, 1.0),
+    "youngs_modulus_pa": (1e4, 1e9), "resistivity_ohm_m": (1e-5, 1e3),
+    "length_m": (1e-4, 0.1), "area_m2": (1e-8, 1e-3), "max_strain": (0.01, 0.9),
+    "resistance_lsb_ohm": (1e-4, 1e3), "full_scale_force_N": (0.01, 32.767),
+    "taxel_pitch_m": (1e-3, 0.1),
 }
-"""(above, at most) of every float constant: each must be more than the first."""
+"""(lowest, highest) of every float constant a real patch can have, SI (module docstring)."""
+R0_RANGE_OHM = (0.1, 1e6)
+"""(lowest, highest) of a pillar's rest resistance R0 a real patch can have."""
 
 
 def _error(field: str, problem: str) -> Exception:

@@ -43,16 +43,16 @@ def forces_to_mN(force_N: ArrayLike, valid: ArrayLike) -> tuple[NDArray[np.int16
                                                                  NDArray[np.bool_]]:
     """``(..., 9, 3)`` N and ``(..., 9)`` valid -> INTEGER16 mN and the taxels valid on the bus.
 
-    A component is ``NO_VALUE`` when its taxel is invalid or its value is not finite or
-    rounds beyond +-32767 mN; such a taxel is not valid on the bus.
+    A taxel is valid on the bus when it is ``valid`` and each of its components is finite
+    and rounds within +-32767 mN; all three components of any other taxel are ``NO_VALUE``.
     """
     f = np.asarray(force_N, dtype=np.float64)
     ok = np.asarray(valid, dtype=bool)
     mN = np.rint(f * 1000.0)
     fits = np.abs(mN) <= MAX_MN  # False for NaN and inf too
-    usable = fits & ok[..., None]
-    out = np.where(usable, mN, NO_VALUE).astype(np.int16)
-    return out, usable.all(axis=-1)
+    bus_valid = fits.all(axis=-1) & ok
+    out = np.where(bus_valid[..., None], mN, NO_VALUE).astype(np.int16)
+    return out, bus_valid
 
 
 def valid_bits(valid: ArrayLike, complete: ArrayLike) -> NDArray[np.uint16]:
@@ -123,11 +123,10 @@ def _counts(force_N: NDArray[np.float64], valid: NDArray[np.bool_],
     x *= _COUNTS_PER_UNIT
     np.rint(x, out=x)
     fits = np.abs(x) <= MAX_MN  # False for NaN and inf too
-    forces_fit = fits[:, :27].reshape(n, TAXELS_PER_PATCH, 3)
-    forces_fit &= valid[..., None]
+    bus_valid = fits[:, :27].reshape(n, TAXELS_PER_PATCH, 3).all(axis=-1) & valid
+    fits[:, :27] = np.repeat(bus_valid, 3, axis=1)  # an invalid taxel has no component
     fits[:, 27:] &= has.T
     counts: NDArray[np.int16] = np.where(fits, x, NO_VALUE).astype(np.int16)
-    bus_valid = np.asarray(forces_fit.all(axis=-1), dtype=bool)
     return counts, bus_valid
 
 

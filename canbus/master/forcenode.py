@@ -7,9 +7,9 @@ source patch's node-ID; 0x2004 per-taxel status (the ``decoder.reasons`` code, 0
 0x2005 valid taxels, UNSIGNED16 (bit k = taxel k valid, bit 15 = sample complete); 0x2006
 the counter byte of the SYNC the sample answers (0: none); 0x2007 tare: writing 1 by SDO
 re-zeroes the source patch at its last sample (aborted with 0x08000022 while the patch is
-loaded or not decoded, 0x06090030 for any other value). A component that is invalid
-or does not fit INTEGER16 is sent as 0x8000 (-32768, "no value"), never clipped, and its
-taxel's valid bit is cleared.
+loaded or not decoded, 0x06090030 for any other value). A taxel that is invalid, or
+has a component that does not fit INTEGER16 (never clipped), has its valid bit cleared
+and all three components sent as 0x8000 (-32768, "no value").
 
 0x2008 the patch's contact summary and 0x2009 the thresholds it is judged by
 (:mod:`canbus.contact_record`; the node's :class:`~canbus.master.contact.PatchContact`).

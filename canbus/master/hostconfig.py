@@ -24,7 +24,7 @@ from canbus.master.cobids import check_cob_ids, restricted
 from canbus.master.contactconfig import check_orientation, contact_from_table
 from decoder.protocol import Decoder
 from decoder.registry import decoder_class, load_decoder, needs_fitting
-from skin.constants import TAXELS_PER_PATCH, SensorConstants
+from skin.constants import R0_RANGE_OHM, TAXELS_PER_PATCH, SensorConstants
 from skin.contact import ContactParams
 from skin.errors import ConfigError, ModelFileError
 from skin.inputs import fields
@@ -35,7 +35,6 @@ if TYPE_CHECKING:
 
 MODES = ("z", "xyz")
 POSITION_LIMIT_M = 1000.0
-R0_LIMIT_OHM = 1e9
 ANSWER_ORDERS = ("cob-id", "tpdo")
 TPDO_COUNT = 7
 FORCE_TPDO_COUNT = 8  # the force node's: TPDO 8 is the contact
@@ -269,8 +268,7 @@ def _patch(table: dict[str, Any], where: str, base: Path,
         kwargs["contact"] = contact_from_table(table["contact"], f"{where}.contact", contact)
     if "r0_ohm" in table:
         values = fields.array(table["r0_ohm"], f"{where}.r0_ohm", 3 * TAXELS_PER_PATCH)
-        kwargs["r0_ohm"] = tuple(fields.number(v, f"{where}.r0_ohm[{k}]", high=R0_LIMIT_OHM,
-                                               above=0.0)
+        kwargs["r0_ohm"] = tuple(fields.number(v, f"{where}.r0_ohm[{k}]", *R0_RANGE_OHM)
                                  for k, v in enumerate(values))
     patch = PatchConfig(**kwargs)
     return _check_patch(patch, where, buses)

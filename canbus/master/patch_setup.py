@@ -34,6 +34,7 @@ from canbus.patch_constants import (
     R0_SCALE,
     constant_counts,
     reported_constants,
+    reported_refusal,
 )
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM, TPDO_MAP, MappedEntry, PdoCodec, TpdoLayout
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
@@ -49,7 +50,8 @@ _U8, _U16, _U32 = struct.Struct("<B"), struct.Struct("<H"), struct.Struct("<I")
 
 
 class ReportedValueError(SkinError, ValueError):
-    """A patch reports a value the host cannot decode with (an R0 of 0, NaN, -1 ...)."""
+    """A patch reports a value outside the range a real patch can have (an R0 of 0, a
+    Young's modulus of 0xFFFFFFFF Pa ...): the host cannot decode with it."""
 
 
 @dataclass(frozen=True)
@@ -101,7 +103,11 @@ def patch_info(node_id: int, constants: SensorConstants = DEFAULT_CONSTANTS,
 
 
 def _reported(node_id: int, lsb: int, r0: list[int], fields: list[int]) -> PatchInfo:
-    """A patch's info from its counts (0x2001, 0x2002 sub 1..27, 0x2003 sub 1..7)."""
+    """A patch's info from its counts (0x2001, 0x2002 sub 1..27, 0x2003 sub 1..7); a
+    ReportedValueError names the first of 0x2001 and 0x2003 outside its range."""
+    refusal = reported_refusal(lsb, fields)
+    if refusal is not None:
+        raise ReportedValueError(f"patch {node_id} reports {refusal}")
     table = np.array([R0_SCALE.to_si(v) for v in r0], dtype=np.float64)
     constants = reported_constants(lsb, fields)
     return PatchInfo(node_id, constants.resistance_lsb_ohm,
@@ -172,20 +178,21 @@ def setup_patch(node: canopen.RemoteNode, mode: str, *, heartbeat_ms: int,
 
 
 def check_reported(info: PatchInfo, pillars: int = 3) -> None:
-    """Refuse an LSB or an R0 (of the pillars decoded) that is not positive and finite,
-    naming the object, sub-index, taxel and pillar (ReportedValueError)."""
-    if not (np.isfinite(info.lsb_ohm) and info.lsb_ohm > 0):
-        raise ReportedValueError(f"patch {info.node_id} reports 0x{LSB:04X} (resistance LSB) "
-                                 f"= {info.lsb_ohm!r} ohm: it must be positive and finite")
+    """Refuse an R0 (of the pillars decoded) outside the range a real patch can have,
+    naming the object, sub-index, taxel, pillar, value and range (ReportedValueError).
+    (0x2001 and 0x2003 are checked as they are read: :func:`read_patch_info`.)"""
     r0 = info.r0_ohm[:, :pillars]
-    bad = np.argwhere(~(np.isfinite(r0) & (r0 > 0)))
-    if len(bad):
-        taxel, pillar = (int(v) for v in bad[0])
-        raise ReportedValueError(
-            f"patch {info.node_id} reports 0x{NOMINAL:04X} sub {3 * taxel + pillar + 1} (R0 "
-            f"of taxel {taxel}, pillar {'zxy'[pillar]}) = {float(r0[taxel, pillar])!r} ohm"
-            f"{f' and {len(bad) - 1} more' if len(bad) > 1 else ''}: R0 must be positive and "
-            "finite")
+    bad = np.argwhere(~((r0 >= R0_SCALE.low) & (r0 <= R0_SCALE.high)))
+    if not len(bad):
+        return
+    taxel, pillar = (int(v) for v in bad[0])
+    value = float(r0[taxel, pillar])
+    where = f"0x{NOMINAL:04X} sub {3 * taxel + pillar + 1}"
+    name = f"R0 of taxel {taxel}, pillar {'zxy'[pillar]}"
+    refusal = R0_SCALE.refusal(where, R0_SCALE.count_of(value), name) \
+        if np.isfinite(value) else f"{where} ({name}) = {value!r} Ω: outside the range"
+    more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+    raise ReportedValueError(f"patch {info.node_id} reports {refusal}{more}")
 
 
 def configured_info(patch: PatchConfig) -> PatchInfo:

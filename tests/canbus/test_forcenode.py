@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import queue
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from functools import cache
 
 import can
@@ -59,10 +59,10 @@ def test_forces_round_trip_through_canopen_pdo_decoding(
         force: np.ndarray, valid: np.ndarray, complete: bool) -> None:
     forces, bits = _decode(_force_node().frames(force, valid, complete))
     mN = np.rint(force * 1000.0)
-    fits = np.isfinite(mN) & (np.abs(mN) <= 32767) & valid[:, None]
-    expected = np.where(fits, np.nan_to_num(mN), NO_VALUE).astype(int).reshape(27)
-    assert forces == expected.tolist()  # exact mN; 0x8000 where there is no value
-    bus_valid = fits.all(axis=1)
+    fits = np.isfinite(mN) & (np.abs(mN) <= 32767)
+    bus_valid = fits.all(axis=1) & valid
+    expected = np.where(bus_valid[:, None], np.nan_to_num(mN), NO_VALUE).astype(int).reshape(27)
+    assert forces == expected.tolist()  # exact mN; 0x8000 x 3 where a taxel has no value
     assert bits == sum(1 << k for k in range(9) if bus_valid[k]) | (COMPLETE if complete else 0)
 
 
@@ -70,8 +70,10 @@ def test_values_beyond_integer16_are_no_value_never_clipped() -> None:
     force = np.zeros((9, 3))
     force[0] = (32.767, -32.767, 32.7675)  # the last rounds to 32768 mN: does not fit
     force[1] = (np.nan, 0.0, 0.0)
+    force[2] = (32.767, -32.767, 32.767)
     mN, valid = forces_to_mN(force, np.ones(9, dtype=bool))
-    assert mN[0].tolist() == [32767, -32767, NO_VALUE] and mN[1, 0] == NO_VALUE
+    assert mN[0].tolist() == mN[1].tolist() == [NO_VALUE] * 3  # the taxel has no value
+    assert mN[2].tolist() == [32767, -32767, 32767]
     assert valid.tolist() == [False, False] + [True] * 7
 
 
@@ -132,12 +134,25 @@ class Bench:
                 break
         return got
 
+    def collect_until(self, enough: Callable[[list[can.Message]], bool]) -> list[can.Message]:
+        """Frames from now until ``enough(frames)``; fails after a deadline only a failing
+        run reaches."""
+        got: list[can.Message] = []
+        wait_until(lambda: enough(_drained(self.frames, got)), what="the frames on the bus")
+        return got
+
     def close(self) -> None:
         self.force.detach()
         self.notifier.stop(timeout=1.0)
         self.raw.shutdown()
         self.master.disconnect()
         self.device.disconnect()
+
+
+def _drained(frames: queue.Queue[can.Message], into: list[can.Message]) -> list[can.Message]:
+    while not frames.empty():
+        into.append(frames.get_nowait())
+    return into
 
 
 @pytest.fixture
@@ -165,6 +180,29 @@ def test_sdo_reads_the_last_published_sample(bench: Bench) -> None:
     assert sdo[0x2004][9].raw == 8 and sdo[0x2004][1].raw == 0
     sdo[0x2001].raw = 7  # rw: a master may re-label the source
     assert sdo[0x2001].raw == 7
+
+
+def test_an_invalid_taxel_carries_no_value_in_all_three_components_on_the_bus(
+        bench: Bench) -> None:
+    """docs/dataplane.md: a taxel whose valid bit is clear is 0x8000 in x, y and z, whether
+    the decoder masked it or one of its components does not fit INTEGER16."""
+    bench.force.start()
+    force = np.full((9, 3), 0.5)
+    force[1] = (2.208, -3.28, 40.0)  # z beyond +-32.767 N: the taxel cannot be sent
+    force[2] = (0.1, 0.2, np.nan)
+    valid = np.ones(9, dtype=bool)
+    valid[3] = False  # the decoder's verdict, its forces finite
+    for cob, payload in bench.force.frames(force, valid, True):
+        bench.device.send_message(cob, payload)
+    tpdos = bench.force.cob_ids() - {0x746, 0xC6, 0x5C6}
+    got = bench.collect_until(lambda seen: tpdos <= {m.arbitration_id for m in seen})
+    forces, bits = _decode([(m.arbitration_id, bytes(m.data)) for m in got
+                            if m.arbitration_id in tpdos])
+    by_taxel = np.array(forces).reshape(9, 3)
+    for taxel in (1, 2, 3):
+        assert by_taxel[taxel].tolist() == [NO_VALUE] * 3 and not bits & (1 << taxel)
+    assert by_taxel[0].tolist() == [500] * 3 and bits & 1
+    assert [bench.remote.sdo[0x2000][4 + k].raw for k in range(3)] == [NO_VALUE] * 3
 
 
 def test_boot_heartbeat_start_and_nmt_stop(bench: Bench) -> None:

@@ -17,6 +17,7 @@ from canbus.master.cobids import predefined_tpdo_cob_ids
 from canbus.master.dataplane import ForceFrame
 from canbus.master.emcy import EMCY_LOG_KEPT
 from canbus.master.hostconfig import PatchConfig
+from canbus.patch_constants import scale_of
 from decoder.reasons import Reason
 from tests.canbus.faults import rss_bytes
 from tests.canbus.test_host import Rig, config, eventually, press, source
@@ -41,8 +42,8 @@ def _cycles(rig: Rig) -> int:
 
 def test_a_rogue_r0_is_a_setup_failure_with_its_reason_retried_until_it_is_fixed(
         rig: Rig, caplog: pytest.LogCaptureFixture) -> None:
-    """R0 is an UNSIGNED32 count of mOhm on the wire (eds/skin-patch.eds): 0 is the one
-    rogue value it can carry (NaN and negative ones cannot be sent)."""
+    """R0 is an UNSIGNED32 count of mOhm on the wire (eds/skin-patch.eds): NaN and negative
+    values cannot be sent; 0 is one outside the range a real patch has."""
     server = rig.serve(1, source(1, press({})))
     node = server.nodes[0]
     good = float(node.store.value(NOMINAL, 4))
@@ -52,8 +53,8 @@ def test_a_rogue_r0_is_a_setup_failure_with_its_reason_retried_until_it_is_fixed
     eventually(lambda: host.health()[1].setup_failures >= 2, "set-up retried")
     health = host.health()[1]
     assert health.state == "configuring" and health.error is not None
-    assert "0x2002 sub 4 (R0 of taxel 1, pillar z)" in health.error
-    assert "must be positive and finite" in health.error
+    assert "0x2002 sub 4 (R0 of taxel 1, pillar z) = 0 mOhm" in health.error
+    assert "outside 100..1000000000 mOhm" in health.error
     lines = [r.getMessage() for r in caplog.records if r.name == "canbus.master.setup_jobs"]
     assert lines and "0x2002 sub 4" in lines[0] and "again in" in lines[0]
     node.store.store(NOMINAL, 4, good)
@@ -61,6 +62,38 @@ def test_a_rogue_r0_is_a_setup_failure_with_its_reason_retried_until_it_is_fixed
     assert host.wait_operational(timeout=WAIT_S)
     assert _cycles(rig) - at <= RECOVERY_CYCLES
     assert host.health()[1].error is None
+
+
+GARBAGE = [(0x2001, 0, "resistance LSB", "uOhm"), (0x2002, 4, "R0 of taxel 1, pillar z", "mOhm"),
+           (0x2003, 1, "Young's modulus", "Pa"), (0x2003, 2, "resistivity", "uOhm m"),
+           (0x2003, 3, "pillar length", "um"), (0x2003, 4, "pillar cross-section", "um2"),
+           (0x2003, 5, "max strain", "ppm"), (0x2003, 6, "full-scale force", "mN"),
+           (0x2003, 7, "taxel pitch", "um")]
+"""Every constant a patch reports: (index, sub-index, what the reason calls it, unit)."""
+
+
+@pytest.mark.parametrize("count", [0xFFFF_FFFF, 0], ids=["all-ones", "zero"])
+@pytest.mark.parametrize(("index", "subindex", "name", "unit"), GARBAGE,
+                         ids=[f"{i:04X}sub{s}" for i, s, _, _ in GARBAGE])
+def test_a_patch_reporting_a_constant_no_real_patch_has_is_refused_and_publishes_no_force(
+        rig: Rig, index: int, subindex: int, name: str, unit: str, count: int) -> None:
+    """Issue 33: a patch whose firmware reports its Young's modulus as 0xFFFFFFFF (4.29 GPa)
+    was configured and published forces with their valid bits set."""
+    server = rig.serve(1, source(1, press({4: (0.0, 0.0, 1.0)})))  # a light press
+    server.nodes[0].store.store(index, subindex, count)  # the firmware's own value
+    host = rig.start(config(PatchConfig(1)))
+    eventually(lambda: host.health()[1].setup_failures >= 2, "set-up retried")
+    health = host.health()[1]
+    assert health.state == "configuring" and health.error is not None
+    where = f"0x{index:04X}" if index == 0x2001 else f"0x{index:04X} sub {subindex}"
+    low, high = scale_of(index, subindex).count_range  # type: ignore[union-attr]
+    assert f"patch 1 reports {where} ({name}) = {count} {unit}" in health.error
+    assert f"outside {low}..{high} {unit}" in health.error
+    assert health.error.count(" = ") == 1  # one reason, one object
+    assert not any(f.valid.any() for f in list(rig.frames) if f.patch == 1)
+    valid_pdo = predefined_tpdo_cob_ids(65)[6]  # TPDO 7: 0x2005, the valid bits
+    assert not any(int.from_bytes(m.data[6:8], "little") & 0x1FF for m in list(rig.seen)
+                   if m.arbitration_id == valid_pdo)
 
 
 def test_a_node_that_is_not_a_patch_fails_for_good_until_it_boots_again(rig: Rig) -> None:

@@ -146,8 +146,10 @@ def _broken(tmp_path: Path, old: str, new: str, name: str) -> Path:
 
 
 @pytest.mark.parametrize(("old", "new"), [
-    ("DataType=0x0007\nAccessType=ro\nDefaultValue=50000",
+    ("DataType=0x0007\nAccessType=ro\nLowLimit=100\nHighLimit=1000000000\nDefaultValue=50000",
      "DataType=0x0008\nAccessType=ro\nDefaultValue=0.05"),  # a REAL32 default
+    ("HighLimit=1000000000\nDefaultValue=25000000",
+     "HighLimit=1000000000\nDefaultValue=4294967295"),  # E beyond its HighLimit
     ("LSS_Supported=1", "LSS_Supported=1\nColour=blue"),  # not a CiA 306 key
     ("[1003]\nParameterName=Pre-defined error field\nObjectType=0x8",
      "[1003]\nParameterName=Pre-defined error field\nObjectType=0x8\nAccessType=rw"),

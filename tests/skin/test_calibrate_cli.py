@@ -7,6 +7,7 @@ import json
 import struct
 import tomllib
 from pathlib import Path
+from types import SimpleNamespace
 
 import can
 import canopen
@@ -25,6 +26,7 @@ from sim import generate_dataset, load_scene
 from skin.cli import main
 from skin.constants import DEFAULT_CONSTANTS
 from skin.dataset import Dataset, read_dataset, write_dataset
+from skin.errors import ConfigError
 
 FAST = ["--decoders", "analytic", "deconv"]
 
@@ -177,8 +179,21 @@ def test_write_node_sets_the_rest_an_active_host_reads(folder: Path, tmp_path: P
                 node = master.add_node(canopen.RemoteNode(1, od))
                 with pytest.raises(canopen.SdoAbortedError, match="0x06090032"):
                     node.sdo.download(0x2002, 1, raw)
+                with pytest.raises(canopen.SdoAbortedError, match="0x06090031"):
+                    node.sdo.download(0x2002, 1, struct.pack("<I", 0xFFFF_FFFF))  # HighLimit
             finally:
                 master.disconnect()
     finally:
         device.disconnect()
         bus.shutdown()
+
+
+def test_write_node_refuses_a_rest_outside_the_range_of_a_real_patch_before_writing_any(
+        ) -> None:
+    from skin.commands.calibrate.output import write_rest_to_node
+
+    rest = np.tile(DEFAULT_CONSTANTS.nominal_resistance_ohm, (9, 1))
+    rest[4, 2] = 2e6  # 2 MOhm: above 0x2002's HighLimit
+    with pytest.raises(ConfigError, match=r"^rest 0x2002:0F: 2000000.0 Ω is outside "
+                                          r".*\(0.1..1e\+06 Ω\)"):
+        write_rest_to_node(SimpleNamespace(), 1, rest)  # no bus opened: nothing written

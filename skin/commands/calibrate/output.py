@@ -144,6 +144,14 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
     from skin.errors import BusError, ConfigError
 
     rest = np.asarray(rest_ohm, dtype=np.float64)
+    payloads: dict[int, bytes] = {}  # every value checked before the first is written
+    for taxel in range(rest.shape[0]):
+        for pillar in range(rest.shape[1]):
+            sub = 3 * taxel + pillar + 1
+            try:
+                payloads[sub] = encode_si(NOMINAL, sub, float(rest[taxel, pillar]))
+            except ConfigError as err:
+                raise ConfigError(f"rest 0x2002:{sub:02X}", err.problem) from err
     bus, described = open_command_bus(args, command="skin calibrate --write-node", sends=True)
     args.described = described
     written = 0
@@ -153,23 +161,17 @@ def write_rest_to_node(args: Any, node_id: int, rest_ohm: Any) -> int:
         try:
             node = network.add_node(canopen.RemoteNode(node_id, load_od("skin-patch", node_id)))
             node.sdo.RESPONSE_TIMEOUT = args.sdo_timeout
-            for taxel in range(rest.shape[0]):
-                for pillar in range(rest.shape[1]):
-                    sub = 3 * taxel + pillar + 1
-                    try:
-                        value = encode_si(NOMINAL, sub, float(rest[taxel, pillar]))
-                    except ConfigError as err:
-                        raise ConfigError(f"rest 0x2002:{sub:02X}", err.problem) from err
-                    try:
-                        node.sdo.download(NOMINAL, sub, value)
-                    except SdoAbortedError as err:
-                        raise BusError(f"patch {node_id} refused R0 0x2002:{sub:02X} = "
-                                       f"{rest[taxel, pillar]:g} ohm: abort 0x{err.code:08X} "
-                                       f"({err})") from err
-                    except SdoCommunicationError as err:
-                        raise BusError(f"patch {node_id} did not answer on {described}: "
-                                       f"{err}") from err
-                    written += 1
+            for sub, value in payloads.items():
+                try:
+                    node.sdo.download(NOMINAL, sub, value)
+                except SdoAbortedError as err:
+                    ohm = rest[(sub - 1) // 3, (sub - 1) % 3]
+                    raise BusError(f"patch {node_id} refused R0 0x2002:{sub:02X} = "
+                                   f"{ohm:g} ohm: abort 0x{err.code:08X} ({err})") from err
+                except SdoCommunicationError as err:
+                    raise BusError(f"patch {node_id} did not answer on {described}: "
+                                   f"{err}") from err
+                written += 1
             if getattr(args, "store", False):
                 _save_manufacturer_parameters(node, node_id)
         finally:
