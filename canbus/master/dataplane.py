@@ -89,6 +89,11 @@ __all__ = ["DataPlane", "DataPlaneStats", "ForceFrame", "PatchChannel", "Subscri
 
 logger = logging.getLogger(__name__)
 
+PUBLISH_HOLD_S = 0.001
+"""How long the publisher waits, after a patch's sample is ready, for the rest of the
+cycle's patches to answer, so that it decodes and sends them in one round; it goes at
+once when every online patch has answered (or broken off) or the cycle closes."""
+
 MAX_BUS_LAG_S = 0.05
 """How long after a SYNC the data plane waits for the bus to show it passed before opening
 its cycle anyway: far above a receive thread's lag on a busy machine, and only a bus that
@@ -101,14 +106,18 @@ class DataPlane(can.Listener):
     """Patch TPDOs -> forces -> force TPDOs on ``bus``; see the module docstring."""
 
     def __init__(self, bus: can.BusABC, *, sync_window_s: float,
-                 background: bool = True, max_bus_lag_s: float = MAX_BUS_LAG_S) -> None:
+                 background: bool = True, max_bus_lag_s: float = MAX_BUS_LAG_S,
+                 publish_hold_s: float = PUBLISH_HOLD_S) -> None:
         if not (math.isfinite(sync_window_s) and sync_window_s >= 0):
             raise ConfigError("sync_window_s", f"must be >= 0 s, got {sync_window_s}")
         if not (math.isfinite(max_bus_lag_s) and max_bus_lag_s >= 0):
             raise ConfigError("max_bus_lag_s", f"must be >= 0 s, got {max_bus_lag_s}")
+        if not (math.isfinite(publish_hold_s) and publish_hold_s >= 0):
+            raise ConfigError("publish_hold_s", f"must be >= 0 s, got {publish_hold_s}")
         self.bus = bus
         self.sync_window_s = sync_window_s
         self.max_bus_lag_s = max_bus_lag_s
+        self.publish_hold_s = publish_hold_s
         self.stats = DataPlaneStats()
         self.bus_traffic: frozenset[int] = SERVICE_COB_IDS
         """COB-IDs of the bus's own traffic beside the patches' PDOs: counted as
@@ -125,7 +134,9 @@ class DataPlane(can.Listener):
         self._held: list[tuple[_Entry, bytes, float]] = []
         self._queue: list[SampleJob] = []
         self._publisher = Publisher(bus, self.stats)
-        self._wake = threading.Event()
+        self._wake = threading.Event()  # a sample is queued
+        self._answered = threading.Event()  # ... and every patch has answered, or the cycle closed
+        self._waiting = 0  # online patches whose answer to the open cycle is not over yet
         self._stopping = False
         self._thread: threading.Thread | None = None
         if background:
@@ -200,6 +211,11 @@ class DataPlane(can.Listener):
                                                 strict=True)):
                 table[cob] = (slot, 1 << p, slot.stride * p, size, slot.place[p])
         self._table = table
+        self._count_waiting()
+
+    def _count_waiting(self) -> None:
+        self._waiting = sum(slot.online and slot.active and not (slot.done or slot.ended)
+                            for slot in self._slots.values())
 
     # -- the hot path -----------------------------------------------------------------------
 
@@ -245,10 +261,19 @@ class DataPlane(can.Listener):
             return
         slot.raw[offset:offset + size] = data if len(data) == size else data[:size]
         if slot.seen == slot.full and not slot.bad and slot.active and self._cycle is not None:
+            self._answer_over(slot)
             slot.done = True
             self._queue.append(SampleJob(slot, self._cycle, bytes(slot.raw), 0, True))
             if not self._wake.is_set():  # the publisher has not yet taken the queue
                 self._wake.set()
+
+    def _answer_over(self, slot: AnswerSlot) -> None:
+        """The slot's answer to the open cycle is complete or broken off: once every online
+        patch's is, the publisher goes at once rather than after ``publish_hold_s``."""
+        if not (slot.done or slot.ended):
+            self._waiting -= 1
+            if self._waiting <= 0:
+                self._answered.set()
 
     def _stale(self, slot: AnswerSlot, data: bytes | bytearray) -> bool:
         """The PDO names the SYNC it answers (0x2006), and it is not this cycle's: an answer
@@ -268,6 +293,7 @@ class DataPlane(can.Listener):
             stats.late_frames += 1  # the tail of an earlier answer
         elif not slot.seen & bit:
             stats.out_of_order_frames += 1
+            self._answer_over(slot)
             slot.ended = True
         else:
             stats.duplicate_frames += 1
@@ -277,6 +303,7 @@ class DataPlane(can.Listener):
             # frame twice when its sender retransmits after an error in the last bit.
             repeat = place == slot.next - 1 and slot.raw[offset:offset + size] == data[:size]
             if not (repeat or slot.done or slot.ended):
+                self._answer_over(slot)
                 slot.bad |= bit
                 slot.ended = True
 
@@ -306,8 +333,7 @@ class DataPlane(can.Listener):
         """A frame stamped ``timestamp`` was taken: every SYNC sent before it has passed."""
         with self._lock:
             self._open_unpassed(timestamp)
-        if self._queue and not self._wake.is_set():
-            self._publish_now()
+        self._publish_now()
 
     def _open_unpassed(self, until: float) -> None:
         """Open, in turn, every announced SYNC sent at or before ``until`` (lock held)."""
@@ -319,6 +345,7 @@ class DataPlane(can.Listener):
     def _open(self, cycle: int, sync_counter: int, timestamp: float) -> None:
         """Close the open cycle, open ``cycle`` and judge the frames held for it (lock held)."""
         self._close()
+        self._count_waiting()
         self._cycle = (cycle, sync_counter, timestamp)
         if self._publisher.steady_from_cycle is None and self._slots and all(
                 slot.online and slot.active for slot in self._slots.values()):
@@ -408,6 +435,7 @@ class DataPlane(can.Listener):
         if thread is not None:
             self._stopping = True
             self._wake.set()
+            self._answered.set()
             thread.join()
         self.publish_pending()
 
@@ -415,12 +443,17 @@ class DataPlane(can.Listener):
         if self._thread is None:
             self.publish_pending()
         elif self._queue:  # a wake-up with nothing to publish costs the next cycle a switch
+            self._answered.set()
             self._wake.set()
 
     def _run(self) -> None:
         while not self._stopping:
             self._wake.wait()
             self._wake.clear()
+            # One round per cycle where the patches answer close together: each round
+            # costs its numpy calls whatever its size (docs/dataplane.md).
+            self._answered.wait(self.publish_hold_s)
+            self._answered.clear()
             try:
                 self.publish_pending()
             except Exception:  # keep publishing: one bad batch must not stop the data plane

@@ -12,7 +12,7 @@ import pytest
 from numpy.typing import ArrayLike
 
 from bench.rigs.dataplane import LSB, WINDOW_S, Host, Patch, consume, load, mN, sync_time
-from bench.rigs.waiting import wait_until
+from bench.rigs.waiting import holds_for, wait_until
 from canbus.codes import code_to_resistance, resistance_to_code
 from canbus.device.nmt_slave import OPERATIONAL, STOPPED
 from canbus.device.patch_server import PatchServer
@@ -415,3 +415,42 @@ def test_the_steady_state_begins_with_the_first_cycle_every_patch_is_online(host
     stats = plane.stats
     assert (stats.samples, stats.complete_samples) == (10, 7)
     assert (stats.steady_samples, stats.steady_complete_samples) == (6, 5)
+
+
+def _publishing_host(hold_s: float) -> Host:
+    """The rig's patches on a data plane that publishes on its own thread."""
+    host = Host()
+    host.plane.stop()
+    host.plane = DataPlane(host.sink, sync_window_s=WINDOW_S, publish_hold_s=hold_s)
+    for patch in host.patches:
+        host.plane.add_channel(patch.channel(host.decoder))
+    host.plane.subscribe(host.out.extend)
+    return host
+
+
+def test_the_patches_of_one_cycle_are_published_in_one_round() -> None:
+    """A ready sample waits for the cycle's other patches (each round of decoding costs
+    its numpy calls whatever its size), and goes with them as soon as they answered."""
+    host = _publishing_host(hold_s=30.0)
+    try:
+        a, b = host.patches
+        host.sync(1)
+        host.feed(a.frames(load(0.5), 1))
+        holds_for(lambda: not host.out, 0.2, what="patch 1's sample held for patch 2")
+        host.feed(b.frames(load(0.5), 1))
+        wait_until(lambda: len(host.out) == 2, what="both samples published")
+        assert host.plane.stats.batches == 1
+    finally:
+        host.close()
+
+
+def test_a_held_sample_goes_after_the_hold_when_another_patch_is_silent() -> None:
+    host = _publishing_host(hold_s=0.05)
+    try:
+        a = host.patches[0]
+        host.sync(1)
+        host.feed(a.frames(load(0.5), 1))  # patch 2 says nothing: still in the cycle
+        wait_until(lambda: len(host.out) == 1, what="patch 1 published after the hold")
+        assert host.out[0].patch == 1 and host.out[0].complete
+    finally:
+        host.close()
