@@ -1,4 +1,4 @@
-"""``skin bench [decoders|cross|paper|sim|dataplane|server|publish|contact]``: decoders'
+"""``skin bench [decoders|cross|paper|sim|dataplane|server|publish|contact|realtime]``: decoders'
 speed against error and the paper's Table 1, decoders trained on one scene and tested on
 others, the paper's figures, the simulator's speed, the CAN data plane against canopen's
 PdoMap callbacks, the patch server against python-can's own send, hosts publishing on
@@ -33,10 +33,12 @@ def add_subparser(subparsers: Any) -> None:
                     "publishing on Zenoh and one reader, on loopback (docs/zenoh.md). "
                     "contact: each patch's contact summary (CoP, net force, slip onset) "
                     "against the simulator's truth on indenter, slide, grasp and stick-slip, "
-                    "and its cost in the data plane.")
+                    "and its cost in the data plane. realtime: N patches and the host on "
+                    "udp_multicast beside K CPU-bound processes, the host at normal priority "
+                    "and with --realtime, against a bare python-can receiver (docs/host.md).")
     parser.add_argument("target", nargs="?",
                         choices=("decoders", "cross", "paper", "sim", "dataplane", "server",
-                                 "publish", "contact"),
+                                 "publish", "contact", "realtime"),
                         default="decoders")
     parser.add_argument("--quick", action="store_true",
                         help="one seed, smaller batches and sets (about a minute or less)")
@@ -64,6 +66,9 @@ def add_subparser(subparsers: Any) -> None:
     from skin.commands.bench.contact import add_arguments as add_contact_arguments
 
     add_contact_arguments(parser)
+    from skin.commands.bench.realtime import add_arguments as add_realtime_arguments
+
+    add_realtime_arguments(parser)
     parser.set_defaults(func=run)
 
 
@@ -153,6 +158,12 @@ def _contact(args: argparse.Namespace) -> dict[str, Any]:
     return result
 
 
+def _realtime(args: argparse.Namespace) -> dict[str, Any]:
+    from skin.commands.bench.realtime import run_realtime
+
+    return run_realtime(args)
+
+
 def _cross(args: argparse.Namespace) -> dict[str, Any]:
     from bench.runs import mlp_params, run_cross
     from skin.commands.bench.cross import print_cross
@@ -188,5 +199,5 @@ def _decoders(args: argparse.Namespace) -> dict[str, Any]:
 
 _RUNNERS: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
     "sim": _sim, "dataplane": _dataplane, "server": _server, "contact": _contact,
-    "cross": _cross, "paper": _paper, "decoders": _decoders,
+    "cross": _cross, "paper": _paper, "decoders": _decoders, "realtime": _realtime,
 }
