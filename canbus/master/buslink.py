@@ -28,7 +28,7 @@ from canbus.master.dataplane import DataPlane
 from canbus.master.discovery import BootListener, bound_lss_answers
 from canbus.master.liveness import HeartbeatMonitor
 from canbus.master.pdo_router import PdoRouter
-from canbus.master.sync_producer import SyncFollower, SyncProducer
+from canbus.master.sync_producer import SYNC_COB_ID, SyncFollower, SyncProducer
 from canbus.receiveloop import ReceiveLoop
 from canbus.rxfilter import OwnFrameGate, ReceiveFilter, receive_filter
 from skin.errors import BusError
@@ -117,6 +117,8 @@ class BusLink:
         dropped in the kernel (``canbus.rxfilter``), or, where it cannot filter, by a gate
         in front of our listeners; elsewhere nothing changes."""
         own = receive_filter(self.bus)
+        if self.dataplane is not None and self.dataplane.sync_echo:
+            cob_ids = set(cob_ids) - {SYNC_COB_ID}  # its echo closes the cycle (dataplane)
         own.claim(self, cob_ids)
         if own.echoes and not own.in_kernel and not self._gated:
             self._gate_listeners(own)

@@ -80,7 +80,7 @@ from canbus.master.channel import (
     Subscriber,
     rest_payload,
 )
-from canbus.master.frame_kinds import SERVICE_COB_IDS
+from canbus.master.frame_kinds import SERVICE_COB_IDS, SYNC
 from canbus.master.publisher import Publisher
 from skin.constants import TAXELS_PER_PATCH
 from skin.errors import ConfigError
@@ -130,6 +130,10 @@ class DataPlane(can.Listener):
         self._cycle: tuple[int, int, float] | None = None
         self._unpassed: deque[tuple[int, int, float]] = deque()  # SYNCs sent, not yet passed
         self._next_sync_t = math.inf  # the oldest of them: a frame stamped from here passes it
+        self.sync_echo = False
+        """The bus hands this data plane the echo of the SYNCs its host sends, with their
+        counter (udp_multicast, SYNC not claimed): the echo, not a time stamp, is where the
+        bus passed it."""
         self._start, self._end = math.inf, -math.inf  # no cycle open
         self._held: list[tuple[_Entry, bytes, float]] = []
         self._queue: list[SampleJob] = []
@@ -232,6 +236,8 @@ class DataPlane(can.Listener):
             if msg.arbitration_id in self.bus_traffic and not msg.is_extended_id \
                     and not msg.is_error_frame:
                 self.stats.bus_frames += 1  # SYNC, heartbeats, SDO, ... (frame_kinds)
+                if msg.arbitration_id == SYNC and self._unpassed and self.sync_echo:
+                    self._sync_echoed(msg.data[0] if msg.data else 0)
             else:
                 self.stats.unknown_frames += 1
             return False
@@ -321,11 +327,10 @@ class DataPlane(can.Listener):
         """This host sends SYNC ``cycle`` at ``timestamp``: the open cycle closes when the bus
         shows it passed (module docstring), or at the latest ``max_bus_lag_s`` after it."""
         with self._lock:
-            if self._cycle is None and not self._unpassed:
+            if self._cycle is None and not self._unpassed and not self.sync_echo:
                 self._open(cycle, sync_counter, timestamp)
             else:
                 self._unpassed.append((cycle, sync_counter, timestamp))
-                self._next_sync_t = self._unpassed[0][2]
                 self._open_unpassed(timestamp - self.max_bus_lag_s)
         self._publish_now()
 
@@ -335,12 +340,26 @@ class DataPlane(can.Listener):
             self._open_unpassed(timestamp)
         self._publish_now()
 
+    def _sync_echoed(self, counter: int) -> None:
+        """The echo of the SYNC with ``counter``: the bus passed it (and any sent before it
+        whose echo was lost) here; an echo of a SYNC opened already changes nothing."""
+        with self._lock:
+            unpassed = self._unpassed
+            if not any(sync[1] == counter for sync in unpassed):
+                return
+            while unpassed:
+                sync = unpassed.popleft()
+                self._open(*sync)
+                if sync[1] == counter:
+                    break
+        self._publish_now()
+
     def _open_unpassed(self, until: float) -> None:
         """Open, in turn, every announced SYNC sent at or before ``until`` (lock held)."""
         unpassed = self._unpassed
         while unpassed and unpassed[0][2] <= until:
             self._open(*unpassed.popleft())
-        self._next_sync_t = unpassed[0][2] if unpassed else math.inf
+        self._next_sync_t = unpassed[0][2] if unpassed and not self.sync_echo else math.inf
 
     def _open(self, cycle: int, sync_counter: int, timestamp: float) -> None:
         """Close the open cycle, open ``cycle`` and judge the frames held for it (lock held)."""

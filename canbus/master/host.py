@@ -74,6 +74,7 @@ from canbus.master.records import PatchHealth, PatchRecord
 from canbus.master.sync_producer import SyncFollower, SyncProducer
 from canbus.master.taxel_log import TaxelLog
 from canbus.od import load_od
+from canbus.rxfilter import echoes_own_frames
 from skin.errors import BusError
 
 __all__ = ["STATES", "ForceFrame", "HostManager", "PatchHealth", "PatchLoadedError"]
@@ -205,6 +206,8 @@ class HostManager:
             if link.name in patch_buses:
                 link.dataplane = DataPlane(link.bus, sync_window_s=window_s)
                 link.dataplane.bus_traffic = bus_cob_ids(self.config, link.name)
+                link.dataplane.sync_echo = echoes_own_frames(link.bus) and \
+                    self.config.sync_counter and not self.config.sync_following
                 link.dataplane.subscribe(self._on_frames)
         for patch in self.patches.values():  # one sample per SYNC from the first
             self.channels.placeholder(patch, self.policy.planned(patch))

@@ -213,21 +213,29 @@ def test_no_sample_is_made_of_two_answers(plan_a: dict, plan_b: dict,
         host.plane.stop()
 
 
-def _run(host: Host, frames: list[can.Message], *, lag_s: list[float] | None) -> list[tuple]:
+def _run(host: Host, frames: list[can.Message], *, lag_s: list[float] | None,
+         echo: bool = False) -> list[tuple]:
     """What the data plane publishes for ``frames`` (in bus order) and SYNCs 1..CYCLES.
 
     ``lag_s=None``: each SYNC opens its cycle where it lies in the bus's order (a listen-only
     host). Otherwise the host sends SYNC k at ``sync_time(k)`` (``on_sync_sent``) while its
-    receive thread takes frame i ``lag_s[i]`` after it crossed the bus, in bus order.
+    receive thread takes frame i ``lag_s[i]`` after it crossed the bus, in bus order;
+    ``echo``: the bus hands it the echo of each SYNC, in its place (udp_multicast).
     """
     host.reset()
     try:
         if lag_s is None:
             events = [(msg.timestamp, 1, msg) for msg in frames]
         else:
+            host.plane.sync_echo = echo
+            if echo:
+                syncs = [can.Message(timestamp=sync_time(k), arbitration_id=0x080,
+                                     data=[k % 240 + 1], is_extended_id=False)
+                         for k in range(1, CYCLES + 1)]
+                frames = sorted(syncs + frames, key=lambda m: m.timestamp)  # stable
             events, taken = [], 0.0
-            for msg, lag in zip(frames, lag_s, strict=True):
-                taken = max(taken, msg.timestamp + lag)
+            for i, msg in enumerate(frames):
+                taken = max(taken, msg.timestamp + lag_s[i % len(lag_s)])
                 events.append((taken, 1, msg))
         events += [(sync_time(k), 0, None) for k in range(1, CYCLES + 1)]
         cycle = 0
@@ -247,9 +255,10 @@ def _run(host: Host, frames: list[can.Message], *, lag_s: list[float] | None) ->
 
 @settings(max_examples=100, deadline=None)
 @given(plan_a=_plans, plan_b=_plans,
-       lags=st.lists(st.floats(0.0, 2 * PERIOD_S), min_size=1, max_size=CYCLES * PDOS * 2))
+       lags=st.lists(st.floats(0.0, 2 * PERIOD_S), min_size=1, max_size=CYCLES * PDOS * 2),
+       echo=st.booleans())
 def test_a_receive_thread_behind_the_bus_loses_nothing(plan_a: dict, plan_b: dict,
-                                                       lags: list[float]) -> None:
+                                                       lags: list[float], echo: bool) -> None:
     """The host sends SYNC k+1 while frames of cycle k are still queued for its receive
     thread (up to two periods behind): every sample is the one a host reading the bus in
     its own order publishes, bit for bit (DESIGN: a cycle closes where the bus passed SYNC)."""
@@ -262,8 +271,7 @@ def test_a_receive_thread_behind_the_bus_loses_nothing(plan_a: dict, plan_b: dic
                    for k in range(CYCLES)]
         frames += [msg for msg, _ in _stream(answers, plan)]
     frames.sort(key=lambda m: m.timestamp)
-    lag_s = [lags[i % len(lags)] for i in range(len(frames))]
-    assert _run(host, frames, lag_s=lag_s) == _run(host, frames, lag_s=None)
+    assert _run(host, frames, lag_s=lags, echo=echo) == _run(host, frames, lag_s=None)
 
 
 def test_a_silent_bus_opens_its_cycles_anyway(host: Host) -> None:
@@ -321,3 +329,27 @@ def test_a_cycle_is_answered_when_every_patch_that_can_answer_has(host: Host) ->
     host.plane.set_online(2, False)  # a lost patch answers nothing
     host.feed(_at(_answer(a, 2, 1.0, host)[0], sync_time(2) + 1e-4))
     assert host.plane.answered()
+
+
+def test_the_echo_of_a_sync_opens_its_cycle_a_lost_echo_the_next_one_does(host: Host) -> None:
+    """udp_multicast hands the host the echo of its SYNCs: each opens its cycle where the
+    bus passed it, matched by its counter; a lost echo is made good by the next one, and
+    the echo of a SYNC already opened changes nothing."""
+    plane, a = host.plane, host.patches[0]
+    plane.sync_echo = True
+
+    def echo(cycle: int) -> can.Message:
+        return can.Message(timestamp=sync_time(cycle), arbitration_id=0x080,
+                           data=[cycle % 240 + 1], is_extended_id=False)
+
+    for k in (1, 2, 3):
+        plane.on_sync_sent(k, k % 240 + 1, sync_time(k))
+    host.feed([echo(1)])
+    host.feed(_at(_answer(a, 1, 0.5, host)[0], sync_time(1) + 1e-3))
+    host.feed(_at(_answer(a, 2, 0.6, host)[0][:1], sync_time(1) + 2e-3))  # stamped in 1
+    host.feed([echo(3)])  # SYNC 2's echo was lost: this one opens 2, then 3
+    host.feed([echo(2)])  # late: nothing
+    host.feed(_at(_answer(a, 3, 0.7, host)[0], sync_time(3) + 1e-3))
+    plane.flush()
+    assert [(f.cycle, f.complete) for f in _samples(host, 1)] == [(1, True), (2, False),
+                                                                 (3, True)]
