@@ -156,6 +156,8 @@ class BusPlan:
     force_nodes: tuple[int, ...]
     """Node-IDs of the force nodes whose PDOs cross this bus."""
     frames: tuple[PlannedFrame, ...]
+    """Every frame, with ``plan(exact=True)``; empty otherwise (the figures come from one
+    node's share, ``canbus.nodeload``)."""
     frames_per_s: dict[str, float]
     """By kind."""
     load_best_pct: float
@@ -167,6 +169,9 @@ class BusPlan:
     """The largest sample rate with the worst-case load at the target."""
     max_patch_samples_per_s: float
     """Samples per second of all patches on this bus together at ``max_rate_hz``."""
+    latency_ms_worst: float | None
+    """From a SYNC due to the last frame of its cycle on the wire, worst case
+    (``canbus.nodeload.figures``); None when the bus does not fit."""
     fits: bool
     """The worst-case load is at most 100 %."""
     over_target: bool
@@ -238,6 +243,9 @@ def _node_frames(kind: str, node: int, payloads: list[int], rate_hz: float,
 def _bus(name: str, patches: tuple[int, ...], force_nodes: tuple[int, ...], sync: bool, *,
          mode: str, rate_hz: float, bitrate: int, data_bitrate: int | None, target_pct: float,
          heartbeat_ms: int, force_heartbeat_ms: int, contact: bool) -> BusPlan:
+    """One bus, every frame listed and summed (``plan(exact=True)``)."""
+    from canbus.nodeload import figures
+
     fd = data_bitrate is not None
     frames: list[PlannedFrame] = []
     if sync:
@@ -257,21 +265,17 @@ def _bus(name: str, patches: tuple[int, ...], force_nodes: tuple[int, ...], sync
     cycle_best = sum(f.best_s for f in cyclic)
     cycle_worst = sum(f.worst_s for f in cyclic)
     fixed = worst - rate_hz * cycle_worst  # heartbeats: their rate does not follow the SYNC
-    room = target_pct / 100.0 - fixed
-    max_rate = max(room, 0.0) / cycle_worst if cycle_worst else float("inf")
-    samples = len(patches or force_nodes)
-    return BusPlan(
-        name=name, patches=patches, force_nodes=force_nodes, frames=tuple(frames),
-        frames_per_s=per_s, load_best_pct=100.0 * best, load_worst_pct=100.0 * worst,
-        cycle_ms_best=1e3 * cycle_best, cycle_ms_worst=1e3 * cycle_worst,
-        max_rate_hz=max_rate, max_patch_samples_per_s=max_rate * samples,
-        fits=worst <= 1.0, over_target=100.0 * worst > target_pct)
+    shown = figures(per_s, best, worst, cycle_best, cycle_worst, fixed,
+                    max(f.worst_s for f in frames), len(patches or force_nodes), rate_hz,
+                    target_pct)
+    return BusPlan(name=name, patches=patches, force_nodes=force_nodes, frames=tuple(frames),
+                   **vars(shown))
 
 
 def plan(patches: int, rate_hz: float, mode: str, bitrate: int, *,
          data_bitrate: int | None = None, target_pct: float = 70.0,
          forces: Forces = "same-bus", buses: int = 1, heartbeat_ms: int = 100,
-         force_heartbeat_ms: int = 1000, contact: bool = True) -> Plan:
+         force_heartbeat_ms: int = 1000, contact: bool = True, exact: bool = False) -> Plan:
     """The load of every bus: patches 1..N spread over ``buses`` buses in node order.
 
     ``data_bitrate`` set means CAN FD: one PDO per sample with bit rate switch. ``forces``:
@@ -279,7 +283,12 @@ def plan(patches: int, rate_hz: float, mode: str, bitrate: int, *,
     ``other-bus`` all of them on one more bus (named ``forces``; no SYNC there: force PDOs
     are event-driven), ``none`` leaves them out. A heartbeat period of 0 disables it.
     ``contact``: the force nodes publish the contact summary (TPDO 8; the host's default).
+    ``exact``: list every frame of every bus and sum them (``BusPlan.frames``); else each
+    bus's figures come from one node's share times the nodes (``canbus.nodeload``), in time
+    linear in the buses.
     """
+    from canbus.nodeload import Traffic, bus_figures
+
     if mode not in ("z", "xyz"):
         raise ValueError(f"mode is z or xyz, got {mode!r}")
     if forces not in FORCES:
@@ -289,11 +298,17 @@ def plan(patches: int, rate_hz: float, mode: str, bitrate: int, *,
     if buses > patches:
         raise ValueError(f"{buses} buses for {patches} patches: a bus would carry none")
     fd = data_bitrate is not None
+    traffic = Traffic.of(rate_hz, mode, bitrate, data_bitrate, heartbeat_ms=heartbeat_ms,
+                         force_heartbeat_ms=force_heartbeat_ms, contact=contact)
 
     def bus(name: str, group: Sequence[int], force_nodes: Sequence[int], sync: bool) -> BusPlan:
-        return _bus(name, tuple(group), tuple(n + FORCE_NODE_OFFSET for n in force_nodes),
-                    sync, mode=mode, rate_hz=rate_hz, bitrate=bitrate,
-                    data_bitrate=data_bitrate, target_pct=target_pct,
+        nodes = tuple(n + FORCE_NODE_OFFSET for n in force_nodes)
+        if not exact:
+            shown = bus_figures(traffic, len(group), len(nodes), sync, target_pct)
+            return BusPlan(name=name, patches=tuple(group), force_nodes=nodes, frames=(),
+                           **vars(shown))
+        return _bus(name, tuple(group), nodes, sync, mode=mode, rate_hz=rate_hz,
+                    bitrate=bitrate, data_bitrate=data_bitrate, target_pct=target_pct,
                     heartbeat_ms=heartbeat_ms, force_heartbeat_ms=force_heartbeat_ms,
                     contact=contact)
 

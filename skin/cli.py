@@ -22,7 +22,7 @@ from typing import Any
 
 from skin import __version__
 from skin.commands.common.argtypes import OneLineParser
-from skin.commands.common.logs import add_logging_arguments, configured_logging
+from skin.commands.common.logs import add_logging_arguments, after_error, configured_logging
 from skin.commands.common.signals import stop_signal_name, stop_signals_interrupt
 from skin.errors import SkinError, printable_line
 
@@ -68,34 +68,43 @@ def _commands(
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    with configured_logging(args):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    """The command, and the one line its failure ends in (its held warnings after it,
+    ``skin.commands.common.logs``)."""
     try:
-        with configured_logging(args), stop_signals_interrupt():
+        with stop_signals_interrupt():
             code = args.func(args)
     except KeyboardInterrupt as err:
         if getattr(args, "runs_until_stopped", False):  # stopped while starting or ending:
             # still how such a command is meant to end (docs/cli.md, exit status)
             print(f"skin: stopped ({stop_signal_name(err)})", file=sys.stderr)
             return 0
-        print(f"skin: interrupted ({stop_signal_name(err)})", file=sys.stderr)
-        return 130
+        return _failed(f"skin: interrupted ({stop_signal_name(err)})", 130)
     except (SkinError, OSError) as err:
         if args.debug:
             raise
-        print(f"skin: error: {one_line(err)}", file=sys.stderr)
-        return 1
+        return _failed(f"skin: error: {one_line(err)}")
     except MemoryError:
         if args.debug:
             raise
-        print("skin: error: out of memory (a request larger than this machine can hold)",
-              file=sys.stderr)
-        return 1
+        return _failed("skin: error: out of memory (a request larger than this machine can "
+                       "hold)")
     except Exception as err:  # a library's error nothing above turned into a sentence
         if args.debug:
             raise
-        print(f"skin: error: {type(err).__name__}: {one_line(err)} (unexpected; --debug "
-              "shows where)", file=sys.stderr)
-        return 1
+        return _failed(f"skin: error: {type(err).__name__}: {one_line(err)} (unexpected; "
+                       "--debug shows where)")
     return int(code or 0)
+
+
+def _failed(line: str, code: int = 1) -> int:
+    print(line, file=sys.stderr)
+    after_error()
+    return code
 
 
 def one_line(err: BaseException) -> str:

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
 
 from skin.commands.common import argtypes
+from skin.commands.common.logs import warn
 
 if TYPE_CHECKING:
     from canbus.busload import BusPlan, Plan
@@ -59,30 +59,70 @@ def _record(plan: Plan) -> dict[str, Any]:
     return record
 
 
-def _plan(args: argparse.Namespace) -> int:
-    from canbus.busload import plan
-    from skin.atomic import atomic_write
+def _check(args: argparse.Namespace) -> None:
+    """ConfigError for values argparse alone cannot judge, naming the flag."""
     from skin.errors import ConfigError
 
-    for field in ("patches", "rate", "bitrate", "target", "buses"):
+    for field in ("patches", "rate", "bitrate", "target"):
         if not getattr(args, field) > 0:
             raise ConfigError(f"--{field}", f"must be positive, got {getattr(args, field)}")
     for field in ("heartbeat_ms", "force_heartbeat_ms"):
         if getattr(args, field) < 0:
             raise ConfigError(f"--{field.replace('_', '-')}",
                               f"must be 0 (off) or positive, got {getattr(args, field)}")
-    if args.buses > args.patches:
+    if args.buses is not None and args.buses > args.patches:
         raise ConfigError("--buses", f"{args.buses} buses for {args.patches} patches: "
                                      "a bus would carry none")
+    if args.fd and args.data_bitrate < args.bitrate:
+        raise ConfigError("--data-bitrate", f"{args.data_bitrate} is below the nominal "
+                                            f"bitrate {args.bitrate}")
+
+
+def _buses_under_max_load(args: argparse.Namespace) -> int:
+    """The fewest buses of the chosen kind that keep every bus under ``--max-load``."""
+    from canbus.sizing import size
+    from skin.errors import ConfigError
+
+    sized = size(args.patches, args.rate, args.mode, args.bitrate,
+                 data_bitrate=args.data_bitrate if args.fd else None,
+                 target_pct=args.max_load, forces=args.forces, heartbeat_ms=args.heartbeat_ms,
+                 force_heartbeat_ms=args.force_heartbeat_ms, contact=not args.no_contact,
+                 exact=args.exact)
+    if sized.buses is None:
+        raise ConfigError("--max-load", f"one patch alone is above {args.max_load:g} % of a "
+                                        f"bus at {args.rate:g} Hz: lower the rate"
+                                        f"{'' if args.fd else ' or use --fd'}")
+    return sized.buses
+
+
+def _plan(args: argparse.Namespace) -> int:
+    from canbus.busload import plan
+    from skin.atomic import atomic_write
+
+    _check(args)
+    if args.buses is None:
+        args.buses = 1 if args.max_load is None else _buses_under_max_load(args)
     data_bitrate = args.data_bitrate if args.fd else None
-    if data_bitrate is not None and data_bitrate < args.bitrate:
-        raise ConfigError("--data-bitrate", f"{data_bitrate} is below the nominal bitrate "
-                                            f"{args.bitrate}")
     result = plan(args.patches, args.rate, args.mode, args.bitrate,
                   data_bitrate=data_bitrate, target_pct=args.target, forces=args.forces,
                   buses=args.buses, heartbeat_ms=args.heartbeat_ms,
-                  force_heartbeat_ms=args.force_heartbeat_ms, contact=not args.no_contact)
-    bus = (f"CAN FD {args.bitrate}/{data_bitrate} bit/s" if data_bitrate
+                  force_heartbeat_ms=args.force_heartbeat_ms, contact=not args.no_contact,
+                  exact=args.exact)
+    _print_plan(args, result)
+    sizings = _sizings(args)
+    _print_sizing(args, sizings)
+    if args.json:
+        record = _record(result) | {"sizing": {("fd" if s.fd else "classic"): asdict(s)
+                                               for s in sizings}}
+        with atomic_write(args.json) as handle:
+            handle.write(json.dumps(record, indent=2).encode() + b"\n")
+    _warn_if_over(result, sizings)
+    return 0
+
+
+def _print_plan(args: argparse.Namespace, result: Plan) -> None:
+    """The settings, then each bus (one bus) or the split over the buses (several)."""
+    bus = (f"CAN FD {args.bitrate}/{result.data_bitrate} bit/s" if result.data_bitrate
            else f"CAN {args.bitrate} bit/s")
     forces = {"same-bus": "forces on each patch's bus", "other-bus": "forces on their own bus",
               "none": "forces not counted"}[args.forces]
@@ -95,27 +135,58 @@ def _plan(args: argparse.Namespace) -> int:
     print(f"frames per sample: {result.frames_per_sample} patch + "
           f"{result.force_frames_per_sample} force; heartbeats every {args.heartbeat_ms} ms "
           f"(patches), {args.force_heartbeat_ms} ms (force nodes)")
-    for each in result.buses:
-        print("\n".join(_describe_bus(each, result)))
-    if len(result.buses) > 1:
-        print(f"worst bus: {result.worst_bus}, {result.load_worst_pct:.1f} % worst case")
-    sizings = _sizings(args)
-    _print_sizing(args, sizings)
+    if len(result.buses) == 1:
+        print("\n".join(_describe_bus(result.buses[0], result)))
+        return
+    _print_split(result)
+    print(f"worst bus: {result.worst_bus}, {result.load_worst_pct:.1f} % worst case")
+
+
+def _warn_if_over(result: Plan, sizings: list[Sizing]) -> None:
     advice = _advice(sizings)
     if not result.fits:
-        print(f"warning: the traffic does not fit: {result.worst_bus} needs "
-              f"{result.load_best_pct:.1f} to {result.load_worst_pct:.1f} % of its wire; lower "
-              f"the rate to {result.max_rate_hz:,.1f} Hz{advice}", file=sys.stderr)
+        warn(f"warning: the traffic does not fit: {result.worst_bus} needs "
+             f"{result.load_best_pct:.1f} to {result.load_worst_pct:.1f} % of its wire; lower "
+             f"the rate to {result.max_rate_hz:,.1f} Hz{advice}")
     elif result.over_target:
-        print(f"warning: worst-case load {result.load_worst_pct:.1f} % is above the "
-              f"{result.target_pct:g} % target; lower the rate to {result.max_rate_hz:,.1f} Hz"
-              f"{advice}", file=sys.stderr)
-    if args.json:
-        record = _record(result) | {"sizing": {("fd" if s.fd else "classic"): asdict(s)
-                                               for s in sizings}}
-        with atomic_write(args.json) as handle:
-            handle.write(json.dumps(record, indent=2).encode() + b"\n")
-    return 0
+        warn(f"warning: worst-case load {result.load_worst_pct:.1f} % is above the "
+             f"{result.target_pct:g} % target; lower the rate to {result.max_rate_hz:,.1f} Hz"
+             f"{advice}")
+
+
+def _same_split(a: BusPlan, b: BusPlan) -> bool:
+    return (a.name == "forces") == (b.name == "forces") and \
+        (len(a.patches), len(a.force_nodes)) == (len(b.patches), len(b.force_nodes))
+
+
+def _print_split(result: Plan) -> None:
+    """One row per run of buses that carry as many nodes (so as much load) as each other."""
+    from skin.commands.common.tables import show
+
+    runs: list[list[BusPlan]] = []
+    for bus in result.buses:
+        if runs and _same_split(runs[-1][0], bus):
+            runs[-1].append(bus)
+        else:
+            runs.append([bus])
+    rows = [_split_row(run) for run in runs]
+    show(f"the split over {len(result.buses)} buses (each bus of a row alike)",
+         ["buses", "patches", "per bus", "frames/s a bus", "load a bus", "worst-case latency"],
+         rows, caption="load: no stuffing .. worst-case stuffing; latency: from a SYNC due to "
+         "the last frame of its cycle on the wire (docs/canbus.md)")
+
+
+def _split_row(run: list[BusPlan]) -> list[str]:
+    first, last = run[0], run[-1]
+    names = first.name if len(run) == 1 else f"{first.name}..{last.name.split()[-1]}"
+    ids = first.patches + last.patches or first.force_nodes + last.force_nodes
+    nodes = f"{ids[0]}-{ids[-1]}" if ids else "none"
+    per_bus = len(first.patches) or len(first.force_nodes)
+    latency = "unbounded" if first.latency_ms_worst is None else \
+        f"{first.latency_ms_worst:.2f} ms"
+    return [names, nodes if first.patches else f"force nodes {nodes}", f"{per_bus}",
+            f"{sum(first.frames_per_s.values()):,.0f}",
+            f"{first.load_best_pct:.1f} .. {first.load_worst_pct:.1f} %", latency]
 
 
 def _sizings(args: argparse.Namespace) -> list[Sizing]:
@@ -124,7 +195,8 @@ def _sizings(args: argparse.Namespace) -> list[Sizing]:
 
     return [size(args.patches, args.rate, args.mode, args.bitrate, data_bitrate=fd,
                  target_pct=args.target, forces=args.forces, heartbeat_ms=args.heartbeat_ms,
-                 force_heartbeat_ms=args.force_heartbeat_ms, contact=not args.no_contact)
+                 force_heartbeat_ms=args.force_heartbeat_ms, contact=not args.no_contact,
+                 exact=args.exact)
             for fd in (None, args.data_bitrate)]
 
 
@@ -186,8 +258,13 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--no-contact", action="store_true",
                         help="the host publishes no contact summary ([contact] enabled = "
                              "false): 7 force PDOs per sample, not 8 (CAN FD: 57 bytes, not 64)")
-    parser.add_argument("--buses", type=argtypes.count("buses", 1, 100_000), default=1, metavar="N",
-                        help="spread the patches over N buses, each with its own SYNC")
+    split = parser.add_mutually_exclusive_group()
+    split.add_argument("--buses", type=argtypes.count("buses", 1, 100_000), metavar="N",
+                       help="spread the patches over N buses, each with its own SYNC "
+                            "(default 1)")
+    split.add_argument("--max-load", type=argtypes.percent, metavar="PCT",
+                       help="as many buses as keep each one's worst-case load at most PCT "
+                            "%%, the fewest")
     parser.add_argument("--heartbeat-ms", type=argtypes.heartbeat_ms, default=100, metavar="MS",
                         help="patch heartbeat period (default 100; 0 = off)")
     parser.add_argument("--force-heartbeat-ms", type=argtypes.heartbeat_ms, default=1000,
@@ -195,6 +272,10 @@ def add_subparser(subparsers: Any) -> None:
                         help="force node heartbeat period (default 1000; 0 = off)")
     parser.add_argument("--target", type=argtypes.percent, default=70.0, metavar="PCT",
                         help="target bus load in %% (default 70)")
+    parser.add_argument("--exact", action="store_true",
+                        help="list and sum every frame of every bus, and try 1, 2, ... buses "
+                             "for the buses needed (slow: the square of the patches); the "
+                             "default adds up one node's share")
     parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",
                         help="also write the figures as JSON")
     parser.set_defaults(func=_plan)

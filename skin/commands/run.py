@@ -107,9 +107,12 @@ def _run(args: argparse.Namespace) -> int:
     from skin.commands.common.hostbus import resolve
     from skin.commands.common.realtime import realtime
     from skin.errors import ConfigError
+    from skin.inputs.outputs import check_writable
 
     if args.status_every is not None and not args.status_every > 0:
         raise ConfigError("--status-every", f"must be > 0 s, got {args.status_every}")
+    if args.json:
+        check_writable(args.json)  # now, not after the run
     config = resolve(load_host_config(find_config(args.config)), args)
     if args.zenoh or (config.zenoh is not None and config.zenoh.enabled):
         from canbus.zenoh.config import require_zenoh

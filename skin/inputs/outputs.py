@@ -67,6 +67,14 @@ def check_output(path: str | os.PathLike[str]) -> Path:
     return Path(path)
 
 
+def check_writable(path: str | os.PathLike[str]) -> None:
+    """OutputError when results cannot go to ``path``, found before the work that makes them:
+    a new file is made beside it and removed (a read-only folder, a full inode table)."""
+    fd, tmp = create_beside(path)
+    os.close(fd)
+    discard(tmp)
+
+
 def write_error(path: str | os.PathLike[str], err: OSError) -> OutputError:
     """``err`` (raised while writing ``path`` or its temporary file) naming ``path``."""
     reason = err.strerror or str(err)

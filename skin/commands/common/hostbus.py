@@ -51,10 +51,23 @@ def resolve(config: HostConfig, args: argparse.Namespace) -> HostConfig:
         channel = default_channel_for(bus.interface)  # python-can's, else canskin's
         if channel is not None:
             bus = replace(bus, channel=channel)
-    if bus.interface in ("virtual", "timed"):
-        logger.warning("bus %s: %s reaches only this process; use udp_multicast to meet "
-                       "patches in another process", bus.name, bus.interface)
+    _warn_if_in_process(bus.interface, flags, config.source)
     return replace(config, buses=(bus,))
+
+
+def _warn_if_in_process(interface: str | None, flags: dict[str, Any], source: str) -> None:
+    """A warning when the one bus is inside this process and the command line did not ask
+    for it: it came from the config or python-can's configuration, where a bus meant to meet
+    patches in another process is easily left."""
+    from canbus.busopen import configured_interface
+
+    if flags.get("interface") is not None:
+        return  # -i virtual: the user's own choice, said on the command line
+    where = source if interface is not None else "python-can's configuration"
+    interface = interface if interface is not None else configured_interface()
+    if interface in ("virtual", "timed"):
+        logger.warning("the bus %s (from %s) reaches only this process; use udp_multicast "
+                       "to meet patches in another process", interface, where)
 
 
 def open_all(config: HostConfig, stack: ExitStack, *,

@@ -8,6 +8,12 @@ Levels: by default the library (canbus, decoder, sim, python-can, canopen) shows
 warnings and errors, and the commands' own loggers (``skin.commands.*``) also their INFO
 progress lines. ``-v`` shows INFO from everything, ``-vv`` DEBUG; ``-q`` shows errors
 only, ``-qq`` nothing below CRITICAL; ``--log-level LEVEL`` sets one level for all.
+
+A command that fails says one thing, the error: its warnings (WARNING records of any logger,
+and the commands' own ``warning: ...`` lines, :func:`warn`) are held from its start until
+it says its arguments and outputs are checked (:func:`checks_passed`, before a long run
+starts) or until it ends well; then they go out in order. When it fails first, the error
+line is printed alone and the held warnings follow it as DEBUG lines (``-vv``).
 """
 
 from __future__ import annotations
@@ -27,16 +33,71 @@ _BY_VERBOSITY = {-2: logging.CRITICAL, -1: logging.ERROR, 0: logging.WARNING,
                  1: logging.INFO, 2: logging.DEBUG}
 
 
+class _Formatter(logging.Formatter):
+    """The log format; a :func:`warn` line as it is."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        if getattr(record, "plain", False):
+            return record.getMessage()
+        return super().format(record)
+
+
 class _StderrHandler(logging.StreamHandler[TextIO]):
-    """Writes to whatever ``sys.stderr`` is at the time (pytest swaps it per test)."""
+    """Writes to whatever ``sys.stderr`` is at the time (pytest swaps it per test); holds
+    warnings back until the command's checks passed (module docstring)."""
 
     def __init__(self) -> None:
         super().__init__(sys.stderr)
-        self.setFormatter(logging.Formatter(FORMAT, DATE_FORMAT))
+        self.setFormatter(_Formatter(FORMAT, DATE_FORMAT))
+        self.held: list[logging.LogRecord] | None = []
+        """Warnings waiting for the checks; None once they passed."""
 
     def emit(self, record: logging.LogRecord) -> None:
+        if self.held is not None and record.levelno >= logging.WARNING:
+            self.held.append(record)  # under the handler's lock (Handler.handle)
+            return
         self.stream = sys.stderr
         super().emit(record)
+
+    def let_through(self) -> None:
+        """Print the held warnings; later ones at once. (Not ``release``: a Handler's
+        ``release`` is its lock's.)"""
+        with self.lock:  # type: ignore[union-attr]  # created by Handler.__init__
+            held, self.held = self.held or [], None
+            for record in held:
+                self.emit(record)
+
+    def demote(self) -> None:
+        """After an error: the held warnings as DEBUG lines, if DEBUG is shown; later
+        warnings at once."""
+        with self.lock:  # type: ignore[union-attr]
+            held, self.held = self.held or [], None
+            for record in held:
+                if logging.getLogger(record.name).isEnabledFor(logging.DEBUG):
+                    record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+                    self.emit(record)
+
+
+def _stderr_handlers() -> list[_StderrHandler]:
+    return [h for h in logging.getLogger().handlers if isinstance(h, _StderrHandler)]
+
+
+def checks_passed() -> None:
+    """The command's arguments and outputs are checked, its work begins: the warnings held
+    since it started go out now, later ones at once (module docstring)."""
+    for handler in _stderr_handlers():
+        handler.let_through()
+
+
+def after_error() -> None:
+    """The command failed and its error line is printed: its held warnings follow as DEBUG."""
+    for handler in _stderr_handlers():
+        handler.demote()
+
+
+def warn(text: str) -> None:
+    """A command's own ``warning: ...`` line on stderr, held as a warning record is."""
+    logging.getLogger(COMMANDS_LOGGER).warning(text, extra={"plain": True})
 
 
 def add_logging_arguments(parser: argparse.ArgumentParser, *, subcommand: bool) -> None:
@@ -81,6 +142,7 @@ def configured_logging(args: argparse.Namespace) -> Iterator[None]:
     try:
         yield
     finally:
+        handler.let_through()  # the command ended well, or stopped (else after_error came first)
         logging.captureWarnings(False)
         root.removeHandler(handler)
         root.setLevel(before[0])

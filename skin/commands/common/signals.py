@@ -79,6 +79,9 @@ class StopReason:
 def until_stopped() -> Iterator[StopReason]:
     """Run the block until it ends or Ctrl-C/SIGTERM/SIGHUP stops it; a stop is not an
     error: it is swallowed, logged, and named in the yielded :class:`StopReason`."""
+    from skin.commands.common.logs import checks_passed
+
+    checks_passed()  # the command's work begins: its warnings go out as they come
     reason = StopReason()
     try:
         yield reason

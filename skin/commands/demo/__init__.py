@@ -32,6 +32,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from skin.commands.common import argtypes
+from skin.commands.common.logs import warn
 
 if TYPE_CHECKING:
     import can
@@ -98,16 +99,15 @@ def _check_plan(args: argparse.Namespace, plan: Plan) -> None:
                f"{1000 / plan.rate_hz:g} ms cycle")
     if args.bus == "virtual":
         if not plan.fits:
-            print(f"note: on a real bus this would not fit: {numbers} (skin plan)",
-                  file=sys.stderr)
+            warn(f"note: on a real bus this would not fit: {numbers} (skin plan)")
         return
     if worst.load_best_pct > 100.0 and not args.overload:
         raise ConfigError("--patches", f"{numbers}: it cannot fit; use --fd, --buses "
                           f"{math.ceil(worst.load_best_pct / 70)}, fewer patches, or "
                           "--overload to watch it fail")
     if not plan.fits:
-        print(f"warning: {numbers} (skin plan); with worst-case stuffing it does not fit, "
-              "so samples may come late", file=sys.stderr)
+        warn(f"warning: {numbers} (skin plan); with worst-case stuffing it does not fit, "
+             "so samples may come late")
 
 
 def _demo(args: argparse.Namespace) -> int:

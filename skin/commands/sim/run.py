@@ -28,12 +28,12 @@ import copy
 import gc
 import json
 import os
-import sys
 import threading
 import time
 from typing import TYPE_CHECKING, Any
 
 from skin.commands.common import argtypes
+from skin.commands.common.logs import warn
 
 if TYPE_CHECKING:
     import canopen
@@ -137,11 +137,10 @@ def _warn_if_tight(scene: Scene, args: argparse.Namespace, planned: Plan) -> Non
     buses = f"{args.buses} bus{'es' if args.buses > 1 else ''}"
     verdict = "cannot carry" if not planned.fits else "is above the 70 % target for"
     advice = f"--buses {enough}" if enough else "fewer patches"
-    print(f"warning: {buses} of {kind} bit/s {verdict} {n} patches x {planned.rate_hz:g} Hz "
-          f"({planned.mode}) with their force PDOs: {planned.load_best_pct:.0f}-"
-          f"{planned.load_worst_pct:.0f} % load on {planned.worst_bus}; use {advice}"
-          f"{'' if planned.data_bitrate else ' or CAN FD'} on a real bus (skin plan)",
-          file=sys.stderr)
+    warn(f"warning: {buses} of {kind} bit/s {verdict} {n} patches x {planned.rate_hz:g} Hz "
+         f"({planned.mode}) with their force PDOs: {planned.load_best_pct:.0f}-"
+         f"{planned.load_worst_pct:.0f} % load on {planned.worst_bus}; use {advice}"
+         f"{'' if planned.data_bitrate else ' or CAN FD'} on a real bus (skin plan)")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -244,10 +243,10 @@ def _summary(args: argparse.Namespace, server: Any, log: Any, elapsed: float,
     print(f"served {server.sync_count} SYNCs, sent {server.frames_sent} TPDOs in "
           f"{elapsed:.1f} s, CPU {100 * cpu:.1f} %{answers}")
     if server.late_answers:
-        print(f"warning: {server.late_answers} of {server.sync_count} answers ended after the "
-              "next SYNC was due: this process cannot send that many frames a cycle; serve "
-              "fewer patches per process, at a lower rate, or in CAN FD (skin bench server "
-              "measures what one core serves)", file=sys.stderr)
+        warn(f"warning: {server.late_answers} of {server.sync_count} answers ended after the "
+             "next SYNC was due: this process cannot send that many frames a cycle; serve "
+             "fewer patches per process, at a lower rate, or in CAN FD (skin bench server "
+             "measures what one core serves)")
     if log is not None:
         print(f"truth: {log.writer.samples} samples -> {args.truth} ({log.late} answers sent "
               "over half a SYNC period late: no truth)")

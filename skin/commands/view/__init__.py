@@ -196,6 +196,7 @@ def _play(args: argparse.Namespace, config: HostConfig | None, layout: Layout,
 
 def _live(args: argparse.Namespace, source: BusForces | BusDecode | Playback, layout: Layout,
           seconds: float | None, where: str, label: Any) -> int:
+    from skin.commands.common.logs import checks_passed
     from skin.commands.view.live import LiveStats, draw_live, short_switch_interval
     from skin.errors import BusError
 
@@ -211,6 +212,7 @@ def _live(args: argparse.Namespace, source: BusForces | BusDecode | Playback, la
 
     interactive = sys.stdout.isatty() and not args.snapshot
     with short_switch_interval():
+        checks_passed()  # the view begins: warnings go out as they come
         source.start(view)
         try:
             if interactive:

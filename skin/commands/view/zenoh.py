@@ -11,7 +11,6 @@ command line (default: this machine's ``tcp/127.0.0.1:7447``) or a reader's TOML
 from __future__ import annotations
 
 import argparse
-import sys
 import threading
 import time
 from pathlib import Path
@@ -111,8 +110,10 @@ class ZenohForces:
         owner = self.owners.setdefault(patch, sample.host)
         if owner != sample.host and (patch, sample.host) not in self._warned:
             self._warned.add((patch, sample.host))
-            print(f"warning: patch {patch} is published by hosts {owner} and {sample.host}; "
-                  "shown as one (--key picks a host)", file=sys.stderr)
+            from skin.commands.common.logs import warn
+
+            warn(f"warning: patch {patch} is published by hosts {owner} and {sample.host}; "
+                 "shown as one (--key picks a host)")
         self.hosts.add(sample.host)
         self._view.update(sample.frame)
 

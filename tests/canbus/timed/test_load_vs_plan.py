@@ -29,7 +29,7 @@ def test_measured_load_is_inside_the_plan(open_bus: OpenBus, mode: str, fd: bool
                                           forces: str) -> None:
     rate, seconds = 100.0, 1.0
     p = plan(3, rate, mode, 1_000_000, data_bitrate=5_000_000 if fd else None,
-             forces=forces)  # type: ignore[arg-type]
+             forces=forces, exact=True)  # type: ignore[arg-type]
     (planned,) = p.buses
     sender, host = open_bus(fd=fd), open_bus(fd=fd)  # who sends does not change the load
     rng = random.Random(11)
