@@ -7,6 +7,8 @@ from collections.abc import Callable
 
 import canopen
 
+from canbus.echoes import echo_ledger
+
 logger = logging.getLogger(__name__)
 
 INITIALISING, STOPPED, OPERATIONAL, PRE_OPERATIONAL = 0, 4, 5, 127
@@ -33,7 +35,10 @@ class NmtSlave:
     def boot(self, network: canopen.Network) -> None:
         """Finish initialisation: send the boot-up message and enter PRE-OPERATIONAL."""
         self.network = network
-        network.send_message(0x700 + self.node_id, b"\x00")
+        cob_id, bootup = 0x700 + self.node_id, b"\x00"
+        if network.bus is not None:
+            echo_ledger(network.bus).sending(cob_id, bootup)
+        network.send_message(cob_id, bootup)
         self._set(PRE_OPERATIONAL)
 
     def on_command(self, can_id: int, data: bytearray | bytes, timestamp: float) -> None:

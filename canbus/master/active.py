@@ -33,6 +33,7 @@ from concurrent.futures import Future, wait
 import can
 from canopen.sdo.exceptions import SdoError
 
+from canbus.echoes import echo_ledger
 from canbus.master.buslink import BusLink
 from canbus.master.cobids import force_cob_ids, node_cob_ids
 from canbus.master.discovery import (
@@ -50,7 +51,6 @@ from canbus.master.records import PatchRecord
 from canbus.master.setup_jobs import SetupJobs, describe_identity
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM
 from canbus.ratelog import RateLimitedLog
-from canbus.rxfilter import receive_filter
 from skin.errors import BusError
 
 logger = logging.getLogger(__name__)
@@ -125,6 +125,7 @@ class ActiveMaster:
         for link, cob_id, handler in self._watched:
             if handler in link.network.subscribers.get(cob_id, []):
                 link.network.unsubscribe(cob_id, handler)
+            echo_ledger(link.bus).forget([cob_id])
         self._watched.clear()
         for link in parts.links.values():
             link.release_own()
@@ -229,7 +230,8 @@ class ActiveMaster:
 
     def _claim_own_frames(self) -> None:
         """What the host alone sends on each bus is claimed (:meth:`BusLink.claim_own`): the
-        SYNC it produces, its force nodes' frames, its SDO requests to its patches."""
+        SYNC it produces, its force nodes' frames, its SDO requests to its patches; not
+        what :meth:`_watch_force_id` audits, where another node must be heard."""
         parts = self.parts
         producing_sync = not parts.config.sync_following
         for link in parts.links.values():
@@ -238,15 +240,17 @@ class ActiveMaster:
                 own.add(SYNC_COB_ID)
             for patch in parts.patches.values():
                 if patch.force_link is link:
-                    own |= patch.force_node.cob_ids()
+                    own |= patch.force_node.cob_ids() - _audited(patch.force_id)
                 if patch.link is link:
                     own.add(SDO_REQUEST + patch.node_id)
             link.claim_own(own)
 
     def _watch_force_id(self, patch: PatchRecord) -> None:
         """Hear a foreign node at the force node's ID: its boot-up or heartbeat, its EMCY
-        (a force node sends none)."""
+        (a force node sends none). Audited before the force node boots, so each of its
+        own frames there is noted before it is sent (:mod:`canbus.echoes`)."""
         link, force_id = patch.force_link, patch.force_id
+        echo_ledger(link.bus).audit(_audited(force_id))
         for cob_id, what in ((HEARTBEAT + force_id, "a boot-up or heartbeat"),
                              (EMCY + force_id, "an EMCY")):
             handler = functools.partial(self._foreign_frame, patch, what)
@@ -255,7 +259,7 @@ class ActiveMaster:
 
     def _foreign_frame(self, patch: PatchRecord, what: str, can_id: int, data: bytearray,
                        timestamp: float) -> None:
-        if not self._foreign_for_sure(patch.force_link, can_id):
+        if echo_ledger(patch.force_link.bus).is_echo(can_id, data):
             return
         force_id = patch.force_id
         first, frames = self._foreign.get(force_id, (time.strftime("%H:%M:%S"), 0))
@@ -269,16 +273,6 @@ class ActiveMaster:
             "master may read the other's frames; give that node another ID or change "
             "force_node", force_id, patch.node_id, self.parts.bus_name(patch.force_link),
             what, can_id)
-
-    @staticmethod
-    def _foreign_for_sure(link: BusLink, cob_id: int) -> bool:
-        """Our force node's own frames come back only on a bus that echoes (udp_multicast),
-        until they are claimed: then they are dropped before any listener (in the kernel,
-        or by the gate in front of ours, not canopen's own on a joined network)."""
-        own = receive_filter(link.bus)
-        if not own.echoes:
-            return True
-        return cob_id in own.cob_ids and (own.in_kernel or not link.joined)
 
     # -- bus events (notifier and monitor threads: record and hand on) ----------------
 
@@ -305,6 +299,11 @@ class ActiveMaster:
     def _ensure(self, patch: PatchRecord) -> None:
         if self.jobs is not None and not self.scanning:
             self.jobs.ensure(patch)
+
+
+def _audited(force_id: int) -> frozenset[int]:
+    """The force node's COB-IDs where the host listens for another node at its ID."""
+    return frozenset((HEARTBEAT + force_id, EMCY + force_id))
 
 
 def _remove_node(patch: PatchRecord) -> None:
