@@ -4,9 +4,10 @@ The shape of a robot PC: ``skin sim run`` serves N simulated 3-axis patches at 1
 udp_multicast (loopback), under SCHED_FIFO 60 where this process may grant it, since
 hardware patches are never starved; K CPU-bound processes run beside the host; ``skin
 run`` is the host, once at normal priority and once with ``--realtime`` (SCHED_FIFO 50);
-a bare python-can receiver on the same bus (:mod:`bench.bare_receiver`) takes every
-frame, the floor of the transport's cost, and is the independent listener whose kernel
-stamps time the host's answers. Each run has its own group and port.
+a bare python-can receiver on the same bus (:mod:`bench.bare_receiver`, SCHED_FIFO 55 where
+granted, so that it misses no frame) takes every frame, the floor of the transport's cost,
+and is the independent listener whose kernel stamps time the host's answers. Each run has
+its own group and port.
 
 Figures of each run, over a window of ``seconds`` that starts 2 s after every patch is
 operational:
@@ -45,7 +46,9 @@ from bench.publish import free_udp_ports
 from skin.errors import BusError
 
 DEFAULT_PATCHES, DEFAULT_HOGS, DEFAULT_SECONDS = 8, 2, 20.0
-SIM_PRIORITY, HOST_PRIORITY = 60, 50
+SIM_PRIORITY, LISTENER_PRIORITY, HOST_PRIORITY = 60, 55, 50
+"""The patches stand for hardware and the listener for the bus itself: neither may be what
+starves (a listener that drops frames would undercount the bus)."""
 STATUS_EVERY_S = 2.0
 SETTLE_S = 2.0  # after every patch is operational, before the window opens
 READY_TIMEOUT_S = 60.0
@@ -82,7 +85,7 @@ def _one_run(patches: int, hogs: int, seconds: float, realtime: bool,
                     "--patches", str(patches), *bus, "--seconds", str(10 * seconds + 600)],
             priority=SIM_PRIORITY)
         procs.start("listener", [sys.executable, "-m", "bench.bare_receiver", group,
-                                 str(port), ",".join(force)])
+                                 str(port), ",".join(force)], priority=LISTENER_PRIORITY)
         procs.expect("listener", lambda line: line.startswith("{"), "ready")
         for h in range(hogs):
             procs.start(f"hog{h}", [sys.executable, "-c", "while True: pass"])
@@ -127,6 +130,7 @@ def _figures(host: dict[str, Any], start: dict[str, Any], end: dict[str, Any],
         "complete_pct": host["steady_complete_pct"],
         "steady_samples": stats["steady_samples"], "samples": stats["samples"],
         "late_frames": stats["late_frames"], "sync_overruns": stats["sync_overruns"],
+        "mean_batch": stats["samples"] / max(stats["batches"], 1),
         "incomplete_pct_per_window": _spread(windows, ("max", "p95")),
         "sync_to_last_force_pdo_ms": _spread(list(delays), ("p50", "p99", "max")),
         "frames_per_s": frames / span,

@@ -20,12 +20,10 @@ from __future__ import annotations
 
 import threading
 import time
-import weakref
 from collections import Counter, deque
 from collections.abc import Callable, Iterable
 
-import can
-
+from canbus.perbus import PerBus
 from canbus.rxfilter import echoes_own_frames
 
 ECHO_WAIT_S = 10.0
@@ -91,14 +89,6 @@ def _drop_lost(sent: deque[tuple[bytes, float]], now: float) -> None:
         sent.popleft()
 
 
-_REGISTRY: weakref.WeakKeyDictionary[can.BusABC, EchoLedger] = weakref.WeakKeyDictionary()
-_REGISTRY_LOCK = threading.Lock()
-
-
-def echo_ledger(bus: can.BusABC) -> EchoLedger:
-    """The one :class:`EchoLedger` of ``bus`` (its senders and its listeners share it)."""
-    with _REGISTRY_LOCK:
-        found = _REGISTRY.get(bus)
-        if found is None:
-            found = _REGISTRY[bus] = EchoLedger(echoes_own_frames(bus))
-        return found
+echo_ledger = PerBus(lambda bus: EchoLedger(echoes_own_frames(bus)))
+"""``echo_ledger(bus)``: the one :class:`EchoLedger` of ``bus`` (its senders and its
+listeners share it)."""

@@ -41,6 +41,8 @@ from collections.abc import Iterable
 
 import can
 
+from canbus.perbus import PerBus
+
 logger = logging.getLogger(__name__)
 
 SO_ATTACH_FILTER, SO_DETACH_FILTER = 26, 27
@@ -142,23 +144,14 @@ def _weak(owner: object) -> weakref.ref[object] | None:
         return None
 
 
-_REGISTRY: weakref.WeakKeyDictionary[can.BusABC, ReceiveFilter] = weakref.WeakKeyDictionary()
-_REGISTRY_LOCK = threading.Lock()
-
-
-def receive_filter(bus: can.BusABC) -> ReceiveFilter:
-    """The one :class:`ReceiveFilter` of ``bus`` (every user of the bus shares it)."""
-    with _REGISTRY_LOCK:
-        found = _REGISTRY.get(bus)
-        if found is None:
-            found = _REGISTRY[bus] = ReceiveFilter(bus)
-        return found
+receive_filter = PerBus(ReceiveFilter)
+"""``receive_filter(bus)``: the one :class:`ReceiveFilter` of ``bus`` (every user of the bus
+shares it)."""
 
 
 def refresh(bus: can.BusABC) -> None:
     """Put the bus's kernel filter on its socket again (a bus opened again has a new one)."""
-    with _REGISTRY_LOCK:
-        found = _REGISTRY.get(bus)
+    found = receive_filter.get(bus)
     if found is not None:
         found.reinstall()
 
