@@ -19,7 +19,7 @@ def _mark(t: float, frames: int, bare_cpu: float, host_cpu: float, sim_cpu: floa
 def test_the_figures_are_per_frame_of_the_window_and_the_host_is_set_against_the_bare_receiver(
         ) -> None:
     host = {"steady_complete_pct": 99.95,
-            "stats": {"steady_samples": 2000, "samples": 2100, "late_frames": 3,
+            "stats": {"steady_samples": 2000, "samples": 2100, "batches": 300, "late_frames": 3,
                       "sync_overruns": 0}}
     start = _mark(100.0, 1_000, 1.0, 5.0, 2.0)
     end = _mark(110.0, 101_000, 2.0, 8.0, 3.0, delays=[1.0, 2.0, 3.0, 4.0])
@@ -31,6 +31,7 @@ def test_the_figures_are_per_frame_of_the_window_and_the_host_is_set_against_the
     assert r["host_over_bare"] == pytest.approx(3.0)
     assert r["host_cpu_pct"] == pytest.approx(30.0) and r["sim_cpu_pct"] == pytest.approx(10.0)
     assert r["complete_pct"] == 99.95 and r["incomplete_pct_per_window"]["max"] == 0.5
+    assert r["mean_batch"] == 7.0
     assert r["sync_to_last_force_pdo_ms"]["p50"] == pytest.approx(2.5)
 
 
