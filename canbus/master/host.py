@@ -200,7 +200,9 @@ class HostManager:
     def _start(self) -> None:
         self.policy.prepare()
         self.policy.subscribe()  # before any notifier runs: frames queued count too
-        window_s = self.config.sync_window_ms / 1000.0
+        # A listen-only host takes a cycle's frames by their place between two SYNCs on the
+        # bus: a replay keeps that order, not the time between frames the window judges.
+        window_s = 0.0 if self.listen_only else self.config.sync_window_ms / 1000.0
         patch_buses = {p.link.name for p in self.patches.values()}
         for link in self.links.values():
             if link.name in patch_buses:
