@@ -151,8 +151,12 @@ def test_version_3_files_still_load_and_decode_as_they_did(mode: str) -> None:
     old = load_decoder(model)
     then = np.load(decoded, allow_pickle=False)
     out = old.decode(then["resistance_ohm"])
-    np.testing.assert_array_equal(out.reason, then["reason"])
-    np.testing.assert_array_equal(out.force_N, then["force_N"])
+    np.testing.assert_array_equal(out.reason, then["reason"])  # exact: integer flags
+    # the forces were computed on another machine, whose BLAS sums in another order: a file
+    # read by a new version decodes to within 1e-9 of what it decoded then, relative to its
+    # largest force (the last bits of a sum are the processor's, not the file's)
+    np.testing.assert_allclose(out.force_N, then["force_N"], rtol=1e-9,
+                               atol=1e-9 * np.abs(then["force_N"]).max())
     assert (out.reason == Reason.EXTRAPOLATED).any() and out.valid.any()
     domain = old.domain_  # type: ignore[attr-defined]
     assert domain.density is not None and domain.pattern is None and domain.departure is None
