@@ -17,6 +17,8 @@ from decoder.reasons import Reason
 from decoder.registry import create_decoder, load_decoder
 from skin.errors import ModelFileError
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 FILES = Path(__file__).resolve().parents[1] / "files"
 
 CORRUPT = {
