@@ -14,6 +14,8 @@ from bench.limits_reach import PairStats, as_fitted, judge_scaled, pair_stats, r
 from bench.pairs import pair_data, random_pair
 from decoder.registry import create_decoder
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 N_TRAIN, N_TEST = 400, 120
 
 

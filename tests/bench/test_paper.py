@@ -12,6 +12,8 @@ import pytest
 from bench.paper import KEYS, PAPER, claims, relative_errors
 from skin.cli import main
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 
 def test_bench_paper_quick_writes_the_figures_and_the_claims(tmp_path: Path,
                                                             capsys: pytest.CaptureFixture[str]

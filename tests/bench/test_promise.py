@@ -13,6 +13,8 @@ from bench.cross import promise_rows, summary
 from bench.judge import FACTOR, HOME_SHARE, judge_pair
 from bench.pairs import PAIRS, ScenePair, pair_data, random_pair
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 BY_NAME = {p.name: p for p in PAIRS}
 SHEAR_UNSEEN = ("3-axis, trained on pure presses, tested on sheared ones: the checks flag "
                 "most of the away set, and on the 13-25 floored components left (of 200 "

@@ -52,7 +52,7 @@ def test_damaged_recording_replays_nothing_past_the_bad_frame(name: str, frame: 
     assert replayer.sent == len(got) == frame - 1
     with Recording(FILES / name.replace("truncated", "good").replace("corrupt", "good")) as good:
         expected = [(m.arbitration_id, bytes(m.data)) for m in good][:frame - 1]
-    assert [(m.arbitration_id, bytes(m.data)) for m in got] == expected
+    assert [(m.arbitration_id, bytes(m.data)) for m in got] == expected  # exact: ids, bytes
 
 
 @pytest.mark.parametrize("name", ["good.log", "good.asc", "good.pcap", "good.blf"])
@@ -63,7 +63,7 @@ def test_replay_sends_every_frame_in_order(name: str) -> None:
             can.Bus(interface="virtual", channel=name) as tx:
         result = Replayer(tx, FILES / name, realtime=False, passes=2).run()
         got = [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in _drain(rx)]
-    assert got == expected * 2
+    assert got == expected * 2  # exact: COB-IDs and bytes
     assert (result.frames_sent, result.passes) == (2 * len(expected), 2)
 
 

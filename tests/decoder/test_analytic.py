@@ -12,6 +12,8 @@ from skin.constants import DEFAULT_CONSTANTS
 from skin.normal import normal_force_from_resistance
 from skin.tripod import force_from_ratio_change, ratio_change_from_force
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 R0 = DEFAULT_CONSTANTS.nominal_resistance_ohm
 
 

@@ -12,6 +12,8 @@ import bench.decoders as benchmark
 from skin.commands.bench.report import print_decoders, uncovered
 from tests.decoder.conftest import crosstalk_matrix, make_data
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 
 def _part(masked: slice) -> dict[str, Any]:
     r, f = make_data(40, seed=1)

@@ -26,6 +26,8 @@ from sim import generate_dataset, load_scene
 from skin.constants import DEFAULT_CONSTANTS
 from skin.errors import ConfigError, DecodeError
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 
 @pytest.fixture(scope="module")
 def data() -> tuple[np.ndarray, np.ndarray]:

@@ -12,6 +12,8 @@ from decoder.protocol import Decoded, Decoder
 from decoder.registry import available_decoders, create_decoder, decoder_class, load_decoder
 from skin.errors import ConfigError, DecodeError, NotFittedError
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 FAST = {"lm-mlp": {"hidden": 10, "max_epochs": 40}, "hybrid": {"max_epochs": 40}}
 UNTRAINED = ("analytic", "eq9")  # no fit: they decode from the sensor constants alone
 

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from decoder.deconv import DeconvDecoder
 from decoder.metrics import ave_rel_err, evaluate
@@ -13,6 +14,8 @@ from decoder.oracle import oracle_decode
 from decoder.registry import load_decoder
 from skin.cli import main
 from skin.constants import DEFAULT_CONSTANTS
+
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
 
 
 def _crosstalk(strength: float) -> np.ndarray:

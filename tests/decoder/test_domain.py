@@ -18,6 +18,8 @@ from decoder.registry import create_decoder
 from skin.constants import DEFAULT_CONSTANTS
 from tests.decoder.conftest import read_forces
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 TRAINED = ("deconv", "lm-mlp", "hybrid")
 FAST = {"lm-mlp": {"max_epochs": 60}, "hybrid": {"max_epochs": 60}}
 

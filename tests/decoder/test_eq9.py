@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -10,6 +11,8 @@ from decoder.eq9 import Eq9Decoder
 from decoder.reasons import Reason
 from skin.constants import DEFAULT_CONSTANTS
 from skin.smallstrain import paper_force_from_ratio_change
+
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
 
 R0 = DEFAULT_CONSTANTS.nominal_resistance_ohm
 ES = DEFAULT_CONSTANTS.axial_stiffness_N

@@ -18,6 +18,8 @@ from skin.constants import DEFAULT_CONSTANTS
 from skin.dataset import Dataset, write_dataset
 from tests.decoder.conftest import F64, make_data
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 
 def _dataset(path: Path, r: F64, f: F64) -> Path:
     """(samples, 9, P) arrays as a one-patch dataset file."""

@@ -23,6 +23,8 @@ from decoder.registry import create_decoder
 from decoder.tripod3 import TripodInverse
 from skin.constants import DEFAULT_CONSTANTS
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 SAT = saturation_ohm(DEFAULT_CONSTANTS)
 LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
 BAD = (np.nan, np.inf, -np.inf, -5.0, -0.0, 0.0, 5e-324, 1e-300, LSB, SAT, SAT - LSB, SAT + 1.0,

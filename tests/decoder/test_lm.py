@@ -11,6 +11,8 @@ from decoder.mlp import Layout, forward, jacobian, mapminmax, minmax_range, nguy
 from decoder.mlp import normal_equations as structured
 from decoder.regressor import FoldedMLP, fit_mlp
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 
 def _problem(n: int = 200, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)

@@ -17,6 +17,8 @@ from decoder.reasons import Reason
 from decoder.registry import create_decoder, load_decoder
 from skin.errors import ModelFileError
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 FILES = Path(__file__).resolve().parents[1] / "files"
 
 CORRUPT = {
@@ -151,8 +153,12 @@ def test_version_3_files_still_load_and_decode_as_they_did(mode: str) -> None:
     old = load_decoder(model)
     then = np.load(decoded, allow_pickle=False)
     out = old.decode(then["resistance_ohm"])
-    np.testing.assert_array_equal(out.reason, then["reason"])
-    np.testing.assert_array_equal(out.force_N, then["force_N"])
+    np.testing.assert_array_equal(out.reason, then["reason"])  # exact: integer flags
+    # the forces were computed on another machine, whose BLAS sums in another order: a file
+    # read by a new version decodes to within 1e-9 of what it decoded then, relative to its
+    # largest force (the last bits of a sum are the processor's, not the file's)
+    np.testing.assert_allclose(out.force_N, then["force_N"], rtol=1e-9,
+                               atol=1e-9 * np.abs(then["force_N"]).max())
     assert (out.reason == Reason.EXTRAPOLATED).any() and out.valid.any()
     domain = old.domain_  # type: ignore[attr-defined]
     assert domain.density is not None and domain.pattern is None and domain.departure is None
@@ -171,7 +177,8 @@ def test_version_2_files_still_load_and_decode_as_they_did(saved: dict[str, Path
     now.residual_threshold_[:] = 0.0  # type: ignore[attr-defined]
     now._prepare()  # type: ignore[attr-defined]
     r, _ = synth(40, seed=76, fz_max=3.0)
-    np.testing.assert_array_equal(old.decode(r).force_N, now.decode(r).force_N)
+    np.testing.assert_array_equal(old.decode(r).force_N,  # exact: both decoded here
+                                  now.decode(r).force_N)
     doc = _doc(V3["xyz"][0])
     doc["version"] = 2
     del doc["state"]["domain_"]["taxel_band"]
@@ -179,7 +186,8 @@ def test_version_2_files_still_load_and_decode_as_they_did(saved: dict[str, Path
     assert old.domain_.taxel_band is None  # type: ignore[attr-defined]
     r, _ = synth(60, seed=75, pillars=3, fz_max=5.0)
     then, now_out = old.decode(r), load_decoder(V3["xyz"][0]).decode(r)
-    np.testing.assert_array_equal(then.force_N[now_out.valid], now_out.force_N[now_out.valid])
+    np.testing.assert_array_equal(then.force_N[now_out.valid],  # exact: both decoded here
+                                  now_out.force_N[now_out.valid])
     assert not (now_out.valid & ~then.valid).any()  # the band only adds flags
 
 

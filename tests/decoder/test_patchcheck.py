@@ -26,6 +26,8 @@ from decoder.patchcheck import (
 from decoder.reasons import Reason
 from decoder.registry import create_decoder
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 finite = st.floats(-1e6, 1e6, allow_nan=False)
 
 

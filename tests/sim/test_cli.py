@@ -10,6 +10,8 @@ from skin.cli import main
 from skin.dataset import read_dataset
 from skin.errors import ConfigError
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 FILES = Path(__file__).parents[1] / "files"
 
 

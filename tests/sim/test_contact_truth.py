@@ -14,6 +14,8 @@ from sim.stickslip import StickSlip, StickSlipParams
 from skin.contact import ContactParams, taxel_xy
 from skin.errors import ConfigError
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 PITCH = 0.015
 
 

@@ -15,6 +15,8 @@ from sim.effects.noise import quantise
 from sim.rng import stream
 from skin.constants import DEFAULT_CONSTANTS
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
 FULL = DEFAULT_CONSTANTS.adc_full_scale_code * LSB
 R0 = DEFAULT_CONSTANTS.nominal_resistance_ohm

@@ -20,6 +20,8 @@ from sim.loads import (
 )
 from sim.rng import stream
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 PITCH = 0.015
 
 

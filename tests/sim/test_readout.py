@@ -13,6 +13,8 @@ from sim.effects.readout import zero_potential_resistance
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 R0 = DEFAULT_CONSTANTS.nominal_resistance_ohm
 WIRES = [f"{w}{i}" for w in "ABCD" for i in range(3)]
 

@@ -14,6 +14,8 @@ from skin.constants import DEFAULT_CONSTANTS
 from skin.errors import ConfigError
 from skin.tripod import resistance_from_force
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 FILES = Path(__file__).parents[1] / "files"
 BASE: dict[str, Any] = {
     "scene": {"name": "t", "mode": "xyz"},

@@ -12,6 +12,8 @@ from sim.effects.network import passive_matrix_resistance
 from skin.constants import DEFAULT_CONSTANTS
 from skin.errors import ConfigError
 
+pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
+
 
 def scene(patches: int, loaded: list[int], effects: dict[str, Any], mode: str = "xyz") -> Any:
     return scene_from_dict({

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
@@ -61,7 +61,12 @@ def test_turning_the_placement_turns_the_cop_and_the_shear(force: np.ndarray, va
                         np.hypot(*straight.force_N[0, :2]), rel_tol=1e-12, abs_tol=1e-12)
 
 
+SUBNORMAL_ON_0 = np.zeros((9, 3))
+SUBNORMAL_ON_0[0, 2] = 5e-324  # the smallest subnormal: taxel 0 alone in contact
+
+
 @given(force=loads, valid=masks, threshold=st.floats(0.0, 5.0))
+@example(force=SUBNORMAL_ON_0, valid=np.ones(9, dtype=bool), threshold=0.0)
 def test_the_net_force_and_torque_are_the_sums_over_the_taxels_in_contact(
         force: np.ndarray, valid: np.ndarray, threshold: float) -> None:
     s = one(force, valid, params=ContactParams(taxel_contact_N=threshold))
@@ -74,9 +79,11 @@ def test_the_net_force_and_torque_are_the_sums_over_the_taxels_in_contact(
     torque = np.cross(r[contact], force[contact]).sum(axis=0)
     np.testing.assert_allclose(s.torque_Nm[0], torque, atol=1e-10)
     if contact.any():  # the CoP is the Fz-weighted mean, inside the taxels' hull
-        fz = force[contact, 2]
-        np.testing.assert_allclose(s.cop_m[0], (taxel_xy(PITCH)[contact] * fz[:, None]).sum(0)
-                                   / fz.sum(), atol=1e-12)
+        # weights scaled by the largest: the same mean, and no product underflows to 0 when
+        # every Fz in contact is subnormal (5e-324 N on one taxel: the CoP is its centre)
+        weight = force[contact, 2] / force[contact, 2].max()
+        np.testing.assert_allclose(s.cop_m[0], (taxel_xy(PITCH)[contact] * weight[:, None])
+                                   .sum(0) / weight.sum(), atol=1e-12)
         assert np.all(np.abs(s.cop_m[0]) <= PITCH * (1 + 1e-12))
     else:
         assert not s.cop_defined[0] and not s.cop_m.any() and s.tangential_ratio[0] == 0

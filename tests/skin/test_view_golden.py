@@ -31,7 +31,7 @@ def _check(name: str, text: str) -> None:
     if os.environ.get("UPDATE_GOLDEN"):
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text, encoding="utf-8")
-    assert text == path.read_text(encoding="utf-8")
+    assert text == path.read_text(encoding="utf-8")  # exact: text from integer mN
     assert "\x1b" not in text  # plain text: no escape codes
 
 
