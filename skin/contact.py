@@ -42,6 +42,8 @@ from numpy.typing import ArrayLike
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH
 from skin.contact_sums import (
     F64,
+    FX,
+    FY,
     SMALLEST_N,
     UNIT_XY,
     Bools,
@@ -179,8 +181,11 @@ def summarize_rows(force: F64, ok: Bools, rows: RowParams, *, bounded: bool = Fa
             ok = ok & finite
             force = np.where(finite[..., None], force, 0.0)
         kernel.run(force, ok, checked=True)
-        beyond = ~np.asarray(np.isfinite(kernel.sums[:3]).all(axis=(0, 2)), dtype=bool)
-        if beyond.any():  # sums beyond float64: such a row says nothing
+        sums = kernel.sums
+        twist = sums[FY, :, 1] - sums[FX, :, 2]  # the torque's Σ x·Fy − Σ y·Fx
+        beyond = ~np.asarray(np.isfinite(sums[:3]).all(axis=(0, 2)) & np.isfinite(twist),
+                             dtype=bool)
+        if beyond.any():  # sums (or the torque) beyond float64: such a row says nothing
             ok = ok & ~beyond[:, None]
             force = np.where(beyond[:, None, None], 0.0, force)
         return kernel.instant(force, ok, bounded=False, checked=True)

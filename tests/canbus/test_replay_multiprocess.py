@@ -24,10 +24,12 @@ from bench.rigs.waiting import wait_until
 from canbus.master.dataplane import ForceFrame
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, PatchConfig
+from canbus.tools.recorder import enlarge_receive_buffer
 from canbus.tools.recording import Recording
 
 PATCHES = 4
 CYCLES = 300  # live cycles recorded, every patch operational
+RCVBUF = 8 << 20  # the replayed frames wait in the socket while the test's process is busy
 
 
 def _config() -> HostConfig:
@@ -80,6 +82,7 @@ def test_a_replay_gives_back_every_sample_the_live_host_completed(
     replayed: list[ForceFrame] = []
     with can.Bus(interface="udp_multicast", channel=group, port=port) as bus, \
             HostManager(bus, _config(), listen_only=True) as host:
+        enlarge_receive_buffer(bus, RCVBUF)
         host.on_forces(replayed.append)
         player = spawn([sys.executable, "-m", "skin.cli", "replay", str(recording),
                         *_bus(group, port), *(["--fast"] if pace == "fast" else [])])

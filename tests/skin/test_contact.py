@@ -176,3 +176,13 @@ def test_shapes_are_checked() -> None:
         summarize(np.zeros((9, 3)), np.ones(9, dtype=bool))
     with pytest.raises(ValueError, match="valid"):
         summarize(np.zeros((2, 9, 3)), np.ones((3, 9), dtype=bool))
+
+
+def test_a_torque_beyond_float64_makes_the_row_say_nothing_never_inf() -> None:
+    """Hypothesis found it: forces whose sums fit float64 but whose torque Σ x·Fy − Σ y·Fx
+    does not (taxel 2 at x = +1 pushing +y, taxel 6 at y = +1 pushing -x)."""
+    force = np.zeros((9, 3))
+    force[2] = (0.0, 8.99e307, 1.0)
+    force[6] = (-8.99e307, 0.0, 1.0)
+    s = one(force, params=ContactParams(taxel_contact_N=0.0))
+    assert np.isfinite(s.torque_Nm).all() and np.isfinite(s.force_N).all()
