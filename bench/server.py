@@ -39,9 +39,10 @@ import can
 import canopen
 import numpy as np
 
-from canbus.busload import TPDO_BASES, patch_payloads
+from canbus.busload import TPDO_BASES
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ResistanceSource
+from canbus.frametime import patch_payloads
 from canbus.rxfilter import receive_filter
 
 SYNC_COB_ID = 0x080

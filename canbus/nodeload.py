@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from canbus.busload import force_payloads, frame_time_s, patch_payloads
+from canbus.frametime import force_payloads, frame_time_s, patch_payloads
 
 
 @dataclass(frozen=True)

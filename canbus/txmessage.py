@@ -23,7 +23,7 @@ from typing import Any
 
 import can
 
-from canbus.busload import fd_length
+from canbus.frametime import fd_length
 
 FIELDS = frozenset({"timestamp", "arbitration_id", "is_extended_id", "is_remote_frame",
                     "is_error_frame", "channel", "dlc", "data", "is_fd", "is_rx",

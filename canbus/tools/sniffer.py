@@ -45,7 +45,7 @@ from typing import Any
 
 import can
 
-from canbus.busload import classic_frame_bits, fd_frame_time_s, fd_length
+from canbus.frametime import classic_frame_bits, fd_frame_time_s, fd_length
 from canbus.rxfilter import ReceiveFilter
 from canbus.tools.services import Decoded, Route, Service, ServiceDecoder, route
 

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from canbus import busload, framebits
+from canbus import framebits, frametime
 from canbus.framebits import (
     CRC15,
     CRC17,
@@ -265,13 +265,13 @@ def test_the_planners_bounds_contain_every_frame(drawn: dict[str, Any], bitrate:
     n = len(f["data"])
     extended = bool(f["extended"])
     if not f["fd"]:
-        low = busload.classic_frame_bits(n, worst_case_stuffing=False, extended=extended)
-        high = busload.classic_frame_bits(n, worst_case_stuffing=True, extended=extended)
+        low = frametime.classic_frame_bits(n, worst_case_stuffing=False, extended=extended)
+        high = frametime.classic_frame_bits(n, worst_case_stuffing=True, extended=extended)
         assert low <= exact.total <= high
         return
     brs, fast = bool(f["brs"]), bitrate * ratio
-    best = busload.fd_frame_bits(n, worst_case_stuffing=False, extended=extended, brs=brs)
-    worst = busload.fd_frame_bits(n, worst_case_stuffing=True, extended=extended, brs=brs)
+    best = frametime.fd_frame_bits(n, worst_case_stuffing=False, extended=extended, brs=brs)
+    worst = frametime.fd_frame_bits(n, worst_case_stuffing=True, extended=extended, brs=brs)
     assert sum(best) <= exact.total <= sum(worst)
     assert best[0] <= exact.nominal <= worst[0]
 

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.rigs import children
-from canbus import busload
+from canbus import busload, frametime
 from canbus.busload import plan
 from canbus.sizing import size
 
@@ -23,38 +23,39 @@ def _skin_plan(*args: str) -> subprocess.CompletedProcess[str]:
 
 def test_frame_bounds_match_the_hand_calculation() -> None:
     # classic, 8 bytes: 34 + 64 = 98 bits under stuffing + 13 = 111; worst + (98 - 1) // 4
-    assert busload.classic_frame_bits(8, worst_case_stuffing=False) == 111
-    assert busload.classic_frame_bits(8, worst_case_stuffing=True) == 135
+    assert frametime.classic_frame_bits(8, worst_case_stuffing=False) == 111
+    assert frametime.classic_frame_bits(8, worst_case_stuffing=True) == 135
     assert int(1e6 / 135) == 7407 and int(1e6 / 111) == 9009
     # SYNC with its counter: 42 stuffed bits + 13 = 55, worst + 10
-    assert busload.classic_frame_bits(1, worst_case_stuffing=True) == 65
+    assert frametime.classic_frame_bits(1, worst_case_stuffing=True) == 65
     # 29-bit id: 20 more stuffed bits (SRR, IDE, 18 id bits): 131 and 131 + 29
-    assert busload.classic_frame_bits(8, worst_case_stuffing=True, extended=True) == 160
+    assert frametime.classic_frame_bits(8, worst_case_stuffing=True, extended=True) == 160
     # CAN FD, 64 bytes: 29 nominal (SOF..BRS 17, ACK, delimiter, EOF, IFS) + 550 data bits
     # (ESI, DLC, 512, stuff count 4, CRC-21, 7 fixed stuff bits, CRC delimiter) = 579, as
     # Linux's can_frame_bits(); worst: 3 stuff bits before BRS and (534 - 2) // 4 = 133 in
     # all: 712, Linux's figure too.
-    assert busload.fd_frame_bits(64, worst_case_stuffing=False) == (29, 550)
-    assert busload.fd_frame_bits(64, worst_case_stuffing=True) == (32, 680)
-    assert busload.fd_frame_bits(64, worst_case_stuffing=False, brs=False) == (579, 0)
+    assert frametime.fd_frame_bits(64, worst_case_stuffing=False) == (29, 550)
+    assert frametime.fd_frame_bits(64, worst_case_stuffing=True) == (32, 680)
+    assert frametime.fd_frame_bits(64, worst_case_stuffing=False, brs=False) == (579, 0)
     # 29-bit id: 598 bits; Linux's worst case is 736, one more: it allows a dynamic stuff bit
     # after the last data bit, which ISO replaces by the fixed stuff bit.
-    assert sum(busload.fd_frame_bits(64, worst_case_stuffing=False, extended=True)) == 598
-    assert sum(busload.fd_frame_bits(64, worst_case_stuffing=True, extended=True)) == 735
-    assert busload.fd_length(55) == busload.fd_length(57) == 64 and busload.fd_length(19) == 20
+    assert sum(frametime.fd_frame_bits(64, worst_case_stuffing=False, extended=True)) == 598
+    assert sum(frametime.fd_frame_bits(64, worst_case_stuffing=True, extended=True)) == 735
+    assert frametime.fd_length(55) == frametime.fd_length(57) == 64
+    assert frametime.fd_length(19) == 20
 
 
 def test_payloads_are_the_project_s_mappings() -> None:
-    assert busload.patch_payloads("xyz", fd=False) == [8] * 6 + [6]
-    assert busload.patch_payloads("z", fd=False) == [6] * 3
-    assert busload.force_payloads(fd=False) == [8] * 8  # 7 of forces, the contact's TPDO 8
-    assert busload.force_payloads(fd=False, contact=False) == [8] * 7
+    assert frametime.patch_payloads("xyz", fd=False) == [8] * 6 + [6]
+    assert frametime.patch_payloads("z", fd=False) == [6] * 3
+    assert frametime.force_payloads(fd=False) == [8] * 8  # 7 of forces, the contact's TPDO 8
+    assert frametime.force_payloads(fd=False, contact=False) == [8] * 7
     # FD: the codes and the SYNC counter in one frame; forces: 27 + 0x2005 + counter, and
     # the contact's net Fz, CoP and state
-    assert busload.patch_payloads("xyz", fd=True) == [55]
-    assert busload.patch_payloads("z", fd=True) == [19]
-    assert busload.force_payloads(fd=True) == [64]
-    assert busload.force_payloads(fd=True, contact=False) == [57]
+    assert frametime.patch_payloads("xyz", fd=True) == [55]
+    assert frametime.patch_payloads("z", fd=True) == [19]
+    assert frametime.force_payloads(fd=True) == [64]
+    assert frametime.force_payloads(fd=True, contact=False) == [57]
 
 
 def test_one_patch_cycle_by_hand() -> None:

@@ -25,9 +25,9 @@ from rich.console import Console
 
 from bench.rigs import children
 from bench.rigs.waiting import wait_until
-from canbus.busload import classic_frame_bits
 from canbus.device.nmt_slave import OPERATIONAL
 from canbus.device.patch_server import PatchServer
+from canbus.frametime import classic_frame_bits
 from canbus.od import load_od
 from canbus.tools.attribution import Attribution, KnownNode
 from canbus.tools.pdo_dictionary import Dictionary
