@@ -16,7 +16,8 @@ operational:
   ``steady_complete_pct``: from the first cycle with every patch operational to the end);
   ``incomplete_pct_per_window``: the host's own 2 s status windows, ``max`` and ``p95``;
 * ``sync_to_last_force_pdo_ms``: SYNC to the cycle's last force PDO as the listener's
-  socket stamped both (p50, p99);
+  socket stamped both (p50, p99); ``last_patch_pdo_to_last_force_pdo_ms``: the host's own
+  part, from the cycle's last patch PDO (the patches' part ends there);
 * ``host_cpu_pct`` and ``host_cpu_us_per_frame``: the host process's CPU over the window,
   per frame that crossed the bus (every frame the listener took);
   ``bare_pycan_recv_cpu_us_per_frame``: the listener's own CPU per frame, same window;
@@ -43,6 +44,7 @@ from typing import IO, Any
 import numpy as np
 
 from bench.publish import free_udp_ports
+from canbus.busload import TPDO_BASES
 from skin.errors import BusError
 
 DEFAULT_PATCHES, DEFAULT_HOGS, DEFAULT_SECONDS = 8, 2, 20.0
@@ -76,6 +78,7 @@ def _one_run(patches: int, hogs: int, seconds: float, realtime: bool,
     port = free_udp_ports(1)
     bus = ["-i", "udp_multicast", "-c", group, "--bus-kwargs", f"port={port}"]
     force = [f"{cob:X}" for n in range(1, patches + 1) for cob in _force_tpdos(n)]
+    patch = [f"{base + n:X}" for n in range(1, patches + 1) for base in TPDO_BASES[:7]]
     with tempfile.TemporaryDirectory() as tmp, _Processes() as procs:
         config = Path(tmp) / "host.toml"
         config.write_text(_host_config(patches))
@@ -85,7 +88,8 @@ def _one_run(patches: int, hogs: int, seconds: float, realtime: bool,
                     "--patches", str(patches), *bus, "--seconds", str(10 * seconds + 600)],
             priority=SIM_PRIORITY)
         procs.start("listener", [sys.executable, "-m", "bench.bare_receiver", group,
-                                 str(port), ",".join(force)], priority=LISTENER_PRIORITY)
+                                 str(port), ",".join(force), ",".join(patch)],
+                    priority=LISTENER_PRIORITY)
         procs.expect("listener", lambda line: line.startswith("{"), "ready")
         for h in range(hogs):
             procs.start(f"hog{h}", [sys.executable, "-c", "while True: pass"])
@@ -122,6 +126,7 @@ def _figures(host: dict[str, Any], start: dict[str, Any], end: dict[str, Any],
     host_cpu = end["host_cpu_s"] - start["host_cpu_s"]
     bare_cpu = end["listener"]["cpu_s"] - start["listener"]["cpu_s"]
     delays = np.asarray(end["listener"].get("sync_to_last_force_pdo_ms", []))
+    host_part = list(end["listener"].get("last_patch_pdo_to_last_force_pdo_ms", []))
     per_frame = 1e6 * host_cpu / max(frames, 1)
     bare_per_frame = 1e6 * bare_cpu / max(frames, 1)
     stats = host["stats"]
@@ -133,6 +138,7 @@ def _figures(host: dict[str, Any], start: dict[str, Any], end: dict[str, Any],
         "mean_batch": stats["samples"] / max(stats["batches"], 1),
         "incomplete_pct_per_window": _spread(windows, ("max", "p95")),
         "sync_to_last_force_pdo_ms": _spread(list(delays), ("p50", "p99", "max")),
+        "last_patch_pdo_to_last_force_pdo_ms": _spread(host_part, ("p50", "p99", "max")),
         "frames_per_s": frames / span,
         "host_cpu_pct": 100.0 * host_cpu / span,
         "host_cpu_us_per_frame": per_frame,

@@ -13,6 +13,7 @@ def _mark(t: float, frames: int, bare_cpu: float, host_cpu: float, sim_cpu: floa
     listener: dict = {"time": t, "frames": frames, "cpu_s": bare_cpu}
     if delays is not None:
         listener["sync_to_last_force_pdo_ms"] = delays
+        listener["last_patch_pdo_to_last_force_pdo_ms"] = [d / 2 for d in delays]
     return {"time": t, "listener": listener, "host_cpu_s": host_cpu, "sim_cpu_s": sim_cpu}
 
 
@@ -33,6 +34,7 @@ def test_the_figures_are_per_frame_of_the_window_and_the_host_is_set_against_the
     assert r["complete_pct"] == 99.95 and r["incomplete_pct_per_window"]["max"] == 0.5
     assert r["mean_batch"] == 7.0
     assert r["sync_to_last_force_pdo_ms"]["p50"] == pytest.approx(2.5)
+    assert r["last_patch_pdo_to_last_force_pdo_ms"]["max"] == pytest.approx(2.0)
 
 
 def test_a_short_run_on_loopback_gives_every_figure() -> None:
@@ -44,3 +46,4 @@ def test_a_short_run_on_loopback_gives_every_figure() -> None:
     assert run["frames_per_s"] > 0 and run["host_cpu_us_per_frame"] > 0
     assert run["bare_pycan_recv_cpu_us_per_frame"] > 0
     assert run["sync_to_last_force_pdo_ms"]["p50"] is not None
+    assert run["last_patch_pdo_to_last_force_pdo_ms"]["p50"] is not None

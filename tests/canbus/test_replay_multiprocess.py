@@ -32,9 +32,9 @@ CYCLES = 300  # live cycles recorded, every patch operational
 RCVBUF = 8 << 20  # the replayed frames wait in the socket while the test's process is busy
 
 
-def _config() -> HostConfig:
+def _config(heartbeat_ms: int = 100) -> HostConfig:
     return HostConfig(patches=[PatchConfig(n) for n in range(1, PATCHES + 1)],
-                      sync_period_ms=10.0)
+                      sync_period_ms=10.0, heartbeat_ms=heartbeat_ms)
 
 
 def _bus(group: str, port: int) -> list[str]:
@@ -66,6 +66,13 @@ def live(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[ForceFram
     return folder / "live.log", [f for f in frames if f.cycle >= first]
 
 
+def _replay_config() -> HostConfig:
+    """The live config, but a patch is lost only after 1.5 s without its heartbeat: a replay
+    is paced by a process that a busy machine stalls now and then, and the heartbeats of
+    the recording (100 ms) then come late, which says nothing about the cycles."""
+    return _config(heartbeat_ms=1000)
+
+
 def _stop(child: Child) -> None:
     assert child.stop(signal.SIGINT) == 0, child.output()
 
@@ -75,13 +82,13 @@ def test_a_replay_gives_back_every_sample_the_live_host_completed(
         live: tuple[Path, list[ForceFrame]], pace: str) -> None:
     recording, frames = live
     complete = {(f.cycle, f.patch): f for f in frames if f.complete}
-    assert len(complete) >= 0.9 * CYCLES * PATCHES  # something to give back
+    assert len(complete) >= CYCLES * PATCHES // 2  # something to give back, however loaded
     with Recording(recording) as read:
         recorded = sum(1 for _ in read)
     group, port = udp_bus()
     replayed: list[ForceFrame] = []
     with can.Bus(interface="udp_multicast", channel=group, port=port) as bus, \
-            HostManager(bus, _config(), listen_only=True) as host:
+            HostManager(bus, _replay_config(), listen_only=True) as host:
         enlarge_receive_buffer(bus, RCVBUF)
         host.on_forces(replayed.append)
         player = spawn([sys.executable, "-m", "skin.cli", "replay", str(recording),

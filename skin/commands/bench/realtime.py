@@ -39,10 +39,12 @@ def print_realtime(r: dict[str, Any]) -> None:
     rows = []
     for run in r["runs"]:
         win, lat = run["incomplete_pct_per_window"], run["sync_to_last_force_pdo_ms"]
+        own = run["last_patch_pdo_to_last_force_pdo_ms"]
         rt = "realtime" if run["host_realtime"] else \
             ("realtime (not granted)" if run["realtime"] else "normal")
         rows.append([rt, _pct(run["complete_pct"]), f"{_num(win['max'])} / {_num(win['p95'])}",
-                     f"{_num(lat['p50'])} / {_num(lat['p99'])}", f"{run['host_cpu_pct']:.1f} %",
+                     f"{_num(lat['p50'])} / {_num(lat['p99'])}",
+                     f"{_num(own['p50'])} / {_num(own['p99'])}", f"{run['host_cpu_pct']:.1f} %",
                      f"{run['host_cpu_us_per_frame']:.1f}",
                      f"{run['bare_pycan_recv_cpu_us_per_frame']:.1f}",
                      f"{_num(run['host_over_bare'])}x"])
@@ -51,7 +53,8 @@ def print_realtime(r: dict[str, Any]) -> None:
     show(f"{r['patches']} patches (3-axis, 100 Hz) on udp_multicast, {r['hogs']} CPU-bound "
          f"process(es) beside the host, {r['seconds']:g} s windows",
          ["host", "complete (steady)", "incomplete per 2 s: max / p95 %",
-          "SYNC -> last force PDO p50 / p99 ms", "host CPU", "host us/frame",
+          "SYNC -> last force PDO p50 / p99 ms", "last patch PDO -> last force PDO",
+          "host CPU", "host us/frame",
           "bare python-can us/frame", "host / bare"], rows,
          caption=f"patches at {sim}; frames per second on the bus {rates}; "
                  f"{r['cpu_count']} CPUs")
