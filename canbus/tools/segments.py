@@ -12,7 +12,7 @@ import os
 import re
 import time
 from pathlib import Path
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import can
 from can.io.generic import MessageWriter
@@ -20,6 +20,9 @@ from can.io.generic import MessageWriter
 from canbus.tools.pcap import PcapWriter
 from skin.errors import ConfigError, SkinError
 from skin.inputs.outputs import create_beside, discard, put_in_place, reserve, write_error
+
+if TYPE_CHECKING:
+    from canbus.tools.mcap_messages import Placement
 
 DEFAULT_LOG_CHANNEL = "can0"
 _INTERFACE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,14}")  # a Linux interface name
@@ -82,6 +85,9 @@ class CandumpLogWriter(can.CanutilsLogWriter):
 WRITERS: dict[str, type[MessageWriter]] = {
     ".log": CandumpLogWriter, ".asc": can.ASCWriter, ".blf": can.BLFWriter, ".pcap": PcapWriter,
 }
+FORMATS = (*WRITERS, ".mcap")
+"""Every format a recording is written in: python-can's writers' and MCAP
+(:mod:`canbus.tools.mcap_writer`, with the ``mcap`` extra)."""
 _TEXT = frozenset((".log", ".asc"))
 
 
@@ -271,7 +277,13 @@ class BlfSegment(Segment):
             self._writer.stop()
 
 
-def open_segment(path: Path, suffix: str, channel: str | None) -> Segment:
+def open_segment(path: Path, suffix: str, channel: str | None,
+                 placements: list[Placement] | None = None) -> Segment:
+    """``placements``: where the patches sit, for an .mcap's ``/tf_static``."""
+    if suffix == ".mcap":
+        from canbus.tools.mcap_writer import McapSegment
+
+        return McapSegment(path, channel, placements)
     if suffix == ".blf":
         return BlfSegment(path)
     kwargs = {} if channel is None or suffix != ".log" else {"channel": channel}

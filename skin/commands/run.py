@@ -14,6 +14,10 @@ that keeps failing is opened again; one that cannot be had back ends the run wit
 status 1 and one line (the summary and ``--json`` first), so that a service manager
 restarts it.
 
+``--record F`` (.log, .asc, .blf, .pcap, .mcap) records every frame on the host's buses,
+its own included, and in an .mcap also every force sample it published
+(:mod:`skin.commands.common.hostrecord`, docs/mcap.md), on threads of its own.
+
 ``--listen-only`` (or ``host.listen_only = true``): decode what another master runs, or a
 recording ``skin replay`` sends, and transmit nothing. ``--cpu 3`` runs every thread of
 the host on CPU 3 (see ``skin.commands.common.cpu``), ``--realtime 50`` under SCHED_FIFO
@@ -113,6 +117,13 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError("--status-every", f"must be > 0 s, got {args.status_every}")
     if args.json:
         check_writable(args.json)  # now, not after the run
+    if args.record:
+        from canbus.tools.recorder import recording_format
+
+        if recording_format(args.record) == ".mcap":
+            from canbus.tools.mcap_writer import require_mcap
+
+            require_mcap()
     config = resolve(load_host_config(find_config(args.config)), args)
     if args.zenoh or (config.zenoh is not None and config.zenoh.enabled):
         from canbus.zenoh.config import require_zenoh
@@ -141,6 +152,11 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
         publisher = _zenoh_publisher(host, config, args)
         if publisher is not None:  # closed after the host stops: its last samples go out
             stack.enter_context(publisher)
+        recorded = None
+        if args.record:  # closed after the host stops: its last frames are in the file
+            from skin.commands.common.hostrecord import recording
+
+            recorded = stack.enter_context(recording(args.record, config, host, args.rcvbuf))
         # A stop (Ctrl-C, SIGTERM, SIGHUP) from the line that says how to stop on ends the
         # run as --seconds does: the summary and --json follow.
         with until_stopped() as stopped:
@@ -164,6 +180,9 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
         gone = host.bus_gone()
     elapsed = time.monotonic() - started
     _print_summary(host.listen_only, stats, elapsed, publisher)
+    if recorded is not None:
+        samples = f" and {recorded.samples} samples" if recorded.recorder.takes_forces else ""
+        print(f"recorded {recorded.recorder.written:,} frames{samples} to {args.record}")
     if args.json:
         record: dict[str, Any] = {
             "config": config.source, "listen_only": host.listen_only,
@@ -174,6 +193,9 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
             "unknown_nodes": sorted(host.unknown_nodes),
             "bus_gone": gone,
             "zenoh": None if publisher is None else publisher.counters(),
+            "recording": None if recorded is None else
+            {"path": args.record, "frames": recorded.recorder.written,
+             "samples": recorded.samples},
         }
         _write_json(args.json, record)
     if gone is not None:
@@ -370,6 +392,10 @@ def add_subparser(subparsers: Any) -> None:
                         help="publish every force sample, state change, EMCY and the "
                              "statistics on Zenoh (the config's [zenoh] table, else "
                              "defaults: listen on tcp/127.0.0.1:7447; docs/zenoh.md)")
+    parser.add_argument("--record", type=argtypes.output_file, metavar="FILE",
+                        help="record every frame on the host's buses (its own included) to "
+                             "FILE: .log, .asc, .blf, .pcap, or .mcap, which also holds every "
+                             "force sample and contact summary published (docs/mcap.md)")
     add_cpu_argument(parser, default="all")
     parser.add_argument("--realtime", type=realtime_priority, nargs="?", const=DEFAULT_PRIORITY,
                         default=None, metavar="PRIO",

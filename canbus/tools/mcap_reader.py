@@ -1,0 +1,121 @@
+"""Read a canskin MCAP recording back: its CAN frames as python-can messages
+(:class:`McapFrames`, the reader :class:`~canbus.tools.recording.Recording` uses for
+.mcap) and its force samples as the host's :class:`~canbus.master.channel.ForceFrame`
+(:func:`read_forces`).
+
+The file is read as a stream, record by record in file order (the order the frames
+crossed the bus), with the ``mcap`` library's stream reader and its chunk CRC checks, so
+a file whose writer was killed reads up to its cut. Problems are ``ValueError`` (not
+MCAP, a CAN topic with another schema, a message that does not decode) or ``EOFError``
+(the file ends before its footer); :class:`~canbus.tools.recording.Recording` names the
+frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import IO, Any
+
+import can
+import numpy as np
+
+from canbus.master.channel import ForceFrame
+from canbus.tools import mcap_messages as m
+
+MAGIC = b"\x89MCAP0\r\n"
+RECORD_LIMIT = 1 << 28
+"""The largest record read (a chunk; ours are a few MiB): a damaged length is an error,
+not an allocation."""
+_CAN_SCHEMAS = {m.FRAMES_TOPIC: m.FRAME, m.FD_FRAMES_TOPIC: m.FD_FRAME}
+
+
+def check_magic(file: IO[bytes]) -> None:
+    head = file.read(len(MAGIC))
+    file.seek(0)
+    if head != MAGIC:
+        raise ValueError(f"not an MCAP file (it starts {head[:8]!r})")
+
+
+def messages(file: IO[bytes]) -> Iterator[tuple[str, str, int, bytes]]:
+    """(topic, schema name, log time ns, data) of every message, in file order; EOFError
+    when the file ends before its footer."""
+    from mcap.exceptions import EndOfFile, McapError
+    from mcap.records import Channel, Footer, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, str]] = {}
+    reader = StreamReader(file, validate_crcs=True, record_size_limit=RECORD_LIMIT)
+    try:
+        for record in reader.records:
+            if isinstance(record, Message):
+                topic_schema = channels.get(record.channel_id)
+                if topic_schema is None:
+                    raise ValueError(f"a message on channel {record.channel_id}, which no "
+                                     "Channel record declares")
+                yield (*topic_schema, record.log_time, record.data)
+            elif isinstance(record, Schema):
+                schemas[record.id] = record.name
+            elif isinstance(record, Channel):
+                channels[record.id] = (record.topic, _schema_of(record, schemas))
+            elif isinstance(record, Footer):
+                return
+    except EndOfFile as err:
+        raise EOFError("the file ends before its footer (truncated: its writer did not "
+                       "finish it)") from err
+    except McapError as err:
+        raise ValueError(str(err)) from err
+
+
+def _schema_of(channel: Any, schemas: dict[int, str]) -> str:
+    schema = schemas.get(channel.schema_id, "") if channel.schema_id else ""
+    wanted = _CAN_SCHEMAS.get(channel.topic)
+    if wanted is not None and (schema != wanted or channel.message_encoding != "cdr"):
+        raise ValueError(f"topic {channel.topic} carries {schema or 'no schema'} "
+                         f"({channel.message_encoding}), not {wanted} (cdr)")
+    return schema
+
+
+class McapFrames(can.io.generic.MessageReader):
+    """A python-can message reader of an MCAP file's /can/frames and /can/fd_frames."""
+
+    def __init__(self, file: IO[bytes], **kwargs: Any) -> None:
+        check_magic(file)
+        self.file = file
+
+    def __iter__(self) -> Iterator[can.Message]:
+        for topic, _schema, _ns, data in messages(self.file):
+            if topic in _CAN_SCHEMAS:
+                yield _message(m.decode_frame(data, fd=topic == m.FD_FRAMES_TOPIC))
+
+    def stop(self) -> None:
+        self.file.close()
+
+
+def _message(frame: m.DecodedFrame) -> can.Message:
+    return can.Message(timestamp=m.seconds_of(frame.ns), arbitration_id=frame.can_id,
+                       is_extended_id=frame.extended, is_remote_frame=frame.rtr,
+                       is_error_frame=frame.error, is_fd=frame.fd, dlc=frame.dlc,
+                       data=frame.data, channel=frame.channel, check=False)
+
+
+def read_forces(path: str) -> Iterator[ForceFrame]:
+    """Every force sample of an MCAP recording, as the host's API gave it (``contact`` is
+    None: the contact summary is on its own topics, docs/mcap.md)."""
+    with open(path, "rb") as file:
+        check_magic(file)
+        for topic, schema, _ns, data in messages(file):
+            if schema == m.TAXELS and topic.endswith("/taxels"):
+                yield force_frame(m.decode_taxels(data)[2])
+
+
+def force_frame(points: np.ndarray[Any, Any]) -> ForceFrame:
+    """The sample one taxels message holds."""
+    first = points[0]
+    flags = int(first["flags"])
+    force = np.stack([points["fx"], points["fy"], points["fz"]], axis=1).astype(np.float64)
+    return ForceFrame(patch=int(first["patch"]), force_node=int(first["force_node"]),
+                      cycle=int(first["cycle"]), sync_counter=int(first["sync_counter"]),
+                      timestamp=float(first["time_s"]), force_N=force,
+                      valid=points["valid"].astype(bool), reason=points["reason"].copy(),
+                      complete=bool(flags & m.COMPLETE), published=bool(flags & m.PUBLISHED))
