@@ -13,6 +13,7 @@ frame.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from typing import IO, Any
 
@@ -23,9 +24,9 @@ from canbus.master.channel import ForceFrame
 from canbus.tools import mcap_messages as m
 
 MAGIC = b"\x89MCAP0\r\n"
-RECORD_LIMIT = 1 << 28
-"""The largest record read (a chunk; ours are a few MiB): a damaged length is an error,
-not an allocation."""
+CHUNK_LIMIT = 1 << 28
+"""The largest chunk inflated (ours are a few MiB): a damaged size is an error, not an
+allocation; a record is never longer than the file."""
 _CAN_SCHEMAS = {m.FRAMES_TOPIC: m.FRAME, m.FD_FRAMES_TOPIC: m.FD_FRAME}
 
 
@@ -39,32 +40,52 @@ def check_magic(file: IO[bytes]) -> None:
 def messages(file: IO[bytes]) -> Iterator[tuple[str, str, int, bytes]]:
     """(topic, schema name, log time ns, data) of every message, in file order; EOFError
     when the file ends before its footer."""
+    import zstandard
     from mcap.exceptions import EndOfFile, McapError
-    from mcap.records import Channel, Footer, Message, Schema
-    from mcap.stream_reader import StreamReader
+    from mcap.records import Channel, Chunk, Footer, Message, Schema
+    from mcap.stream_reader import StreamReader, breakup_chunk
 
     schemas: dict[int, str] = {}
     channels: dict[int, tuple[str, str]] = {}
-    reader = StreamReader(file, validate_crcs=True, record_size_limit=RECORD_LIMIT)
+    size = os.fstat(file.fileno()).st_size
+    reader = StreamReader(file, emit_chunks=True, validate_crcs=True, record_size_limit=size)
     try:
-        for record in reader.records:
-            if isinstance(record, Message):
-                topic_schema = channels.get(record.channel_id)
-                if topic_schema is None:
-                    raise ValueError(f"a message on channel {record.channel_id}, which no "
-                                     "Channel record declares")
-                yield (*topic_schema, record.log_time, record.data)
-            elif isinstance(record, Schema):
-                schemas[record.id] = record.name
-            elif isinstance(record, Channel):
-                channels[record.id] = (record.topic, _schema_of(record, schemas))
-            elif isinstance(record, Footer):
-                return
+        for outer in reader.records:
+            inner = _inflated(outer, breakup_chunk) if isinstance(outer, Chunk) else [outer]
+            for record in inner:
+                if isinstance(record, Footer):
+                    return
+                item = _item(record, schemas, channels, Message, Schema, Channel)
+                if item is not None:
+                    yield item
     except EndOfFile as err:
         raise EOFError("the file ends before its footer (truncated: its writer did not "
                        "finish it)") from err
-    except McapError as err:
-        raise ValueError(str(err)) from err
+    except (McapError, zstandard.ZstdError, RuntimeError, MemoryError) as err:
+        raise ValueError(f"{type(err).__name__}: {err}") from err
+
+
+def _inflated(chunk: Any, breakup: Any) -> list[Any]:
+    if chunk.uncompressed_size > CHUNK_LIMIT:
+        raise ValueError(f"a chunk of {chunk.uncompressed_size} bytes inflated (at most "
+                         f"{CHUNK_LIMIT})")
+    return list(breakup(chunk, validate_crc=True))
+
+
+def _item(record: Any, schemas: dict[int, str], channels: dict[int, tuple[str, str]],
+             message: type[Any], schema: type[Any], channel: type[Any]
+          ) -> tuple[str, str, int, bytes] | None:
+    if isinstance(record, message):
+        topic_schema = channels.get(record.channel_id)
+        if topic_schema is None:
+            raise ValueError(f"a message on channel {record.channel_id}, which no Channel "
+                             "record declares")
+        return (*topic_schema, record.log_time, record.data)
+    if isinstance(record, schema):
+        schemas[record.id] = record.name
+    elif isinstance(record, channel):
+        channels[record.id] = (record.topic, _schema_of(record, schemas))
+    return None
 
 
 def _schema_of(channel: Any, schemas: dict[int, str]) -> str:
