@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
-from typing import Any
 
 import can
 import numpy as np
@@ -17,7 +16,6 @@ pytest.importorskip("mcap_ros2", reason="the mcap extra is not installed")
 
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
-from mcap_ros2.decoder import DecoderFactory
 
 from bench.rigs.waiting import wait_until
 from canbus.master.channel import ForceFrame
@@ -28,6 +26,7 @@ from canbus.tools.recorder import Recorder
 from canbus.tools.recording import Recording
 from skin.cli import main
 from skin.errors import OutputError, RecordingError
+from tests.canbus.mcap_independent import column, decoded
 
 T0 = 1_700_000_000.123456
 
@@ -50,13 +49,6 @@ def _key(msg: can.Message) -> tuple[object, ...]:
             msg.is_fd, msg.dlc, bytes(msg.data))
 
 
-def _decoded(path: Path) -> list[tuple[str, Any, Any]]:
-    """(topic, message, decoded) by the mcap library's ROS 2 decoder, in log time order."""
-    with path.open("rb") as file:
-        reader = make_reader(file, decoder_factories=[DecoderFactory()])
-        return [(c.topic, m, d) for _s, c, m, d in reader.iter_decoded_messages()]
-
-
 def _sample(patch: int, cycle: int, seed: int) -> ForceFrame:
     rng = np.random.default_rng(seed)
     valid = rng.random(9) > 0.2
@@ -77,9 +69,9 @@ def test_frames_read_back_bit_for_bit_by_canskin_and_by_the_mcap_library(
     recorder.stop()
     with Recording(path) as recording:
         assert [_key(m) for m in recording] == [_key(m) for m in sent]
-    decoded = _decoded(path)
-    classic = [d for t, _m, d in decoded if t == "/can/frames"]
-    fd = [d for t, _m, d in decoded if t == "/can/fd_frames"]
+    messages = decoded(path)
+    classic = [d for t, d in messages if t == "/can/frames"]
+    fd = [d for t, d in messages if t == "/can/fd_frames"]
     assert len(classic) == len(sent) - 1 and len(fd) == 1
     for msg, frame in zip(sent[:-1], classic, strict=True):
         assert (frame.id, frame.is_extended, frame.is_rtr, frame.dlc) == \
@@ -114,26 +106,19 @@ def test_samples_read_back_bit_for_bit_with_tf_static_from_the_placements(
         assert a.force_N.tobytes() == b.force_N.tobytes()
         assert np.array_equal(a.valid, b.valid) and np.array_equal(a.reason, b.reason)
     # the independent reader: the cloud's own field table gives the forces and the mask
-    clouds = [d for t, _m, d in _decoded(path) if t.endswith("/taxels")]
+    clouds = [d for t, d in decoded(path) if t.endswith("/taxels")]
     by_key = {(s.patch, s.cycle): s for s in samples}
+    assert len(clouds) == len(samples)
     for cloud in clouds:
-        fields = {f.name: (f.offset, f.datatype) for f in cloud.fields}
-        assert fields["x"][1] == 7 and fields["fz"][1] == 8  # FLOAT32 positions, FLOAT64
-        points = np.frombuffer(bytes(cloud.data), np.uint8).reshape(cloud.width,
-                                                                    cloud.point_step)
-
-        def column(name: str, dtype: str, points: np.ndarray = points,
-                   fields: dict[str, tuple[int, int]] = fields) -> np.ndarray:
-            start = fields[name][0]
-            size = np.dtype(dtype).itemsize
-            return points[:, start:start + size].copy().view(dtype).ravel()
-
-        sample = by_key[(int(column("patch", "u1")[0]), int(column("cycle", "<u4")[0]))]
-        force = np.stack([column(a, "<f8") for a in ("fx", "fy", "fz")], axis=1)
+        types = {f.name: f.datatype for f in cloud.fields}
+        assert types["x"] == 7 and types["fz"] == 8  # FLOAT32 positions, FLOAT64 forces
+        sample = by_key[(int(column(cloud, "patch", "u1")[0]),
+                         int(column(cloud, "cycle", "<u4")[0]))]
+        force = np.stack([column(cloud, a, "<f8") for a in ("fx", "fy", "fz")], axis=1)
         assert force.tobytes() == sample.force_N.tobytes()
-        assert column("valid", "u1").astype(bool).tolist() == sample.valid.tolist()
+        assert column(cloud, "valid", "u1").astype(bool).tolist() == sample.valid.tolist()
         assert cloud.header.frame_id == f"skin_patch_{sample.patch}"
-    tf = [d for t, _m, d in _decoded(path) if t == "/tf_static"]
+    tf = [d for t, d in decoded(path) if t == "/tf_static"]
     assert len(tf) == 1
     placed = {t.child_frame_id: t.transform for t in tf[0].transforms}
     one = placed["skin_patch_1"]
