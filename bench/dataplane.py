@@ -338,17 +338,25 @@ def notifier_rate(frames: int = 20_000) -> float:
 
 
 def pipeline_rate(stream: Stream, decoder: Decoder,
-                  contact: Callable[[int], PatchContact] | None = None) -> dict[str, float]:
+                  contact: Callable[[int], PatchContact] | None = None, *,
+                  recorder: Any = None) -> dict[str, float]:
     """The whole path in one process: virtual bus -> ``Notifier`` -> data plane (its thread).
 
     The sender opens each cycle (``on_sync``), sends its frames and waits until the data
     plane has taken them all before the next SYNC, as a SYNC-paced bus would.
+    ``recorder``: a :class:`~canbus.tools.recorder.Recorder` beside it, as ``skin run
+    --record`` runs one: the frames from a bus of its own, the samples from the publisher.
     """
     channel = f"dataplane-pipeline-{id(stream)}"
     sender = can.Bus(interface="virtual", channel=channel)
     receiver = can.Bus(interface="virtual", channel=channel)
     rig = DataPlaneRig(stream, decoder, background=True, window_s=0.0, contact=contact)
     notifier = can.Notifier(receiver, [rig.plane], timeout=0.05)
+    tap = None
+    if recorder is not None:
+        tap_bus = can.Bus(interface="virtual", channel=channel)
+        tap = can.Notifier(tap_bus, [recorder], timeout=0.05)
+        rig.plane.subscribe(lambda batch: [recorder.on_forces(f) for f in batch])
     per_cycle = len(stream.frames[0])
     try:
         start = time.perf_counter()
@@ -367,6 +375,9 @@ def pipeline_rate(stream: Stream, decoder: Decoder,
         stats = rig.plane.stats.snapshot()
     finally:
         notifier.stop(timeout=1.0)
+        if tap is not None:
+            tap.stop(timeout=1.0)  # and the recorder: written out and closed
+            tap.bus.shutdown()  # type: ignore[union-attr]
         sender.shutdown()
         receiver.shutdown()
         rig.close()

@@ -117,7 +117,8 @@ def main() -> None:
             beside = [frames_key(m) for m in rec]
         start = beside.index(ours[0])
         print(f"{len(recorded)} samples in the MCAP ({run.mcap.stat().st_size:,} bytes), "
-              f"host published {run.host_json['stats']['samples']}; "  # type: ignore[index]
+              f"host published {run.host_json['stats']['samples']} "  # type: ignore[index]
+              f"({run.host_json['steady_complete_pct']} % complete in the steady state); "
               f"{equal} of {len(run.api)} Zenoh samples equal bit for bit; "
               f"{len(ours)} frames, same as the .log's from frame {start}: "
               f"{ours == beside[start:start + len(ours)]}")
