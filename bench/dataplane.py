@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from canbus import codes, contact_record
 from canbus.device.patch_node import PatchNode
 from canbus.master.contact import PatchContact, summarize_batch
-from canbus.master.dataplane import DataPlane, PatchChannel
+from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
 from canbus.master.forceframes import VALID, forces_to_mN, valid_bits
 from canbus.master.forcenode import ForceNode
 from canbus.od import load_od
@@ -356,7 +356,12 @@ def pipeline_rate(stream: Stream, decoder: Decoder,
     if recorder is not None:
         tap_bus = can.Bus(interface="virtual", channel=channel)
         tap = can.Notifier(tap_bus, [recorder], timeout=0.05)
-        rig.plane.subscribe(lambda batch: [recorder.on_forces(f) for f in batch])
+
+        def record(batch: list[ForceFrame]) -> None:
+            for frame in batch:
+                recorder.on_forces(frame)
+
+        rig.plane.subscribe(record)
     per_cycle = len(stream.frames[0])
     try:
         start = time.perf_counter()
