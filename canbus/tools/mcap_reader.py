@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
-from typing import IO, Any
+from typing import IO, Any, cast
 
 import can
 import numpy as np
@@ -26,7 +26,7 @@ from canbus.tools import mcap_messages as m
 MAGIC = b"\x89MCAP0\r\n"
 CHUNK_LIMIT = 1 << 28
 """The largest chunk inflated (ours are a few MiB): a damaged size is an error, not an
-allocation; a record is never longer than the file."""
+allocation."""
 _CAN_SCHEMAS = {m.FRAMES_TOPIC: m.FRAME, m.FD_FRAMES_TOPIC: m.FD_FRAME}
 
 
@@ -47,8 +47,8 @@ def messages(file: IO[bytes]) -> Iterator[tuple[str, str, int, bytes]]:
 
     schemas: dict[int, str] = {}
     channels: dict[int, tuple[str, str]] = {}
-    size = os.fstat(file.fileno()).st_size
-    reader = StreamReader(file, emit_chunks=True, validate_crcs=True, record_size_limit=size)
+    reader = StreamReader(cast(IO[bytes], _Bounded(file)), emit_chunks=True, validate_crcs=True,
+                          record_size_limit=None)
     try:
         for outer in reader.records:
             inner = _inflated(outer, breakup_chunk) if isinstance(outer, Chunk) else [outer]
@@ -63,6 +63,21 @@ def messages(file: IO[bytes]) -> Iterator[tuple[str, str, int, bytes]]:
                        "finish it)") from err
     except (McapError, zstandard.ZstdError, RuntimeError, MemoryError) as err:
         raise ValueError(f"{type(err).__name__}: {err}") from err
+
+
+class _Bounded:
+    """The file for the stream reader: a read never asks for more than the file holds
+    (a damaged length is a short read, the reader's EndOfFile, not an allocation)."""
+
+    def __init__(self, file: IO[bytes]) -> None:
+        self._file = file
+
+    def read(self, size: int = -1) -> bytes:
+        left = os.fstat(self._file.fileno()).st_size - self._file.tell()
+        return self._file.read(max(0, left if size < 0 else min(size, left)))
+
+    def tell(self) -> int:
+        return self._file.tell()
 
 
 def _inflated(chunk: Any, breakup: Any) -> list[Any]:

@@ -22,6 +22,7 @@ import can
 import numpy as np
 
 from canbus.tools import mcap_messages as m
+from canbus.tools.sample_wire import ContactFields, contact_fields
 from canbus.tools.segments import Segment
 from skin.constants import DEFAULT_CONSTANTS
 from skin.contact import taxel_xy
@@ -31,7 +32,6 @@ from skin.inputs.outputs import create_beside, discard, put_in_place, reserve, w
 if TYPE_CHECKING:
     from canbus.master.channel import ForceFrame
     from canbus.master.hostconfig import HostConfig
-    from skin.contact_state import ContactSummary
 
 CHUNK_BYTES = 4 << 20
 """A chunk closes at this size even before a checkpoint (a burst)."""
@@ -158,8 +158,11 @@ class McapSegment(Segment):
                               msg.is_error_frame, msg.dlc, bytes(msg.data))
         self._mcap.add_message(self._topic(m.FRAMES_TOPIC, m.FRAME), ns, data, ns)
 
-    def write_forces(self, frame: ForceFrame) -> None:
-        """One patch's sample: its taxels, and its contact summary where it has one."""
+    def write_forces(self, frame: ForceFrame, contact: ContactFields | None = None) -> None:
+        """One patch's sample: its taxels, and its contact summary where it has one
+        (``contact``, else the frame's own)."""
+        if contact is None:
+            contact = contact_fields(frame.contact)
         ns = m.stamp_ns(frame.timestamp)
         if self._tf_static is not None:
             self._write_tf_static(ns)
@@ -174,7 +177,6 @@ class McapSegment(Segment):
         points["sync_counter"], points["force_node"] = frame.sync_counter, frame.force_node
         points["flags"] = m.COMPLETE * frame.complete + m.PUBLISHED * frame.published
         points["patch"] = patch
-        contact = frame.contact
         if contact is not None:
             points["contact"], points["slip"] = contact.contact_taxels, contact.taxel_slip
         add = self._mcap.add_message
@@ -189,7 +191,7 @@ class McapSegment(Segment):
             add(self._topic(m.patch_topic(patch, "cop"), m.POINT), ns,
                 m.encode_point(ns, where, x, y, 0.0), ns)
         add(self._topic(m.patch_topic(patch, "contact_state"), m.STATE), ns,
-            m.encode_uint8(_state_byte(contact)), ns)
+            m.encode_uint8(contact.state_byte), ns)
 
     def _write(self, data: bytes) -> None:
         view = memoryview(data)
@@ -216,11 +218,6 @@ class McapSegment(Segment):
             os.fsync(self._fd)
         finally:
             os.close(self._fd)
-
-
-def _state_byte(contact: ContactSummary) -> int:
-    """The state byte as on the bus (0x2008 sub-index 11, docs/contact.md)."""
-    return int(contact.batch.state_byte[contact.row])
 
 
 class _FrameListener(can.Listener):

@@ -62,6 +62,7 @@ if TYPE_CHECKING:
     from canbus.master.channel import ForceFrame
     from canbus.tools.mcap_messages import Placement
     from canbus.tools.mcap_writer import McapSegment
+    from canbus.tools.sample_wire import ContactFields
 
 logger = logging.getLogger(__name__)
 
@@ -163,7 +164,7 @@ class Recorder(can.Listener):
         self.saved: Path | None = None
         self._finished = False
         self._pending: deque[can.Message] = deque()
-        self._forces: deque[ForceFrame] = deque()
+        self._forces: deque[tuple[ForceFrame, ContactFields | None]] = deque()
         self._placements = placements
         self._stopping = threading.Event()
         if self.rotate_bytes or self.rotate_s:
@@ -187,11 +188,12 @@ class Recorder(can.Listener):
         force nodes published."""
         return self.suffix == ".mcap"
 
-    def on_forces(self, frame: ForceFrame) -> None:
+    def on_forces(self, frame: ForceFrame, contact: ContactFields | None = None) -> None:
         """Queue a force sample (a ``HostManager.on_forces`` callback: an append, never a
-        wait); written with the frames when the format holds samples."""
+        wait); written with the frames when the format holds samples. ``contact``: its
+        contact summary's figures, where ``frame.contact`` does not hold them."""
         if self.takes_forces:
-            self._forces.append(frame)
+            self._forces.append((frame, contact))
 
     def _next_segment(self) -> Segment:
         path = rotated_path(self.path, len(self.files))
@@ -246,7 +248,7 @@ class Recorder(can.Listener):
         if forces:
             write = cast("McapSegment", self._segment).write_forces
             for _ in range(len(forces)):
-                write(forces.popleft())
+                write(*forces.popleft())
 
     def _write_sized(self, limit: float) -> None:
         pending = self._pending

@@ -181,8 +181,8 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     elapsed = time.monotonic() - started
     _print_summary(host.listen_only, stats, elapsed, publisher)
     if recorded is not None:
-        samples = f" and {recorded.samples} samples" if recorded.recorder.takes_forces else ""
-        print(f"recorded {recorded.recorder.written:,} frames{samples} to {args.record}")
+        samples = f" and {recorded.samples} samples" if recorded.takes_forces else ""
+        print(f"recorded {recorded.frames:,} frames{samples} to {args.record}")
     if args.json:
         record: dict[str, Any] = {
             "config": config.source, "listen_only": host.listen_only,
@@ -194,8 +194,7 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
             "bus_gone": gone,
             "zenoh": None if publisher is None else publisher.counters(),
             "recording": None if recorded is None else
-            {"path": args.record, "frames": recorded.recorder.written,
-             "samples": recorded.samples},
+            {"path": args.record, "frames": recorded.frames, "samples": recorded.samples},
         }
         _write_json(args.json, record)
     if gone is not None:

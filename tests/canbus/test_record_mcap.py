@@ -226,3 +226,52 @@ def test_skin_decode_to_mcap_refuses_a_folder_it_cannot_write(
     assert stop.value.code != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "forces.mcap" in err[0]
+
+
+def test_a_host_on_an_in_process_bus_records_its_samples_in_its_own_process(
+        tmp_path: Path) -> None:
+    """``skin run --record`` on a virtual bus (which no other process hears): the recorder
+    thread beside the host holds every sample the API gave, bit for bit, and the frames."""
+    import canopen
+
+    from bench.rigs.zenoh_host import presses
+    from canbus.device.patch_server import PatchServer
+    from canbus.device.source import ArraySource
+    from canbus.master.busconfig import BusConfig
+    from canbus.master.host import HostManager
+    from canbus.master.hostconfig import HostConfig, PatchConfig
+    from skin.commands.common.hostrecord import recording
+
+    channel = "mcap-in-process"
+    config = HostConfig(patches=(PatchConfig(1, position_m=(0.0, 0.1)), PatchConfig(2)),
+                        sync_period_ms=20.0, scan_ms=300, heartbeat_ms=500,
+                        buses=(BusConfig(interface="virtual", channel=channel),))
+    device = canopen.Network()
+    device.NOTIFIER_CYCLE = 0.05
+    device.connect(interface="virtual", channel=channel)
+    bus = can.Bus(interface="virtual", channel=channel)
+    api: list[ForceFrame] = []
+    path = tmp_path / "run.mcap"
+    try:
+        with PatchServer(device, ArraySource(presses(40, 2), (1, 2))):
+            host = HostManager(bus, config)
+            host.on_forces(api.append)
+            with recording(str(path), config, host) as recorded:
+                host.start()
+                try:
+                    assert host.wait_operational(timeout=15.0), host.health()
+                    wait_until(lambda: len(api) >= 40, what="40 samples")
+                finally:
+                    host.stop()
+    finally:
+        bus.shutdown()
+        device.disconnect()
+    assert recorded.samples == len(api) and recorded.frames > 100
+    back = {(f.patch, f.cycle): f for f in read_forces(str(path))}
+    assert len(back) == len(api)
+    for frame in api:
+        got = back[(frame.patch, frame.cycle)]
+        assert got.force_N.tobytes() == frame.force_N.tobytes()
+        assert got.timestamp == frame.timestamp and got.complete == frame.complete
+    with Recording(path) as frames:
+        assert sum(1 for _ in frames) == recorded.frames
