@@ -6,7 +6,7 @@ The whole threaded path of :func:`bench.dataplane.pipeline_rate` (a bus, notifie
 plane and its publishing thread, force nodes, contact summaries) as fast as it goes, on
 udp_multicast over loopback (a group and port of ``bench.rigs.ports``), alone and with
 the recorder ``skin run --record run.mcap`` runs: ``process``, the recording process
-(:mod:`canbus.tools.recordproc`: its own socket, the samples over a pipe), as on any bus
+(:mod:`skin.commands.common.recordproc`: its own socket, the samples over a pipe), as on any bus
 another process hears; ``thread``, a :class:`~canbus.tools.recorder.Recorder` thread and
 a second socket in the host's process, as on an in-process bus. ``--pace 20000``: the
 cycles are sent at that many frames/s (a bus's rate) instead of as fast as the data plane
@@ -27,11 +27,11 @@ from typing import Any
 from bench.dataplane import build_stream, contact_judge, pipeline_rate
 from bench.rigs.ports import udp_bus
 from canbus.master.busconfig import BusConfig
-from canbus.tools.mcap_reader import read_forces
+from canbus.offline.mcap import read_forces
 from canbus.tools.recorder import DEFAULT_RCVBUF, Recorder
 from canbus.tools.recording import Recording
-from canbus.tools.recordproc import RecordingProcess
 from decoder.registry import create_decoder
+from skin.commands.common.recordproc import RecordingProcess
 
 KINDS = ("none", "process", "thread")
 

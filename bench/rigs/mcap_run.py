@@ -101,7 +101,7 @@ def same_frame(a: ForceFrame, b: ForceFrame) -> bool:
 def main() -> None:
     import tempfile
 
-    from canbus.tools.mcap_reader import read_forces
+    from canbus.offline.mcap import read_forces
     from canbus.tools.recording import Recording
 
     seconds = float(sys.argv[1]) if len(sys.argv) > 1 else 10.0
@@ -115,13 +115,16 @@ def main() -> None:
             ours = [frames_key(m) for m in rec]
         with Recording(run.log) as rec:
             beside = [frames_key(m) for m in rec]
-        start = next(k for k, f in enumerate(beside)
-                     if f == ours[0] and beside[k:k + len(ours)] == ours)
+        start = next((k for k, f in enumerate(beside)
+                      if f == ours[0] and beside[k:k + len(ours)] == ours), None)
         print(f"{len(recorded)} samples in the MCAP ({run.mcap.stat().st_size:,} bytes), "
               f"host published {run.host_json['stats']['samples']} "  # type: ignore[index]
               f"({run.host_json['steady_complete_pct']} % complete in the steady state); "
               f"{equal} of {len(run.api)} Zenoh samples equal bit for bit; "
-              f"{len(ours)} frames, the same as the .log's from its frame {start}")
+              f"{len(ours)} frames, " + ("in the .log's order from its frame "
+                                         f"{start}" if start is not None else
+                                         "not in the .log's order (frames of two senders "
+                                         "crossed)"))
 
 
 if __name__ == "__main__":

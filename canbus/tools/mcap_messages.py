@@ -13,11 +13,24 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from skin.errors import ConfigError
+
 CDR_LE = b"\x00\x01\x00\x00"
+
+
+def require_mcap(field: str = "--record") -> Any:
+    """The ``mcap`` package's writer module; ConfigError naming the extra when it is absent."""
+    try:
+        import mcap.writer
+    except ImportError as err:
+        raise ConfigError(field, "an .mcap recording needs the mcap package: pip install "
+                          "'canskin[mcap]'") from err
+    return mcap.writer
 
 _TIME = "int32 sec\nuint32 nanosec\n"
 _HEADER = "builtin_interfaces/Time stamp\nstring frame_id\n"

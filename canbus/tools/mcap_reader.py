@@ -1,7 +1,7 @@
 """Read a canskin MCAP recording back: its CAN frames as python-can messages
 (:class:`McapFrames`, the reader :class:`~canbus.tools.recording.Recording` uses for
-.mcap) and its force samples as the host's :class:`~canbus.master.channel.ForceFrame`
-(:func:`read_forces`).
+.mcap) and its taxel clouds (:func:`taxel_points`; ``canbus.offline.mcap.read_forces``
+makes the host's ``ForceFrame`` of each).
 
 The file is read as a stream, record by record in file order (the order the frames
 crossed the bus), with the ``mcap`` library's stream reader and its chunk CRC checks, so
@@ -20,7 +20,6 @@ from typing import IO, Any, cast
 import can
 import numpy as np
 
-from canbus.master.channel import ForceFrame
 from canbus.tools import mcap_messages as m
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -135,23 +134,11 @@ def _message(frame: m.DecodedFrame) -> can.Message:
                        data=frame.data, channel=frame.channel, check=False)
 
 
-def read_forces(path: str) -> Iterator[ForceFrame]:
-    """Every force sample of an MCAP recording, as the host's API gave it (``contact`` is
-    None: the contact summary is on its own topics, docs/mcap.md)."""
+def taxel_points(path: str) -> Iterator[np.ndarray[Any, Any]]:
+    """The points (:data:`~canbus.tools.mcap_messages.TAXEL_DTYPE`) of every taxel cloud
+    of a canskin MCAP recording, in file order."""
     with open(path, "rb") as file:
         check_magic(file)
         for topic, schema, _ns, data in messages(file):
             if schema == m.TAXELS and topic.endswith("/taxels"):
-                yield force_frame(m.decode_taxels(data)[2])
-
-
-def force_frame(points: np.ndarray[Any, Any]) -> ForceFrame:
-    """The sample one taxels message holds."""
-    first = points[0]
-    flags = int(first["flags"])
-    force = np.stack([points["fx"], points["fy"], points["fz"]], axis=1).astype(np.float64)
-    return ForceFrame(patch=int(first["patch"]), force_node=int(first["force_node"]),
-                      cycle=int(first["cycle"]), sync_counter=int(first["sync_counter"]),
-                      timestamp=float(first["time_s"]), force_N=force,
-                      valid=points["valid"].astype(bool), reason=points["reason"].copy(),
-                      complete=bool(flags & m.COMPLETE), published=bool(flags & m.PUBLISHED))
+                yield m.decode_taxels(data)[2]

@@ -16,44 +16,21 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
 import can
 import numpy as np
 
 from canbus.tools import mcap_messages as m
-from canbus.tools.sample_wire import ContactFields, contact_fields
+from canbus.tools.sample_wire import ContactFields, Sample, contact_fields
 from canbus.tools.segments import Segment
 from skin.constants import DEFAULT_CONSTANTS
 from skin.contact import taxel_xy
-from skin.errors import ConfigError, SkinError
+from skin.errors import SkinError
 from skin.inputs.outputs import create_beside, discard, put_in_place, reserve, write_error
-
-if TYPE_CHECKING:
-    from canbus.master.channel import ForceFrame
-    from canbus.master.hostconfig import HostConfig
 
 CHUNK_BYTES = 4 << 20
 """A chunk closes at this size even before a checkpoint (a burst)."""
 _DEFAULT_PITCH_M = DEFAULT_CONSTANTS.taxel_pitch_m
-
-
-def placements(config: HostConfig) -> list[m.Placement]:
-    """Where the host config puts each patch (``position_m``, ``orientation_deg``, the
-    pitch of its ``constants``): an .mcap's /tf_static and taxel positions."""
-    return [m.Placement(p.node_id, p.position_m or (0.0, 0.0), p.orientation_deg,
-                        (p.constants or DEFAULT_CONSTANTS).taxel_pitch_m)
-            for p in config.patches]
-
-
-def require_mcap(field: str = "--record") -> Any:
-    """The ``mcap`` package's writer module; ConfigError naming the extra when it is absent."""
-    try:
-        import mcap.writer
-    except ImportError as err:
-        raise ConfigError(field, "an .mcap recording needs the mcap package: pip install "
-                          "'canskin[mcap]'") from err
-    return mcap.writer
 
 
 class _Sink:
@@ -87,7 +64,7 @@ class McapSegment(Segment):
 
     def __init__(self, path: Path, channel: str | None,
                  placements: list[m.Placement] | None = None) -> None:
-        writer_module = require_mcap()
+        writer_module = m.require_mcap()
         super().__init__(path)
         self._channel = channel or "can0"
         self._sink = _Sink()
@@ -158,7 +135,7 @@ class McapSegment(Segment):
                               msg.is_error_frame, msg.dlc, bytes(msg.data))
         self._mcap.add_message(self._topic(m.FRAMES_TOPIC, m.FRAME), ns, data, ns)
 
-    def write_forces(self, frame: ForceFrame, contact: ContactFields | None = None) -> None:
+    def write_forces(self, frame: Sample, contact: ContactFields | None = None) -> None:
         """One patch's sample: its taxels, and its contact summary where it has one
         (``contact``, else the frame's own)."""
         if contact is None:
@@ -227,29 +204,3 @@ class _FrameListener(can.Listener):
     def on_message_received(self, msg: can.Message) -> None:  # replaced in __init__
         raise NotImplementedError
 
-
-def write_decoded(output: str | os.PathLike[str], recording: str | os.PathLike[str],
-                  samples: list[ForceFrame], config: HostConfig) -> None:
-    """An .mcap of ``recording``'s frames and the ``samples`` decoded from them, put under
-    ``output`` only once complete (an error leaves nothing there)."""
-    from canbus.tools.recording import Recording
-
-    final = Path(output)
-    fd, tmp = create_beside(final, ".mcap")
-    os.close(fd)
-    try:
-        segment = McapSegment(Path(tmp), None, placements(config))
-        try:
-            with Recording(recording) as frames:
-                for msg in frames:
-                    segment.add_frame(msg)
-            for sample in samples:
-                segment.write_forces(sample)
-        finally:
-            segment.close()
-        put_in_place(tmp, final)
-    except BaseException as err:
-        discard(tmp)
-        if isinstance(err, OSError) and not isinstance(err, SkinError):
-            raise write_error(final, err) from err
-        raise

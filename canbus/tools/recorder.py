@@ -59,10 +59,9 @@ from canbus.tools.segments import (
 from skin.errors import ConfigError, SkinError
 
 if TYPE_CHECKING:
-    from canbus.master.channel import ForceFrame
     from canbus.tools.mcap_messages import Placement
     from canbus.tools.mcap_writer import McapSegment
-    from canbus.tools.sample_wire import ContactFields
+    from canbus.tools.sample_wire import ContactFields, Sample
 
 logger = logging.getLogger(__name__)
 
@@ -148,7 +147,7 @@ class Recorder(can.Listener):
         .pcap name none. ``placements``: where the patches sit (an .mcap's /tf_static)."""
         self.suffix = recording_format(path)
         if self.suffix == ".mcap":
-            from canbus.tools.mcap_writer import require_mcap
+            from canbus.tools.mcap_messages import require_mcap
 
             require_mcap()
         if channel is not None:
@@ -164,7 +163,7 @@ class Recorder(can.Listener):
         self.saved: Path | None = None
         self._finished = False
         self._pending: deque[can.Message] = deque()
-        self._forces: deque[tuple[ForceFrame, ContactFields | None]] = deque()
+        self._forces: deque[tuple[Sample, ContactFields | None]] = deque()
         self._placements = placements
         self._stopping = threading.Event()
         if self.rotate_bytes or self.rotate_s:
@@ -188,7 +187,7 @@ class Recorder(can.Listener):
         force nodes published."""
         return self.suffix == ".mcap"
 
-    def on_forces(self, frame: ForceFrame, contact: ContactFields | None = None) -> None:
+    def on_forces(self, frame: Sample, contact: ContactFields | None = None) -> None:
         """Queue a force sample (a ``HostManager.on_forces`` callback: an append, never a
         wait); written with the frames when the format holds samples. ``contact``: its
         contact summary's figures, where ``frame.contact`` does not hold them."""
@@ -198,7 +197,7 @@ class Recorder(can.Listener):
     def _next_segment(self) -> Segment:
         path = rotated_path(self.path, len(self.files))
         try:
-            segment = open_segment(path, self.suffix, self.channel, self._placements)
+            segment = self._open(path)
         except OSError as err:
             if err.filename is not None or isinstance(err, SkinError):
                 raise  # named already
@@ -206,6 +205,13 @@ class Recorder(can.Listener):
         self.files.append(path)
         logger.info("recording to %s", path)
         return segment
+
+    def _open(self, path: Path) -> Segment:
+        if self.suffix == ".mcap":
+            from canbus.tools.mcap_writer import McapSegment
+
+            return McapSegment(path, self.channel, self._placements)
+        return open_segment(path, self.suffix, self.channel)
 
     def _rotate(self) -> None:
         self._segment.close()

@@ -198,7 +198,7 @@ class Recording:
         source = str(self.path)
         try:
             if self.suffix == ".mcap":
-                from canbus.tools.mcap_writer import require_mcap
+                from canbus.tools.mcap_messages import require_mcap
 
                 require_mcap("FILE")
                 self._plain = self.path.open("rb")

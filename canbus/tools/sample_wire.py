@@ -1,6 +1,7 @@
-"""One force sample and its contact summary as 320 fixed bytes, for the recording process
-of ``skin run --record`` (:mod:`canbus.tools.recordproc`), and the contact figures an MCAP
-recording keeps (:class:`ContactFields`).
+"""A force sample as the recorders see it (:class:`Sample`: the fields of the host's
+``ForceFrame`` they use), the contact figures an MCAP recording keeps
+(:class:`ContactFields`), and a sample as 320 fixed bytes, for the recording process of
+``skin run --record`` (``skin.commands.common.recordproc``).
 
 Layout, little-endian: time_s f64, cycle u32, patch, force_node, sync_counter u8, flags u8
 (bit 0 complete, 1 published, 2 has a contact summary); force_N 27 f64 (taxel-major);
@@ -13,18 +14,61 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-
-from canbus.master.channel import ForceFrame
 
 _HEAD = struct.Struct("<dIBBBB")
 _CONTACT = struct.Struct("<8dBBHH")
 SIZE = _HEAD.size + 27 * 8 + 18 + _CONTACT.size
 COMPLETE, PUBLISHED, HAS_CONTACT = 1, 2, 4
 _BITS = 1 << np.arange(9)
+
+
+class Sample(Protocol):
+    """One patch's forces for one SYNC cycle (the host's ``ForceFrame`` is one)."""
+
+    @property
+    def patch(self) -> int: ...
+    @property
+    def force_node(self) -> int: ...
+    @property
+    def cycle(self) -> int: ...
+    @property
+    def sync_counter(self) -> int: ...
+    @property
+    def timestamp(self) -> float: ...
+    @property
+    def force_N(self) -> NDArray[np.float64]: ...
+    @property
+    def valid(self) -> NDArray[np.bool_]: ...
+    @property
+    def reason(self) -> NDArray[np.uint8]: ...
+    @property
+    def complete(self) -> bool: ...
+    @property
+    def published(self) -> bool: ...
+    @property
+    def contact(self) -> Any: ...
+
+
+@dataclass(frozen=True)
+class WireSample:
+    """A :class:`Sample` read back from its bytes (``contact`` is None: its figures come
+    apart, as :class:`ContactFields`)."""
+
+    patch: int
+    force_node: int
+    cycle: int
+    sync_counter: int
+    timestamp: float
+    force_N: NDArray[np.float64]
+    valid: NDArray[np.bool_]
+    reason: NDArray[np.uint8]
+    complete: bool
+    published: bool
+    contact: None = None
 
 
 @dataclass(frozen=True)
@@ -52,7 +96,7 @@ def contact_fields(contact: Any) -> ContactFields | None:
                          np.asarray(contact.taxel_slip, bool))
 
 
-def pack(frame: ForceFrame) -> bytes:
+def pack(frame: Sample) -> bytes:
     contact = contact_fields(frame.contact)
     flags = COMPLETE * frame.complete + PUBLISHED * frame.published + \
         HAS_CONTACT * (contact is not None)
@@ -68,7 +112,7 @@ def pack(frame: ForceFrame) -> bytes:
     return head + body + tail
 
 
-def unpack(data: bytes) -> tuple[ForceFrame, ContactFields | None]:
+def unpack(data: bytes) -> tuple[WireSample, ContactFields | None]:
     """The sample (``contact`` None) and its contact fields; ValueError if not ``SIZE``."""
     if len(data) != SIZE:
         raise ValueError(f"a sample is {SIZE} bytes, got {len(data)}")
@@ -78,7 +122,7 @@ def unpack(data: bytes) -> tuple[ForceFrame, ContactFields | None]:
     at += 27 * 8
     valid = np.frombuffer(data, np.uint8, 9, at).astype(bool)
     reason = np.frombuffer(data, np.uint8, 9, at + 9).copy()
-    frame = ForceFrame(patch=patch, force_node=node, cycle=cycle, sync_counter=counter,
+    frame = WireSample(patch=patch, force_node=node, cycle=cycle, sync_counter=counter,
                        timestamp=t, force_N=force, valid=valid, reason=reason,
                        complete=bool(flags & COMPLETE), published=bool(flags & PUBLISHED))
     if not flags & HAS_CONTACT:

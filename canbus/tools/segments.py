@@ -12,7 +12,7 @@ import os
 import re
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any, cast
 
 import can
 from can.io.generic import MessageWriter
@@ -20,9 +20,6 @@ from can.io.generic import MessageWriter
 from canbus.tools.pcap import PcapWriter
 from skin.errors import ConfigError, SkinError
 from skin.inputs.outputs import create_beside, discard, put_in_place, reserve, write_error
-
-if TYPE_CHECKING:
-    from canbus.tools.mcap_messages import Placement
 
 DEFAULT_LOG_CHANNEL = "can0"
 _INTERFACE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,14}")  # a Linux interface name
@@ -277,13 +274,8 @@ class BlfSegment(Segment):
             self._writer.stop()
 
 
-def open_segment(path: Path, suffix: str, channel: str | None,
-                 placements: list[Placement] | None = None) -> Segment:
-    """``placements``: where the patches sit, for an .mcap's ``/tf_static``."""
-    if suffix == ".mcap":
-        from canbus.tools.mcap_writer import McapSegment
-
-        return McapSegment(path, channel, placements)
+def open_segment(path: Path, suffix: str, channel: str | None) -> Segment:
+    """A file of python-can's formats (an .mcap's: ``canbus.tools.mcap_writer``)."""
     if suffix == ".blf":
         return BlfSegment(path)
     kwargs = {} if channel is None or suffix != ".log" else {"channel": channel}

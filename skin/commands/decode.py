@@ -56,7 +56,7 @@ def _decode(args: argparse.Namespace) -> int:
     if args.contact and Path(args.contact).suffix.lower() != ".csv":
         raise ConfigError("--contact", f"the contact table is a .csv file, got {args.contact!r}")
     if suffix == ".mcap":
-        from canbus.tools.mcap_writer import require_mcap
+        from canbus.tools.mcap_messages import require_mcap
 
         require_mcap("-o")
     config = load_host_config(args.config)
@@ -64,7 +64,7 @@ def _decode(args: argparse.Namespace) -> int:
         frames = decode_recording(args.recording, config)
     contact = _contact_csv(frames) if args.contact else None
     if suffix == ".mcap":
-        from canbus.tools.mcap_writer import write_decoded
+        from canbus.offline.mcap import write_decoded
 
         write_decoded(args.output, args.recording, frames, config)
     else:

@@ -44,6 +44,7 @@ if TYPE_CHECKING:
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig
     from canbus.zenoh.publisher import ZenohPublisher
+    from skin.commands.common.hostrecord import HostRecording
 
 POLL_S = 0.1
 SHOWN_ON_STDOUT = ("canbus.master.patchstate", "canbus.master.discovery")
@@ -121,7 +122,7 @@ def _run(args: argparse.Namespace) -> int:
         from canbus.tools.recorder import recording_format
 
         if recording_format(args.record) == ".mcap":
-            from canbus.tools.mcap_writer import require_mcap
+            from canbus.tools.mcap_messages import require_mcap
 
             require_mcap()
     config = resolve(load_host_config(find_config(args.config)), args)
@@ -149,14 +150,7 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
         stack.callback(gc.unfreeze)
         stack.enter_context(_host_events_shown())
         stack.enter_context(_lines_on_stdout())
-        publisher = _zenoh_publisher(host, config, args)
-        if publisher is not None:  # closed after the host stops: its last samples go out
-            stack.enter_context(publisher)
-        recorded = None
-        if args.record:  # closed after the host stops: its last frames are in the file
-            from skin.commands.common.hostrecord import recording
-
-            recorded = stack.enter_context(recording(args.record, config, host, args.rcvbuf))
+        publisher, recorded = _beside(stack, args, config, host)
         # A stop (Ctrl-C, SIGTERM, SIGHUP) from the line that says how to stop on ends the
         # run as --seconds does: the summary and --json follow.
         with until_stopped() as stopped:
@@ -181,8 +175,7 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     elapsed = time.monotonic() - started
     _print_summary(host.listen_only, stats, elapsed, publisher)
     if recorded is not None:
-        samples = f" and {recorded.samples} samples" if recorded.takes_forces else ""
-        print(f"recorded {recorded.frames:,} frames{samples} to {args.record}")
+        print(recorded.summary(args.record))
     if args.json:
         record: dict[str, Any] = {
             "config": config.source, "listen_only": host.listen_only,
@@ -193,8 +186,7 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
             "unknown_nodes": sorted(host.unknown_nodes),
             "bus_gone": gone,
             "zenoh": None if publisher is None else publisher.counters(),
-            "recording": None if recorded is None else
-            {"path": args.record, "frames": recorded.frames, "samples": recorded.samples},
+            "recording": None if recorded is None else recorded.as_json(args.record),
         }
         _write_json(args.json, record)
     if gone is not None:
@@ -202,6 +194,22 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
 
         raise BusError(f"{gone}: the host cannot hear its patches")
     return 0
+
+
+def _beside(stack: Any, args: argparse.Namespace, config: HostConfig, host: HostManager
+            ) -> tuple[ZenohPublisher | None, HostRecording | None]:
+    """The Zenoh publisher and the ``--record`` recording, each closed after the host
+    stops (its last samples go out, its last frames are in the file)."""
+    publisher = _zenoh_publisher(host, config, args)
+    if publisher is not None:
+        stack.enter_context(publisher)
+    if not args.record:
+        return publisher, None
+    from skin.commands.common.hostrecord import recording
+
+    recorded: HostRecording = stack.enter_context(
+        recording(args.record, config, host, args.rcvbuf))
+    return publisher, recorded
 
 
 def _print_summary(listen_only: bool, stats: dict[str, int], elapsed: float,

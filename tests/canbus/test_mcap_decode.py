@@ -15,7 +15,7 @@ pytest.importorskip("mcap_ros2", reason="the mcap extra is not installed")
 
 
 from bench.rigs.recording import record
-from canbus.tools.mcap_reader import read_forces
+from canbus.offline.mcap import read_forces
 from canbus.tools.recorder import Recorder
 from canbus.tools.recording import Recording
 from skin.cli import main

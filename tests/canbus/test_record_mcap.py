@@ -19,9 +19,9 @@ from mcap.stream_reader import StreamReader
 
 from bench.rigs.waiting import wait_until
 from canbus.master.channel import ForceFrame
+from canbus.offline.mcap import read_forces
 from canbus.tools import recorder as recorder_module
 from canbus.tools.mcap_messages import Placement, stamp_ns
-from canbus.tools.mcap_reader import read_forces
 from canbus.tools.recorder import Recorder
 from canbus.tools.recording import Recording
 from skin.cli import main

@@ -5,7 +5,7 @@ Each bus is opened a second time for the recording (as candump beside the host w
 that handle hears every frame on the bus, the host's own (SYNC, force TPDOs, SDO)
 included, which the host's socket does not take back (``canbus.rxfilter``). On a bus other
 processes can hear, the recording runs in a process of its own
-(:mod:`canbus.tools.recordproc`: no second receive path, no writer in the host's GIL; the
+(:mod:`skin.commands.common.recordproc`: no second receive path, no writer in the host's GIL; the
 samples cross a pipe); on an in-process bus (virtual, timed) in a
 :class:`~canbus.tools.recorder.Recorder` thread of the host's process.
 """
@@ -31,15 +31,22 @@ class HostRecording:
         self.samples = 0
         self.frames = 0
 
+    def summary(self, path: str) -> str:
+        samples = f" and {self.samples} samples" if self.takes_forces else ""
+        return f"recorded {self.frames:,} frames{samples} to {path}"
+
+    def as_json(self, path: str) -> dict[str, object]:
+        return {"path": path, "frames": self.frames, "samples": self.samples}
+
 
 @contextlib.contextmanager
 def recording(path: str, config: HostConfig, host: HostManager,
               rcvbuf: int = 0) -> Iterator[HostRecording]:
     """Record every bus of ``config`` to ``path`` while the block runs; the file is closed,
     complete, when it ends, however it ends."""
-    from canbus.tools.mcap_writer import placements
+    from canbus.offline.mcap import placements
     from canbus.tools.recorder import log_channel_name, recording_format
-    from canbus.tools.recordproc import IN_PROCESS, RecordingProcess
+    from skin.commands.common.recordproc import IN_PROCESS, RecordingProcess
 
     mcap = recording_format(path) == ".mcap"
     channel = None if len(config.buses) > 1 else log_channel_name(config.buses[0].channel)
@@ -74,8 +81,8 @@ def _in_process(path: str, config: HostConfig, host: HostManager, channel: str |
     from canbus.master.busconfig import open_bus
     from canbus.receiveloop import ReceiveLoop
     from canbus.tools.recorder import Recorder, enlarge_receive_buffer
-    from canbus.tools.recordproc import NamedFrames
     from skin.commands.common.logs import held_back
+    from skin.commands.common.recordproc import NamedFrames
 
     recorder = Recorder(path, channel=channel, placements=places)
 

@@ -1,6 +1,6 @@
 """A recording in a process of its own, beside the host (``skin run --record``): it opens
 each bus again, as candump beside the host would, records every frame, and takes the
-force samples the host published over a pipe (:mod:`canbus.tools.sample_wire`, 320 bytes
+force samples the host published over a pipe (``canbus.tools.sample_wire``, 320 bytes
 each), so that neither the second receive path nor the writer shares the host's GIL.
 
 The parent (:class:`RecordingProcess`) queues each sample on the host's publishing thread
@@ -27,13 +27,14 @@ import threading
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import asdict
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
-from canbus.master.busconfig import BusConfig
-from canbus.master.channel import ForceFrame
-from canbus.tools import sample_wire
-from canbus.tools.mcap_messages import Placement
 from skin.errors import ConfigError, SkinError
+
+if TYPE_CHECKING:
+    from canbus.master.busconfig import BusConfig
+    from canbus.master.channel import ForceFrame
+    from canbus.tools.mcap_messages import Placement
 
 _POLL_S = 0.01
 IN_PROCESS = ("virtual", "timed")
@@ -56,7 +57,7 @@ class RecordingProcess:
         self._finished = False
         self.error: str | None = None
         self._child = subprocess.Popen(
-            [sys.executable, "-m", "canbus.tools.recordproc", json.dumps(spec)],
+            [sys.executable, "-m", "skin.commands.common.recordproc", json.dumps(spec)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         assert self._child.stdin is not None and self._child.stdout is not None
         self._stdin: IO[bytes] = self._child.stdin
@@ -75,6 +76,8 @@ class RecordingProcess:
         self.samples += 1
 
     def _forward(self) -> None:
+        from canbus.tools import sample_wire
+
         pending = self._pending
         while True:
             stopping = self._stopping.wait(_POLL_S)
@@ -140,8 +143,10 @@ def _child(spec: dict[str, Any]) -> int:
     from functools import partial
 
     from canbus.busio import ResilientBus
-    from canbus.master.busconfig import open_bus
+    from canbus.master.busconfig import BusConfig, open_bus
     from canbus.receiveloop import ReceiveLoop
+    from canbus.tools import sample_wire
+    from canbus.tools.mcap_messages import Placement
     from canbus.tools.recorder import Recorder, enlarge_receive_buffer
 
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
