@@ -30,6 +30,7 @@ from skin.inputs.outputs import create_beside, discard, put_in_place, reserve, w
 
 CHUNK_BYTES = 4 << 20
 """A chunk closes at this size even before a checkpoint (a burst)."""
+_MESSAGE_RECORD = 31  # a Message record's bytes besides its data (opcode, length, header)
 _DEFAULT_PITCH_M = DEFAULT_CONSTANTS.taxel_pitch_m
 
 
@@ -78,6 +79,7 @@ class McapSegment(Segment):
         self._default_xy = taxel_xy(_DEFAULT_PITCH_M)
         self._tf_static = placements or None  # written at the first message's time
         self._end = 0
+        self._unwritten = 0  # message bytes in the open chunk
         self._fd, tmp = create_beside(path)
         try:
             self._write(self._sink.take())
@@ -115,7 +117,7 @@ class McapSegment(Segment):
                "    sec: 2147483647\n    nsec: 4294967295\n"
                "  avoid_ros_namespace_conventions: false\n")
         channel = self._topic(m.TF_STATIC_TOPIC, m.TF, {"offered_qos_profiles": qos})
-        self._mcap.add_message(channel, ns, m.encode_tf_static(ns, placements), ns)
+        self._add(channel, ns, m.encode_tf_static(ns, placements), ns)
 
     def writer(self) -> can.Listener:
         return self._listener
@@ -128,12 +130,12 @@ class McapSegment(Segment):
         if msg.is_fd:
             data = m.encode_fd_frame(ns, channel, msg.arbitration_id, msg.is_extended_id,
                                      msg.is_error_frame, bytes(msg.data))
-            self._mcap.add_message(self._topic(m.FD_FRAMES_TOPIC, m.FD_FRAME), ns, data, ns)
+            self._add(self._topic(m.FD_FRAMES_TOPIC, m.FD_FRAME), ns, data, ns)
             return
         encoder = self._frames if channel == self._channel else m.FrameEncoder(channel)
         data = encoder.encode(ns, msg.arbitration_id, msg.is_remote_frame, msg.is_extended_id,
                               msg.is_error_frame, msg.dlc, bytes(msg.data))
-        self._mcap.add_message(self._topic(m.FRAMES_TOPIC, m.FRAME), ns, data, ns)
+        self._add(self._topic(m.FRAMES_TOPIC, m.FRAME), ns, data, ns)
 
     def write_forces(self, frame: Sample, contact: ContactFields | None = None) -> None:
         """One patch's sample: its taxels, and its contact summary where it has one
@@ -156,7 +158,7 @@ class McapSegment(Segment):
         points["patch"] = patch
         if contact is not None:
             points["contact"], points["slip"] = contact.contact_taxels, contact.taxel_slip
-        add = self._mcap.add_message
+        add = self._add
         add(self._topic(m.patch_topic(patch, "taxels"), m.TAXELS), ns,
             m.encode_taxels(ns, where, points), ns)
         if contact is None:
@@ -170,6 +172,10 @@ class McapSegment(Segment):
         add(self._topic(m.patch_topic(patch, "contact_state"), m.STATE), ns,
             m.encode_uint8(contact.state_byte), ns)
 
+    def _add(self, channel: int, ns: int, data: bytes, publish_ns: int) -> None:
+        self._mcap.add_message(channel, ns, data, publish_ns)
+        self._unwritten += len(data) + _MESSAGE_RECORD
+
     def _write(self, data: bytes) -> None:
         view = memoryview(data)
         while view:
@@ -177,13 +183,15 @@ class McapSegment(Segment):
             view, self._end = view[done:], self._end + done
 
     def size(self) -> int:
-        return self._end + len(self._sink.data)
+        """The file so far and the messages of the open chunk, uncompressed."""
+        return self._end + len(self._sink.data) + self._unwritten
 
     def buffered(self) -> int:
-        return len(self._sink.data)
+        return len(self._sink.data) + self._unwritten
 
     def checkpoint(self) -> None:
         self._mcap.flush()  # the open chunk closes: a whole chunk and its indexes
+        self._unwritten = 0
         data = self._sink.take()
         if data:
             self._write(data)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import Any
 
 import can
 import numpy as np
@@ -275,3 +276,62 @@ def test_a_host_on_an_in_process_bus_records_its_samples_in_its_own_process(
         assert got.timestamp == frame.timestamp and got.complete == frame.complete
     with Recording(path) as frames:
         assert sum(1 for _ in frames) == recorded.frames
+
+
+def test_a_full_disk_is_one_error_and_the_file_keeps_its_whole_chunks(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        recorder_clock: _Clock) -> None:
+    """The disk fills at the second write: the stop says so in one error naming the file,
+    which keeps the chunk written before it (read with ``partial``: it has no footer)."""
+    import os
+
+    from canbus.tools import mcap_writer
+
+    path = tmp_path / "full.mcap"
+    recorder = Recorder(path)
+    sent = _frames()
+    for msg in sent[:10]:
+        recorder.on_message_received(msg)
+    wait_until(lambda: recorder.written == 10, what="the frames handed to the writer")
+    recorder_clock.now += recorder_module.FLUSH_S
+    wait_until(lambda: _stream_frames(path) == 10, what="the first chunk on disk")
+    real = os.pwrite
+
+    def full(fd: int, data: Any, offset: int) -> int:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(mcap_writer.os, "pwrite", full)
+    for msg in sent[10:20]:
+        recorder.on_message_received(msg)
+    with pytest.raises(OSError, match=r"recording to .*full\.mcap failed: .*No space left.*"
+                                      "keeps the frames written before") as info:
+        recorder.stop()
+    assert "\n" not in str(info.value)
+    monkeypatch.setattr(mcap_writer.os, "pwrite", real)
+    with Recording(path, partial=True) as recording:
+        assert [_key(m) for m in recording] == [_key(m) for m in sent[:10]]
+    assert [p.name for p in tmp_path.iterdir()] == ["full.mcap"]
+
+
+def test_rotation_gives_mcap_files_that_each_stand_alone(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    recorder = Recorder(path, rotate_bytes=4000, placements=[Placement(1, (0.0, 0.0), 0.0,
+                                                                       0.015)])
+    sent = _frames()
+    for msg in sent:
+        recorder.on_message_received(msg)
+    recorder.stop()
+    assert len(recorder.files) >= 2
+    got = []
+    for file in recorder.files:
+        with Recording(file) as recording:  # each complete and indexed
+            got += [_key(m) for m in recording]
+        assert [t for t, _d in decoded(file) if t == "/tf_static"] == ["/tf_static"]
+    assert got == [_key(m) for m in sent]
+
+
+@pytest.fixture
+def recorder_clock(monkeypatch: pytest.MonkeyPatch) -> _Clock:
+    clock = _Clock()
+    monkeypatch.setattr(recorder_module, "time", clock)
+    return clock
