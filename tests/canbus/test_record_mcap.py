@@ -5,6 +5,7 @@ read up to its cut after a kill; a bad path is one line and no file."""
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 from typing import Any
@@ -335,3 +336,32 @@ def recorder_clock(monkeypatch: pytest.MonkeyPatch) -> _Clock:
     clock = _Clock()
     monkeypatch.setattr(recorder_module, "time", clock)
     return clock
+
+
+def test_a_sample_crosses_the_pipe_to_the_recording_process_bit_for_bit() -> None:
+    from canbus.tools import sample_wire
+    from canbus.tools.sample_wire import ContactFields
+
+    rng = np.random.default_rng(3)
+    contact = ContactFields(rng.normal(size=3), rng.normal(size=3), rng.normal(size=2), True,
+                            0b10010001, rng.random(9) > 0.5, rng.random(9) > 0.5)
+    for summary in (None, contact):
+        frame = dataclasses.replace(_sample(3, 77, 9), contact=summary)
+        data = sample_wire.pack(frame)
+        assert len(data) == sample_wire.SIZE == 320
+        got, fields = sample_wire.unpack(data)
+        assert (got.patch, got.force_node, got.cycle, got.sync_counter, got.complete,
+                got.published, got.timestamp) == (3, 67, 77, frame.sync_counter,
+                                                  frame.complete, True, frame.timestamp)
+        assert got.force_N.tobytes() == frame.force_N.tobytes()
+        assert got.valid.tolist() == frame.valid.tolist()
+        assert got.reason.tolist() == frame.reason.tolist()
+        if summary is None:
+            assert fields is None
+            continue
+        assert fields is not None
+        for name in ("force_N", "torque_Nm", "cop_m", "contact_taxels", "taxel_slip"):
+            assert getattr(fields, name).tobytes() == getattr(summary, name).tobytes(), name
+        assert (fields.cop_defined, fields.state_byte) == (True, 0b10010001)
+    with pytest.raises(ValueError, match="320 bytes"):
+        sample_wire.unpack(bytes(10))
