@@ -26,7 +26,7 @@ from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
 from bench.rigs.children import spawn
-from bench.rigs.mcap_run import frames_key, live_run, same_frame
+from bench.rigs.mcap_run import frames_key, live_run, not_a_run_of, same_frame
 from bench.rigs.ports import udp_bus
 from bench.rigs.waiting import wait_until
 from canbus.offline.mcap import read_forces
@@ -39,25 +39,6 @@ SKIN = [sys.executable, "-m", "skin.cli"]
 def _log_frames(path: Path) -> list[tuple[object, ...]]:
     with Recording(path) as recording:
         return [frames_key(m) for m in recording]
-
-
-def _not_a_run_of(part: list[tuple[object, ...]], whole: list[tuple[object, ...]]) -> str:
-    """"" if ``part`` holds, identifier by identifier, a run of ``whole``'s frames: each
-    identifier has one sender, whose frames every socket gets in its order, while frames
-    of two senders that crossed may reach two sockets in either order. Else what differs."""
-    def by_id(frames: list[tuple[object, ...]]) -> dict[object, list[tuple[object, ...]]]:
-        out: dict[object, list[tuple[object, ...]]] = {}
-        for frame in frames:
-            out.setdefault(frame[0], []).append(frame)
-        return out
-
-    ours, theirs = by_id(part), by_id(whole)
-    for can_id, frames in ours.items():
-        other = theirs.get(can_id, [])
-        if not any(other[k:k + len(frames)] == frames for k, f in enumerate(other)
-                   if f == frames[0]):
-            return f"0x{can_id:X}: {len(frames)} frames, not a run of the .log's {len(other)}"
-    return ""
 
 
 @pytest.mark.timeout(600)
@@ -85,7 +66,7 @@ def test_a_live_run_recorded_to_mcap_holds_the_host_s_samples_and_the_bus_frames
     beside = _log_frames(run.log)
     recorded = _log_frames(run.mcap)
     assert len(recorded) > 1000
-    assert not (differ := _not_a_run_of(recorded, beside)), differ
+    assert not (differ := not_a_run_of(recorded, beside)), differ
     independent = can_frames(run.mcap)  # in log time order, which frames of one time share
     assert sorted(independent) == sorted((k[0], k[1], k[2], k[5]) for k in recorded
                                          if not k[3])
@@ -133,7 +114,7 @@ def test_kill_9_leaves_an_mcap_readable_up_to_its_tail(tmp_path: Path, killed: s
         kept = [frames_key(m) for m in recording]
         cut = recording.cut
     assert len(kept) > 2000
-    assert not (differ := _not_a_run_of(kept, beside)), differ
+    assert not (differ := not_a_run_of(kept, beside)), differ
     if killed == "host":  # its recorder finished the file: strict, indexed
         assert cut is None
         with mcap.open("rb") as file:
