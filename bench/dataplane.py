@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 from canbus import codes, contact_record
 from canbus.device.patch_node import PatchNode
 from canbus.master.contact import PatchContact, summarize_batch
-from canbus.master.dataplane import DataPlane, PatchChannel
+from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
 from canbus.master.forceframes import VALID, forces_to_mN, valid_bits
 from canbus.master.forcenode import ForceNode
 from canbus.od import load_od
@@ -338,21 +338,46 @@ def notifier_rate(frames: int = 20_000) -> float:
 
 
 def pipeline_rate(stream: Stream, decoder: Decoder,
-                  contact: Callable[[int], PatchContact] | None = None) -> dict[str, float]:
-    """The whole path in one process: virtual bus -> ``Notifier`` -> data plane (its thread).
+                  contact: Callable[[int], PatchContact] | None = None, *,
+                  bus: dict[str, Any] | None = None, recorder: Any = None,
+                  pace: float | None = None) -> dict[str, float]:
+    """The whole path in one process: a bus -> ``Notifier`` -> data plane (its thread).
 
     The sender opens each cycle (``on_sync``), sends its frames and waits until the data
-    plane has taken them all before the next SYNC, as a SYNC-paced bus would.
+    plane has taken them all before the next SYNC, as a SYNC-paced bus would. ``bus``:
+    python-can's arguments of the bus (default: a virtual channel of its own).
+    ``recorder``: a recorder beside it, as ``skin run --record`` runs one, given every
+    sample the publisher hands out (``on_forces``); a ``can.Listener`` (an in-process
+    :class:`~canbus.tools.recorder.Recorder`) also gets the frames from a bus of its own.
+    ``pace``: frames/s at most, each cycle sent at its time (a bus's rate, not the most).
     """
-    channel = f"dataplane-pipeline-{id(stream)}"
-    sender = can.Bus(interface="virtual", channel=channel)
-    receiver = can.Bus(interface="virtual", channel=channel)
+    bus = bus or {"interface": "virtual", "channel": f"dataplane-pipeline-{id(stream)}"}
+    from canbus.tools.recorder import DEFAULT_RCVBUF, enlarge_receive_buffer
+
+    sender = can.Bus(**bus)
+    receiver = can.Bus(**bus)
+    enlarge_receive_buffer(receiver, DEFAULT_RCVBUF)  # as the commands do (a socket bus)
     rig = DataPlaneRig(stream, decoder, background=True, window_s=0.0, contact=contact)
     notifier = can.Notifier(receiver, [rig.plane], timeout=0.05)
+    tap = None
+    if isinstance(recorder, can.Listener):
+        tapped = can.Bus(**bus)
+        enlarge_receive_buffer(tapped, DEFAULT_RCVBUF)
+        tap = can.Notifier(tapped, [recorder], timeout=0.05)
+    if recorder is not None:
+
+        def record(batch: list[ForceFrame]) -> None:
+            for frame in batch:
+                recorder.on_forces(frame)
+
+        rig.plane.subscribe(record)
     per_cycle = len(stream.frames[0])
     try:
         start = time.perf_counter()
         for k, frames in enumerate(stream.frames):
+            if pace is not None:
+                due = start + k * per_cycle / pace
+                time.sleep(max(0.0, due - time.perf_counter()))
             rig.plane.on_sync(k + 1, 0, time.time())
             for msg in frames:
                 sender.send(msg)
@@ -367,6 +392,9 @@ def pipeline_rate(stream: Stream, decoder: Decoder,
         stats = rig.plane.stats.snapshot()
     finally:
         notifier.stop(timeout=1.0)
+        if tap is not None:
+            tap.stop(timeout=1.0)  # and the recorder: written out and closed
+            tap.bus.shutdown()  # type: ignore[union-attr]
         sender.shutdown()
         receiver.shutdown()
         rig.close()

@@ -185,7 +185,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rate", type=float, default=20_000)
     parser.add_argument("--seconds", type=float, default=5.0)
-    parser.add_argument("--format", choices=("log", "asc", "blf", "pcap"), default="pcap")
+    parser.add_argument("--format", choices=("log", "asc", "blf", "pcap", "mcap"), default="pcap")
     parser.add_argument("--view", choices=("live", "lines", "none"), default="live")
     parser.add_argument("--refresh", type=float, default=4.0, help="live view redraws/s")
     parser.add_argument("--rcvbuf", type=int, default=4 * 1024 * 1024,

@@ -1,6 +1,6 @@
 """Forces out of a recording, without a bus: a listen-only host fed the recording.
 
-:func:`decode_recording` plays a recording (.log, .asc, .blf, .pcap, .pcapng) through the
+:func:`decode_recording` plays a recording (.log, .asc, .blf, .pcap, .pcapng, .mcap) through the
 very host a listen-only ``skin run`` is (:class:`~canbus.master.host.HostManager` with the
 :class:`~canbus.master.follower.ListenOnly` policy), as fast as it can take the frames and
 on the recording's own clock: every frame keeps its recorded timestamp (the data plane's

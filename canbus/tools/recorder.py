@@ -1,4 +1,5 @@
-"""Record every frame to .log (candump -L), .asc, .blf (python-can's writers) or .pcap.
+"""Record every frame to .log (candump -L), .asc, .blf (python-can's writers), .pcap or
+.mcap (with the force samples, :meth:`Recorder.on_forces`; :mod:`canbus.tools.mcap_writer`).
 
 A recording is a stream, written as it goes, as candump and ``can.logger`` write theirs:
 the file exists under its own name from the start and is a complete, valid recording
@@ -9,6 +10,8 @@ to the last write:
 - .log and .pcap only grow, one whole batch of lines/records per write;
 - .asc is written with its ``End TriggerBlock`` footer after every batch (the next batch
   overwrites it and ends with it again), so it is complete at every moment;
+- .mcap: each write appends whole compressed chunks; closing adds the summary and the
+  index (:mod:`canbus.tools.mcap_writer`);
 - .blf: the buffered objects are compressed into a container at every write and then
   the file header is rewritten with the counts and size so far (python-can's writer
   updates it only when stopped, so a killed ``can.logger`` leaves a header that says
@@ -40,12 +43,13 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import can
 
 from canbus.tools.segments import (
     DEFAULT_LOG_CHANNEL,
-    WRITERS,
+    FORMATS,
     CandumpLogWriter,
     Segment,
     check_channel_name,
@@ -53,6 +57,11 @@ from canbus.tools.segments import (
     open_segment,
 )
 from skin.errors import ConfigError, SkinError
+
+if TYPE_CHECKING:
+    from canbus.tools.mcap_messages import Placement
+    from canbus.tools.mcap_writer import McapSegment
+    from canbus.tools.sample_wire import ContactFields, Sample
 
 logger = logging.getLogger(__name__)
 
@@ -63,8 +72,8 @@ __all__ = ["DEFAULT_LOG_CHANNEL", "CandumpLogWriter", "Recorder", "check_channel
 def recording_format(path: str | os.PathLike[str], *, field: str = "--record") -> str:
     """The suffix of a recording we can write; ConfigError for any other (no file touched)."""
     suffix = Path(path).suffix.lower()
-    if suffix not in WRITERS:
-        known = ", ".join(WRITERS)
+    if suffix not in FORMATS:
+        known = ", ".join(FORMATS)
         raise ConfigError(field, f"unknown recording format {suffix or '(no suffix)'!r} "
                           f"of {os.fspath(path)!r}; use one of {known}")
     return suffix
@@ -131,10 +140,16 @@ class Recorder(can.Listener):
     """
 
     def __init__(self, path: str | os.PathLike[str], *, channel: str | None = None,
-                 rotate_bytes: int | None = None, rotate_s: float | None = None) -> None:
-        """``channel``: the interface name every frame of a .log gets (default ``can0``);
-        .asc numbers channels, .blf and .pcap name none."""
+                 rotate_bytes: int | None = None, rotate_s: float | None = None,
+                 placements: list[Placement] | None = None) -> None:
+        """``channel``: the interface name every frame of a .log gets (default ``can0``; an
+        .mcap's frames without a channel of their own); .asc numbers channels, .blf and
+        .pcap name none. ``placements``: where the patches sit (an .mcap's /tf_static)."""
         self.suffix = recording_format(path)
+        if self.suffix == ".mcap":
+            from canbus.tools.mcap_messages import require_mcap
+
+            require_mcap()
         if channel is not None:
             check_channel_name(channel, "channel")
         self.rotate_bytes = _positive(rotate_bytes, "--rotate-size")
@@ -148,6 +163,8 @@ class Recorder(can.Listener):
         self.saved: Path | None = None
         self._finished = False
         self._pending: deque[can.Message] = deque()
+        self._forces: deque[tuple[Sample, ContactFields | None]] = deque()
+        self._placements = placements
         self._stopping = threading.Event()
         if self.rotate_bytes or self.rotate_s:
             _warn_about_earlier_files(self.path)
@@ -164,10 +181,23 @@ class Recorder(can.Listener):
         self._pending.append(msg)  # atomic; no lock, no wake-up per frame
         self.received += 1
 
+    @property
+    def takes_forces(self) -> bool:
+        """Whether the format holds force samples (.mcap); the others hold the frames the
+        force nodes published."""
+        return self.suffix == ".mcap"
+
+    def on_forces(self, frame: Sample, contact: ContactFields | None = None) -> None:
+        """Queue a force sample (a ``HostManager.on_forces`` callback: an append, never a
+        wait); written with the frames when the format holds samples. ``contact``: its
+        contact summary's figures, where ``frame.contact`` does not hold them."""
+        if self.takes_forces:
+            self._forces.append((frame, contact))
+
     def _next_segment(self) -> Segment:
         path = rotated_path(self.path, len(self.files))
         try:
-            segment = open_segment(path, self.suffix, self.channel)
+            segment = self._open(path)
         except OSError as err:
             if err.filename is not None or isinstance(err, SkinError):
                 raise  # named already
@@ -175,6 +205,13 @@ class Recorder(can.Listener):
         self.files.append(path)
         logger.info("recording to %s", path)
         return segment
+
+    def _open(self, path: Path) -> Segment:
+        if self.suffix == ".mcap":
+            from canbus.tools.mcap_writer import McapSegment
+
+            return McapSegment(path, self.channel, self._placements)
+        return open_segment(path, self.suffix, self.channel)
 
     def _rotate(self) -> None:
         self._segment.close()
@@ -190,6 +227,7 @@ class Recorder(can.Listener):
                     self._write_all()
                 else:
                     self._write_sized(self.rotate_bytes)
+                self._write_forces()
                 now = time.monotonic()
                 if self.rotate_s is not None and now - self._segment.opened >= self.rotate_s:
                     self._rotate()
@@ -210,6 +248,13 @@ class Recorder(can.Listener):
             write(pending.popleft())
         segment.frames += count
         self.written += count
+
+    def _write_forces(self) -> None:
+        forces = self._forces
+        if forces:
+            write = cast("McapSegment", self._segment).write_forces
+            for _ in range(len(forces)):
+                write(*forces.popleft())
 
     def _write_sized(self, limit: float) -> None:
         pending = self._pending

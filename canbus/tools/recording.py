@@ -16,7 +16,10 @@ replayed (:mod:`canbus.tools.replay`):
   container sizes bounded (``canbus.tools.blfread``: no endless loop, no decompression
   bomb);
 - .pcap: see ``canbus.tools.pcap``; a pcapng file (dumpcap's default, also under a .pcap
-  name): see ``canbus.tools.pcapng``.
+  name): see ``canbus.tools.pcapng``;
+- .mcap: its /can/frames and /can/fd_frames in file order (``canbus.tools.mcap_reader``):
+  the MCAP magic, chunk CRCs, those topics' schemas, every message decodes, a footer at
+  the end (a file without one is cut short: its writer did not finish).
 
 A .log cut exactly at the end of a line is indistinguishable from a shorter recording.
 
@@ -44,6 +47,7 @@ import can
 from can.io.blf import BLFParseError
 
 from canbus.tools.blfread import BoundedBLFReader
+from canbus.tools.mcap_reader import McapFrames
 from canbus.tools.pcap import FD_LENGTHS, PcapReader
 from canbus.tools.pcapng import SECTION_HEADER, PcapngReader
 from skin.errors import ConfigError, RecordingError
@@ -54,7 +58,7 @@ __all__ = ["READERS", "Recording", "RecordingError", "recording_reader"]
 
 READERS: dict[str, Callable[..., can.io.generic.MessageReader]] = {
     ".log": can.CanutilsLogReader, ".asc": can.ASCReader, ".blf": BoundedBLFReader,
-    ".pcap": PcapReader, ".pcapng": PcapngReader,
+    ".pcap": PcapReader, ".pcapng": PcapngReader, ".mcap": McapFrames,
 }
 _LOG_LINE = re.compile(
     r"\(\d+\.\d+\) \S+ (?:[0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})#"
@@ -190,9 +194,16 @@ class Recording:
         self.cut: RecordingError | None = None
         self._lines: _Lines | None = None
         self._binary: _CountingFile | None = None
+        self._plain: BinaryIO | None = None
         source = str(self.path)
         try:
-            if self.suffix in (".log", ".asc"):
+            if self.suffix == ".mcap":
+                from canbus.tools.mcap_messages import require_mcap
+
+                require_mcap("FILE")
+                self._plain = self.path.open("rb")
+                self._reader: can.io.generic.MessageReader = McapFrames(self._plain)
+            elif self.suffix in (".log", ".asc"):
                 self._lines = _Lines(self.path, self.suffix, lambda: self.frames)
                 self._reader = READERS[self.suffix](cast(TextIO, self._lines))
             elif self.suffix == ".pcap" and _is_pcapng(self.path):  # dumpcap's default format
@@ -225,13 +236,15 @@ class Recording:
         self._close_files()
 
     def _close_files(self) -> None:
-        for file in (self._lines, self._binary):
+        for file in (self._lines, self._binary, self._plain):
             if file is not None:
                 file.close()
 
     def _at_end(self) -> bool:
         if self._lines is not None:
             return self._lines.at_end()
+        if self._plain is not None:
+            return _read_to_end(self._plain)
         return self._binary is not None and self._binary.at_end()
 
     def __iter__(self) -> Iterator[can.Message]:

@@ -82,6 +82,9 @@ class CandumpLogWriter(can.CanutilsLogWriter):
 WRITERS: dict[str, type[MessageWriter]] = {
     ".log": CandumpLogWriter, ".asc": can.ASCWriter, ".blf": can.BLFWriter, ".pcap": PcapWriter,
 }
+FORMATS = (*WRITERS, ".mcap")
+"""Every format a recording is written in: python-can's writers' and MCAP
+(:mod:`canbus.tools.mcap_writer`, with the ``mcap`` extra)."""
 _TEXT = frozenset((".log", ".asc"))
 
 
@@ -272,6 +275,7 @@ class BlfSegment(Segment):
 
 
 def open_segment(path: Path, suffix: str, channel: str | None) -> Segment:
+    """A file of python-can's formats (an .mcap's: ``canbus.tools.mcap_writer``)."""
     if suffix == ".blf":
         return BlfSegment(path)
     kwargs = {} if channel is None or suffix != ".log" else {"channel": channel}

@@ -1,6 +1,6 @@
 """``skin decode REC --config host.toml -o forces.csv|.npz``: a recording's forces, offline.
 
-The recording (.log, .asc, .blf, .pcap, .pcapng) goes through the listen-only host on its
+The recording (.log, .asc, .blf, .pcap, .pcapng, .mcap) goes through the listen-only host on its
 own clock (:mod:`canbus.offline.decode`): the forces are what a listen-only host publishes
 for it, the same every time, with no bus; what it says of each patch (samples, stretches
 without an answer, invalid taxels) is in seconds of the recording
@@ -16,6 +16,8 @@ Output, written atomically:
   ``cop_defined`` is False), ``cop_defined``, ``taxels_in_contact``, ``valid_taxels``,
   ``tangential_ratio``, ``contact_state`` (the state byte, as on the bus) (samples,),
   ``contact_taxels``, ``slip_taxels`` (samples, 9);
+- ``.mcap``: the recording's frames and every sample (taxels, wrench, CoP, contact
+  state) in ROS 2 messages (docs/mcap.md), as ``skin run --record F.mcap`` writes them;
 - ``--contact F.csv``: one row per sample: ``cycle, sync_counter, time_s, patch,
   force_node``, the net force, torque, CoP in both frames (empty where not defined), the
   counts, the ratio, and the state (``in_contact, onset, release, near_slip, slipping,
@@ -35,7 +37,7 @@ from skin.commands.common import argtypes
 if TYPE_CHECKING:
     from canbus.master.dataplane import ForceFrame
 
-FORMATS = (".csv", ".npz")
+FORMATS = (".csv", ".npz", ".mcap")
 
 
 def _decode(args: argparse.Namespace) -> int:
@@ -53,13 +55,22 @@ def _decode(args: argparse.Namespace) -> int:
                           f"{' or '.join(FORMATS)}")
     if args.contact and Path(args.contact).suffix.lower() != ".csv":
         raise ConfigError("--contact", f"the contact table is a .csv file, got {args.contact!r}")
+    if suffix == ".mcap":
+        from canbus.tools.mcap_messages import require_mcap
+
+        require_mcap("-o")
     config = load_host_config(args.config)
     with quiet_host():
         frames = decode_recording(args.recording, config)
-    data = _csv(frames) if suffix == ".csv" else _npz(frames, args, config.source)
     contact = _contact_csv(frames) if args.contact else None
-    with atomic_write(args.output) as handle:
-        handle.write(data)
+    if suffix == ".mcap":
+        from canbus.offline.mcap import write_decoded
+
+        write_decoded(args.output, args.recording, frames, config)
+    else:
+        data = _csv(frames) if suffix == ".csv" else _npz(frames, args, config.source)
+        with atomic_write(args.output) as handle:
+            handle.write(data)
     if contact is not None:
         with atomic_write(args.contact) as handle:
             handle.write(contact)
@@ -174,14 +185,17 @@ def add_subparser(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "decode", help="a recording's forces, offline (as a listen-only host publishes them)",
         description="Decode the patches' PDOs in a recording (.log, .asc, .blf, .pcap, "
-                    ".pcapng) into forces with the host config's decoders, on the "
+                    ".pcapng, .mcap) into forces with the host config's decoders, on the "
                     "recording's own clock: what a listen-only host publishes for it, "
                     "the same every time, without a bus.")
     parser.add_argument("recording", metavar="REC", help="the recording")
     parser.add_argument("--config", required=True, metavar="CONFIG",
                         help="the host config (patches, modes, decoders, SYNC window)")
     parser.add_argument("-o", "--output", type=argtypes.output_file, required=True,
-                        metavar="F.csv|F.npz")
+                        metavar="F.csv|F.npz|F.mcap",
+                        help="the forces: a table (.csv), arrays (.npz), or an MCAP file of "
+                             "the recording's frames and the samples in ROS 2 messages "
+                             "(.mcap, docs/mcap.md)")
     parser.add_argument("--contact", type=argtypes.output_file, metavar="F.csv",
                         help="also write each sample's contact summary, one row per sample")
     parser.add_argument("--json", type=argtypes.output_file, metavar="FILE",

@@ -1,4 +1,4 @@
-"""``skin replay FILE``: a recording (.log, .asc, .blf, .pcap) back onto a bus.
+"""``skin replay FILE``: a recording (.log, .asc, .blf, .pcap, .mcap) back onto a bus.
 
 The bus stamps what it sends, in both timings (the recorded timestamps are not carried:
 a consumer sees the bus's time, as it would live). To decode the forces of a recording,
@@ -90,9 +90,9 @@ def _defaults_text() -> str:
 def add_subparser(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "replay", help="a recording back onto a bus",
-        description="Send a recording (.log, .asc, .blf, .pcap) onto a bus with its original "
-                    "timing or as fast as possible. A truncated or corrupt file stops at its "
-                    "first bad frame, which the error names; nothing past it is sent. "
+        description="Send a recording (.log, .asc, .blf, .pcap, .mcap) onto a bus with its "
+                    "original timing or as fast as possible. A truncated or corrupt file "
+                    "stops at its first bad frame, which the error names; nothing past it is sent. "
                     "Receivers see the bus's own timestamps, as live; `skin run CONFIG "
                     "--listen-only` on the same bus decodes the forces.")
     parser.add_argument("file", metavar="FILE", help="the recording")

@@ -14,6 +14,10 @@ that keeps failing is opened again; one that cannot be had back ends the run wit
 status 1 and one line (the summary and ``--json`` first), so that a service manager
 restarts it.
 
+``--record F`` (.log, .asc, .blf, .pcap, .mcap) records every frame on the host's buses,
+its own included, and in an .mcap also every force sample it published
+(:mod:`skin.commands.common.hostrecord`, docs/mcap.md), on threads of its own.
+
 ``--listen-only`` (or ``host.listen_only = true``): decode what another master runs, or a
 recording ``skin replay`` sends, and transmit nothing. ``--cpu 3`` runs every thread of
 the host on CPU 3 (see ``skin.commands.common.cpu``), ``--realtime 50`` under SCHED_FIFO
@@ -40,6 +44,7 @@ if TYPE_CHECKING:
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig
     from canbus.zenoh.publisher import ZenohPublisher
+    from skin.commands.common.hostrecord import HostRecording
 
 POLL_S = 0.1
 SHOWN_ON_STDOUT = ("canbus.master.patchstate", "canbus.master.discovery")
@@ -113,6 +118,13 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError("--status-every", f"must be > 0 s, got {args.status_every}")
     if args.json:
         check_writable(args.json)  # now, not after the run
+    if args.record:
+        from canbus.tools.recorder import recording_format
+
+        if recording_format(args.record) == ".mcap":
+            from canbus.tools.mcap_messages import require_mcap
+
+            require_mcap()
     config = resolve(load_host_config(find_config(args.config)), args)
     if args.zenoh or (config.zenoh is not None and config.zenoh.enabled):
         from canbus.zenoh.config import require_zenoh
@@ -138,9 +150,7 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
         stack.callback(gc.unfreeze)
         stack.enter_context(_host_events_shown())
         stack.enter_context(_lines_on_stdout())
-        publisher = _zenoh_publisher(host, config, args)
-        if publisher is not None:  # closed after the host stops: its last samples go out
-            stack.enter_context(publisher)
+        publisher, recorded = _beside(stack, args, config, host)
         # A stop (Ctrl-C, SIGTERM, SIGHUP) from the line that says how to stop on ends the
         # run as --seconds does: the summary and --json follow.
         with until_stopped() as stopped:
@@ -164,6 +174,8 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
         gone = host.bus_gone()
     elapsed = time.monotonic() - started
     _print_summary(host.listen_only, stats, elapsed, publisher)
+    if recorded is not None:
+        print(recorded.summary(args.record))
     if args.json:
         record: dict[str, Any] = {
             "config": config.source, "listen_only": host.listen_only,
@@ -174,6 +186,7 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
             "unknown_nodes": sorted(host.unknown_nodes),
             "bus_gone": gone,
             "zenoh": None if publisher is None else publisher.counters(),
+            "recording": None if recorded is None else recorded.as_json(args.record),
         }
         _write_json(args.json, record)
     if gone is not None:
@@ -181,6 +194,22 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
 
         raise BusError(f"{gone}: the host cannot hear its patches")
     return 0
+
+
+def _beside(stack: Any, args: argparse.Namespace, config: HostConfig, host: HostManager
+            ) -> tuple[ZenohPublisher | None, HostRecording | None]:
+    """The Zenoh publisher and the ``--record`` recording, each closed after the host
+    stops (its last samples go out, its last frames are in the file)."""
+    publisher = _zenoh_publisher(host, config, args)
+    if publisher is not None:
+        stack.enter_context(publisher)
+    if not args.record:
+        return publisher, None
+    from skin.commands.common.hostrecord import recording
+
+    recorded: HostRecording = stack.enter_context(
+        recording(args.record, config, host, args.rcvbuf))
+    return publisher, recorded
 
 
 def _print_summary(listen_only: bool, stats: dict[str, int], elapsed: float,
@@ -370,6 +399,10 @@ def add_subparser(subparsers: Any) -> None:
                         help="publish every force sample, state change, EMCY and the "
                              "statistics on Zenoh (the config's [zenoh] table, else "
                              "defaults: listen on tcp/127.0.0.1:7447; docs/zenoh.md)")
+    parser.add_argument("--record", type=argtypes.output_file, metavar="FILE",
+                        help="record every frame on the host's buses (its own included) to "
+                             "FILE: .log, .asc, .blf, .pcap, or .mcap, which also holds every "
+                             "force sample and contact summary published (docs/mcap.md)")
     add_cpu_argument(parser, default="all")
     parser.add_argument("--realtime", type=realtime_priority, nargs="?", const=DEFAULT_PRIORITY,
                         default=None, metavar="PRIO",

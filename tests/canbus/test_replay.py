@@ -28,6 +28,10 @@ DAMAGED = [  # file, first bad frame, what the error says
     ("corrupt.asc", 3, "line 8: DLC 8 but 4 data bytes"),
     ("truncated.blf", 251, "the file ends here, at 1869 of the 2804 bytes its header "
                            "promises (truncated)"),
+    ("truncated.mcap", 5, "EOFError: the file ends before its footer (truncated: its writer "
+                          "did not finish it)"),
+    ("wrongschema.mcap", 1, "ValueError: topic /can/frames carries std_msgs/msg/String (cdr), "
+                            "not can_msgs/msg/Frame (cdr)"),
 ]
 
 
@@ -50,12 +54,13 @@ def test_damaged_recording_replays_nothing_past_the_bad_frame(name: str, frame: 
     assert str(info.value) == f"{FILES / name}: frame {frame}: {problem}"
     assert info.value.frame == frame
     assert replayer.sent == len(got) == frame - 1
-    with Recording(FILES / name.replace("truncated", "good").replace("corrupt", "good")) as good:
+    good_name = name.replace("truncated", "good").replace("corrupt", "good")
+    with Recording(FILES / good_name.replace("wrongschema", "good")) as good:
         expected = [(m.arbitration_id, bytes(m.data)) for m in good][:frame - 1]
     assert [(m.arbitration_id, bytes(m.data)) for m in got] == expected  # exact: ids, bytes
 
 
-@pytest.mark.parametrize("name", ["good.log", "good.asc", "good.pcap", "good.blf"])
+@pytest.mark.parametrize("name", ["good.log", "good.asc", "good.pcap", "good.blf", "good.mcap"])
 def test_replay_sends_every_frame_in_order(name: str) -> None:
     with Recording(FILES / name) as recording:
         expected = [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in recording]
@@ -116,6 +121,10 @@ def test_unknown_suffix_or_missing_file_fail_before_the_bus_opens(
     (tmp_path / "empty.pcap").write_bytes(b"")
     assert main(["replay", str(tmp_path / "empty.pcap")]) == 1
     assert "not a pcap file: empty or cut short" in capsys.readouterr().err
+    assert main(["replay", str(FILES / "notmcap.mcap")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"skin: error: {FILES / 'notmcap.mcap'}: not a .mcap file: not an MCAP "
+                   "file (it starts b'(1700000')"]
     with can.Bus(interface="virtual", channel="x") as bus, \
             pytest.raises(ConfigError, match="unknown recording format"):
         Replayer(bus, tmp_path / "rec.txt")

@@ -246,7 +246,7 @@ def add_subparser(subparsers: Any) -> None:
     from skin.commands.common.tool_config import add_config_arguments
 
     parser = subparsers.add_parser(
-        "sniff", help="live, EDS-aware bus view; --record to .log/.asc/.blf/.pcap",
+        "sniff", help="live, EDS-aware bus view; --record to .log/.asc/.blf/.pcap/.mcap",
         description="Show every CANopen service on a bus, decoded with the EDS files, with "
                     "per COB-ID rates, bus load and anomaly counters; record every frame.")
     parser.add_argument("--eds", action="append", default=[], metavar="NODE=FILE",
@@ -257,7 +257,8 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--service", action="append", choices=SERVICES, default=[],
                         help="show only this service (repeatable)")
     parser.add_argument("--record", type=argtypes.output_file, metavar="FILE",
-                        help="record every frame to FILE: .log (candump -L), .asc, .blf, .pcap")
+                        help="record every frame to FILE: .log (candump -L), .asc, .blf, "
+                             ".pcap, .mcap (ROS 2 messages, docs/mcap.md)")
     parser.add_argument("--rotate-size", type=argtypes.rotate_size, default=None, metavar="BYTES",
                         help="go on in a new file (run.001.log, run.002.log, ...) once one "
                              "reaches BYTES (k, M, G: powers of 1024); each file is a whole "

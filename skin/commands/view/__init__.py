@@ -258,7 +258,7 @@ def add_subparser(subparsers: Any) -> None:
                     "force nodes' PDOs; --decode: the patches' PDOs decoded here) or a "
                     "recording FILE.")
     parser.add_argument("file", nargs="?", metavar="FILE",
-                        help="a recording (.log, .asc, .blf, .pcap); default: the bus")
+                        help="a recording (.log, .asc, .blf, .pcap, .mcap); default: the bus")
     where = parser.add_argument_group("layout (default: a row in node order)")
     where.add_argument("--scene", metavar="NAME", help="patch positions of a scene")
     where.add_argument("--config", metavar="HOST.toml",
