@@ -146,12 +146,19 @@ def _warn_if_over(result: Plan, sizings: list[Sizing]) -> None:
     advice = _advice(sizings)
     if not result.fits:
         warn(f"warning: the traffic does not fit: {result.worst_bus} needs "
-             f"{result.load_best_pct:.1f} to {result.load_worst_pct:.1f} % of its wire; lower "
-             f"the rate to {result.max_rate_hz:,.1f} Hz{advice}")
+             f"{result.load_best_pct:.1f} to {result.load_worst_pct:.1f} % of its wire; "
+             f"{_lower_rate(result)}{advice}")
     elif result.over_target:
         warn(f"warning: worst-case load {result.load_worst_pct:.1f} % is above the "
-             f"{result.target_pct:g} % target; lower the rate to {result.max_rate_hz:,.1f} Hz"
-             f"{advice}")
+             f"{result.target_pct:g} % target; {_lower_rate(result)}{advice}")
+
+
+def _lower_rate(result: Plan) -> str:
+    """The rate that fits, or why none does (the heartbeats alone fill the bus)."""
+    if result.max_rate_hz < 0.05:
+        return (f"no sample rate fits {result.worst_bus} (its heartbeats alone are over the "
+                f"{result.target_pct:g} % target)")
+    return f"lower the rate to {result.max_rate_hz:,.1f} Hz"
 
 
 def _same_split(a: BusPlan, b: BusPlan) -> bool:

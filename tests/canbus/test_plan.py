@@ -145,6 +145,16 @@ def test_a_plan_under_100_but_over_target_warns_so() -> None:
     assert "bus 0 (patches 1-4)" in run.stdout
 
 
+def test_a_skin_whose_heartbeats_alone_fill_the_bus_is_told_no_rate_fits() -> None:
+    """2,000 patches on one bus: their heartbeats alone are over the target, so the advice
+    is the buses it needs, not a rate of 0.0 Hz."""
+    run = _skin_plan("--patches", "2000", "--rate", "100", "--mode", "xyz", "--fd")
+    assert run.returncode == 0
+    assert "no sample rate fits bus 0 (its heartbeats alone are over the 70 % target)" \
+        in run.stderr and "0.0 Hz" not in run.stderr
+    assert "or use 667 buses of CAN 1,000,000 bit/s or 100 buses of CAN FD" in run.stderr
+
+
 @pytest.mark.parametrize(("args", "message", "status"), [
     (["--buses", "0"], "argument --buses: must be in 1..100000, got '0'", 2),
     (["--buses", "9"], "a bus would carry none", 1),
