@@ -25,8 +25,7 @@ from canbus.tools.sample_wire import ContactFields, Sample, contact_fields
 from canbus.tools.segments import Segment
 from skin.constants import DEFAULT_CONSTANTS
 from skin.contact import taxel_xy
-from skin.errors import SkinError
-from skin.inputs.outputs import create_beside, discard, put_in_place, reserve, write_error
+from skin.inputs.outputs import create_in_place
 
 CHUNK_BYTES = 4 << 20
 """A chunk closes at this size even before a checkpoint (a burst)."""
@@ -80,21 +79,12 @@ class McapSegment(Segment):
         self._tf_static = placements or None  # written at the first message's time
         self._end = 0
         self._unwritten = 0  # message bytes in the open chunk
-        self._fd, tmp = create_beside(path)
-        try:
+
+        def header(fd: int) -> None:
+            self._fd = fd
             self._write(self._sink.take())
-            reserve(self._fd)
-        except BaseException as err:
-            os.close(self._fd)
-            discard(tmp)
-            if isinstance(err, OSError) and not isinstance(err, SkinError):
-                raise write_error(path, err) from err
-            raise
-        try:
-            put_in_place(tmp, path)
-        except BaseException:
-            os.close(self._fd)
-            raise
+
+        self._fd = create_in_place(path, header)
         self._listener = _FrameListener(self)
 
     def _topic(self, topic: str, schema: str, metadata: dict[str, str] | None = None) -> int:

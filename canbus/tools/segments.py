@@ -19,7 +19,14 @@ from can.io.generic import MessageWriter
 
 from canbus.tools.pcap import PcapWriter
 from skin.errors import ConfigError, SkinError
-from skin.inputs.outputs import create_beside, discard, put_in_place, reserve, write_error
+from skin.inputs.outputs import (
+    create_beside,
+    create_in_place,
+    discard,
+    put_in_place,
+    reserve,
+    write_error,
+)
 
 DEFAULT_LOG_CHANNEL = "can0"
 _INTERFACE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_-]{0,14}")  # a Linux interface name
@@ -173,25 +180,14 @@ class StreamSegment(Segment):
         self._writer = WRITERS[suffix](cast(Any, self._memory), **kwargs)
         self._footer = _footer(suffix)
         self._end = 0  # bytes on disk before the footer
-        # Written beside the target and renamed over it once it holds its header: an
-        # existing file is replaced only by a recording that could be written.
-        self._fd, tmp = create_beside(path)
-        try:
-            header = self._take()
-            self._write(header + self._footer)  # a valid, empty recording from the start
-            self._end = len(header)
-            reserve(self._fd)
-        except BaseException as err:
-            os.close(self._fd)
-            discard(tmp)
-            if isinstance(err, OSError) and not isinstance(err, SkinError):
-                raise write_error(path, err) from err
-            raise
-        try:
-            put_in_place(tmp, path)
-        except BaseException:
-            os.close(self._fd)
-            raise
+
+        def header(fd: int) -> None:
+            self._fd = fd
+            head = self._take()
+            self._write(head + self._footer)  # a valid, empty recording from the start
+            self._end = len(head)
+
+        self._fd = create_in_place(path, header)
 
     def writer(self) -> can.Listener:
         return self._writer

@@ -17,9 +17,10 @@ import contextlib
 import errno
 import os
 import stat
+from collections.abc import Callable
 from pathlib import Path
 
-from skin.errors import OutputError
+from skin.errors import OutputError, SkinError
 
 _KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
           (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
@@ -125,6 +126,29 @@ def put_in_place(tmp: str, path: str | os.PathLike[str]) -> None:
     except OSError as err:
         discard(tmp)
         raise write_error(path, err) from err
+
+
+def create_in_place(path: str | os.PathLike[str], write_header: Callable[[int], object]) -> int:
+    """A stream's file at ``path``: created beside it, ``write_header(fd)`` called, room for
+    the first writes proved (:func:`reserve`), then renamed over ``path``, so an existing
+    file is replaced only by a stream that could be written; its descriptor. An OSError as
+    one line naming ``path``, and nothing left behind."""
+    fd, tmp = create_beside(path)
+    try:
+        write_header(fd)
+        reserve(fd)
+    except BaseException as err:
+        os.close(fd)
+        discard(tmp)
+        if isinstance(err, OSError) and not isinstance(err, SkinError):
+            raise write_error(path, err) from err
+        raise
+    try:
+        put_in_place(tmp, path)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
 
 
 def discard(tmp: str) -> None:
