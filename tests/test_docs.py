@@ -36,9 +36,11 @@ def _run_block(block: Block, where: Folder) -> str | None:
             return f"a block tagged {block.lang!r}: tag it text (not run), or sh, or python"
     finally:
         problems = background.stop()
-    if got.code != 0:
-        return (f"exit {got.code} after {got.seconds:.1f} s\n{got.stdout[-1500:]}\n"
-                f"{got.stderr[-2500:]}")
+    if got.code != 0:  # which lines failed first: later lines' output may bury them
+        failed = [line for line in got.stderr.splitlines()
+                  if line.startswith(("doc-test:", "skin: error", "Traceback"))]
+        return (f"exit {got.code} after {got.seconds:.1f} s\n" + "\n".join(failed) +
+                f"\n{got.stdout[-1500:]}\n{got.stderr[-2500:]}")
     missing = [f for f in block.marker.get("makes", "").split() if not (where.path / f).exists()]
     if missing:
         return f"did not make {', '.join(missing)}"
