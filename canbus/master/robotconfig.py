@@ -54,16 +54,20 @@ class Robot:
         """The pose of ``frame`` in ``link``'s frame, through fixed joints only."""
         if frame not in self.links:
             raise ConfigError(f"{where}.frame", f"no frame {frame!r} in {self.source}")
-        pose, at = Pose(), frame
-        while at != link:
-            if at not in self.parents:
+        chain: list[tuple[str, str, str, Pose]] = []
+        at = frame
+        while at != link:  # up the tree from the frame to the link
+            if at not in self.parents or len(chain) > len(self.parents):
                 raise ConfigError(f"{where}.frame", f"{frame!r} is not on link {link!r} in "
                                   f"{self.source}")
-            joint, kind, parent, origin = self.parents[at]
+            chain.append(self.parents[at])
+            at = chain[-1][2]
+        pose = Pose()
+        for joint, kind, _, origin in chain:
             if kind != "fixed":
                 raise ConfigError(f"{where}.frame", f"{frame!r} moves on link {link!r}: "
                                   f"joint {joint!r} between them is {kind}")
-            pose, at = pose.then(origin), parent
+            pose = pose.then(origin)
         return pose
 
 
