@@ -12,8 +12,11 @@ Frames (docs/robot.md):
   metres; the patch frame is placed in it by ``pose`` (a rotation, then a translation:
   p_link = R·p_patch + t).
 
-A taxel's force (Fx, Fy, Fz) is along its own local axes (the surface's tangent along u,
-along v, and its normal), so in the link frame it is R·(Fx·e_u + Fy·e_v + Fz·n).
+A taxel's force (Fx, Fy, Fz) is in its own local axes (the surface's tangent along u,
+along v, and its outward normal n), with canskin's patch-frame signs: Fx, Fy the shear the
+object puts on the skin, Fz > 0 pressing in. In the link frame the force is the physical
+vector the object puts on the link, R·(Fx·e_u + Fy·e_v − Fz·n): a press points into the
+skin, against the normal.
 Pure numpy, float64; SI units.
 """
 
@@ -147,8 +150,10 @@ class PatchPlacement:
         return point, np.stack([tangent, along_v, normal], axis=1)
 
     def force_in_link(self, force_N: ArrayLike, pitch_m: float) -> F64:
-        """``(..., 9, 3)`` taxel forces (their own axes) -> ``(..., 9, 3)`` in the link frame."""
+        """``(..., 9, 3)`` taxel forces (patch-frame signs, each taxel's axes) -> the forces
+        on the link, ``(..., 9, 3)`` in the link frame (Fz > 0 along -normal)."""
         _, axes = self.taxel_frames(pitch_m)
+        axes = axes * np.array([1.0, 1.0, -1.0])[:, None]
         out: F64 = np.einsum("...ka,kab->...kb", np.asarray(force_N, dtype=np.float64), axes)
         return out
 
@@ -160,7 +165,7 @@ class PatchOnLink:
     node_id: int
     link: str
     point_m: F64  # (3,) the centre of pressure on the surface
-    force_N: F64  # (3,) the net force over the taxels in contact
+    force_N: F64  # (3,) the net force on the link over the taxels in contact
     normal: F64  # (3,) the surface's outward normal at the centre of pressure
     taxels: tuple[int, ...]  # the taxels in contact
     taxel_points_m: F64  # (len(taxels), 3) their centres
@@ -191,7 +196,7 @@ class LinkContact:
 
     link: str
     point_m: F64  # (3,) centre of pressure in the link frame
-    force_N: F64  # (3,) net force in the link frame (on the skin, pressing in: along -normal)
+    force_N: F64  # (3,) net force the object puts on the link (a press: against normal)
     normal: F64  # (3,) unit, outward
     taxels: tuple[tuple[int, int], ...]  # (patch node-ID, taxel) it rests on
     pressure_Pa: float  # net normal force over the taxels' area

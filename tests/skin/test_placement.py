@@ -66,7 +66,7 @@ def test_a_flat_patch_at_the_link_origin_is_its_patch_frame() -> None:
     c = summarize(f[None], np.ones((1, 9), dtype=bool))
     got = _summary_on_link(PatchPlacement("palm"), f)
     assert_allclose(got.point_m, [*c.cop_m[0], 0.0], atol=1e-15)
-    assert_allclose(got.force_N, c.force_N[0], atol=1e-15)
+    assert_allclose(got.force_N, c.force_N[0] * [1, 1, -1], atol=1e-15)  # a press: into it
     assert_allclose(got.normal, [0.0, 0.0, 1.0])
 
 
@@ -89,7 +89,7 @@ def test_adjoining_patches_of_one_link_touched_at_once_are_one_contact() -> None
     (one,) = merge([a, b], PITCH)
     assert one.patches == (3, 4) and one.taxels == ((3, 5), (4, 3))
     assert_allclose(one.point_m, [0.0, 0.0, 0.0], atol=1e-15)  # between the two, equal forces
-    assert_allclose(one.force_N, [0.0, 0.0, 2.0])
+    assert_allclose(one.force_N, [0.0, 0.0, -2.0])
     far = _pressed(4, right, [5])  # 45 mm from patch 3's contact: another object
     assert len(merge([a, far], PITCH)) == 2
     other_link = _pressed(4, PatchPlacement("forearm", right.pose), [3])
