@@ -90,12 +90,20 @@ def scene_params(scene: Scene, base: ContactParams) -> ContactParams:
 
 def train(name: str, scene: Scene, steps: int, seed: int) -> Decoder:
     """Decoder ``name`` fitted on ``steps`` steps of ``scene`` (every patch's samples)."""
+    if name == "analytic":
+        return create_decoder(name)
+    frame = Simulator(scene, seed=seed).run(steps)
+    return train_on(name, frame.resistance_ohm, frame.force_N)
+
+
+def train_on(name: str, resistance_ohm: F64, force_N: F64) -> Decoder:
+    """Decoder ``name`` fitted on ``(..., 9, P)`` resistances and their ``(..., 9, 3)``
+    true forces (analytic: as it is)."""
     decoder = create_decoder(name)
     if name == "analytic":
         return decoder
-    frame = Simulator(scene, seed=seed).run(steps)
-    return decoder.fit(frame.resistance_ohm.reshape(-1, 9, scene.pillars),
-                       frame.force_N.reshape(-1, 9, 3))
+    return decoder.fit(resistance_ohm.reshape(-1, 9, resistance_ohm.shape[-1]),
+                       force_N.reshape(-1, 9, 3))
 
 
 def through_dataplane(resistance_ohm: F64, scene: Scene, decoder: Decoder,

@@ -103,6 +103,18 @@ MUTANTS = (
            "    except (SkinError, OSError) as err:",
            "    except SkinError as err:",
            ("tests/skin/test_os_errors.py",)),
+    Mutant("cross-patch-press-split",
+           "a press across the border of two patches of one link is one contact",
+           "skin/placement.py",
+           "ADJOIN_PITCHES = 1.5\n",
+           "ADJOIN_PITCHES = 0.5\n",
+           ("tests/skin/test_placement.py",)),
+    Mutant("link-pose-ignored",
+           "a contact on a link is in the link's frame: the patch's pose moves it",
+           "skin/placement.py",
+           "        rot, t = self.pose.matrix, self.pose.vector\n",
+           "        rot, t = np.eye(3), np.zeros(3)\n",
+           ("tests/skin/test_placement.py",)),
 )
 
 

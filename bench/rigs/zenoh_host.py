@@ -8,7 +8,7 @@ import contextlib
 import itertools
 import os
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 
 import can
@@ -24,6 +24,7 @@ from canbus.master.hostconfig import HostConfig, PatchConfig
 from canbus.zenoh.config import ZenohSettings
 from canbus.zenoh.publisher import ZenohPublisher
 from skin.constants import DEFAULT_CONSTANTS
+from skin.placement import PatchPlacement
 from skin.tripod import resistance_from_force
 
 _channels = itertools.count()
@@ -62,14 +63,17 @@ class Rig:
 @contextlib.contextmanager
 def publishing_host(patches: tuple[int, ...] = (1, 2), *, period_ms: float = 20.0,
                     settings: ZenohSettings | None = None,
-                    host_name: str = "test-host") -> Iterator[Rig]:
-    """A running host publishing on Zenoh (see the module docstring)."""
+                    host_name: str = "test-host",
+                    placements: Mapping[int, PatchPlacement] | None = None) -> Iterator[Rig]:
+    """A running host publishing on Zenoh (see the module docstring); ``placements``: the
+    patches' places on the robot's links, by node-ID."""
     channel = f"zenoh-test-{os.getpid()}-{next(_channels)}"
     network = canopen.Network()
     network.NOTIFIER_CYCLE = 0.05
     network.connect(interface="virtual", channel=channel)
     bus = can.Bus(interface="virtual", channel=channel)
-    config = HostConfig(patches=tuple(PatchConfig(n) for n in patches),
+    placed = placements or {}
+    config = HostConfig(patches=tuple(PatchConfig(n, placement=placed.get(n)) for n in patches),
                         sync_period_ms=period_ms, scan_ms=300, sdo_timeout_ms=2000,
                         heartbeat_ms=500)
     endpoint = f"tcp/127.0.0.1:{tcp_port()}"

@@ -18,6 +18,7 @@ from decoder.protocol import Decoder
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH
 from skin.contact_state import ContactSummary
 from skin.errors import ConfigError
+from skin.placement import PatchOnLink, PatchPlacement, on_link
 
 RESISTANCES, ANSWERED = 0x2000, 0x2006
 
@@ -37,6 +38,18 @@ class ForceFrame:
     complete: bool  # every TPDO of one answer of the patch arrived, in order, in the window
     published: bool  # the force TPDOs went onto the bus
     contact: ContactSummary | None = None  # net force, CoP, contact, slip (docs/contact.md)
+    placement: PatchPlacement | None = field(default=None, repr=False)  # its link and pose
+    pitch_m: float = field(default=DEFAULT_CONSTANTS.taxel_pitch_m, repr=False)
+
+    @property
+    def on_link(self) -> PatchOnLink | None:
+        """The contact summary in the frame of the link the config places the patch on
+        (docs/robot.md); None without a placement or a summary."""
+        c = self.contact
+        if self.placement is None or c is None:
+            return None
+        return on_link(self.patch, self.placement, self.pitch_m, self.force_N,
+                       c.contact_taxels, c.cop_m, c.in_contact)
 
 
 @dataclass

@@ -39,6 +39,7 @@ from skin.contact_state import (
     thresholds,
 )
 from skin.contact_sums import SumsKernel
+from skin.placement import PatchPlacement
 
 _CACHED_LAYOUTS = 64
 
@@ -50,9 +51,13 @@ class PatchContact:
     """Every per-patch number a batch needs; replaced (never changed) on an update."""
 
     def __init__(self, geometry: PatchGeometry | None = None,
-                 params: ContactParams | None = None) -> None:
+                 params: ContactParams | None = None,
+                 placement: PatchPlacement | None = None) -> None:
         self.geometry = geometry or PatchGeometry()
         self.params = params or ContactParams()
+        self.placement = placement
+        """Its link and pose on the robot (None: a flat skin only): the API's frames give
+        the summary in the link's frame too (``ForceFrame.on_link``)."""
         self.state = 0
 
     @property

@@ -29,6 +29,7 @@ from canbus.master.contact import PatchContact
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.contact import ContactParams, PatchGeometry
 from skin.errors import ConfigError
+from skin.placement import PatchPlacement
 
 PARAM_KEYS = tuple(f.name for f in dataclasses.fields(ContactParams))
 
@@ -81,6 +82,8 @@ class PatchPlace(Protocol):
     def orientation_deg(self) -> float: ...
     @property
     def contact(self) -> ContactParams | None: ...
+    @property
+    def placement(self) -> PatchPlacement | None: ...
 
 
 class HostContact(Protocol):
@@ -99,7 +102,7 @@ def patch_contact(patch: PatchPlace, config: HostContact) -> PatchContact | None
     constants = patch.constants or DEFAULT_CONSTANTS
     geometry = PatchGeometry(constants.taxel_pitch_m, patch.position_m or (0.0, 0.0),
                              patch.orientation_deg)
-    return PatchContact(geometry, patch.contact or config.contact)
+    return PatchContact(geometry, patch.contact or config.contact, patch.placement)
 
 
 def take_pitch(contact: PatchContact | None, constants: SensorConstants) -> None:

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 from canbus.master.busconfig import BusConfig, buses_from_dict
 from canbus.master.cobids import check_cob_ids, restricted
 from canbus.master.contactconfig import check_orientation, contact_from_table
+from canbus.master.robotconfig import PLACEMENT_KEYS, Robot, placement_from_table, robot_from_table
 from decoder.protocol import Decoder
 from decoder.registry import decoder_class, load_decoder, needs_fitting
 from skin.constants import R0_RANGE_OHM, TAXELS_PER_PATCH, SensorConstants
@@ -29,6 +30,7 @@ from skin.contact import ContactParams
 from skin.errors import ConfigError, ModelFileError
 from skin.inputs import fields
 from skin.inputs.tomlfile import read_toml
+from skin.placement import PatchPlacement
 
 if TYPE_CHECKING:
     from canbus.zenoh.config import ZenohSettings
@@ -57,6 +59,7 @@ class PatchConfig:
     position_m: tuple[float, float] | None = None  # where the patch sits on the skin (views)
     orientation_deg: float = 0.0  # its frame turned about the skin's normal (contact.md)
     contact: ContactParams | None = None  # its own contact thresholds (None: the host's)
+    placement: PatchPlacement | None = None  # its link and pose on the robot (docs/robot.md)
     bus: str = ""  # the bus the patch is on ("": the host's first bus)
     force_bus: str = ""  # the bus its force node publishes on ("": the patch's)
     serial: int | None = None  # LSS: the patch with this serial number gets node_id
@@ -155,7 +158,8 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
     """Validate a parsed TOML document into a :class:`HostConfig`."""
     if not isinstance(data, Mapping):
         raise ConfigError("config", f"must be a table, got {fields.shown(data)}")
-    _known(data, ("host", "drift", "contact", "patches", "bus", "buses", "zenoh"), "config")
+    _known(data, ("host", "drift", "contact", "patches", "bus", "buses", "zenoh", "robot"),
+           "config")
     host = data.get("host", {})
     if not isinstance(host, dict):
         raise ConfigError("host", "must be a table ([host])")
@@ -190,7 +194,8 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
     if len(tables) > 127:
         raise ConfigError("patches", f"{len(tables)} patches; a bus has node-IDs 1..127")
     buses = buses_from_dict(data)
-    patches = tuple(_patch(t, f"patches[{i}]", base, buses, contact)
+    robot = robot_from_table(data.get("robot"), base)
+    patches = tuple(_patch(t, f"patches[{i}]", base, buses, contact, robot)
                     for i, t in enumerate(tables))
     if "zenoh" in data:
         from canbus.zenoh.config import zenoh_settings_from_table
@@ -224,14 +229,15 @@ DRIFT_RANGES = {"time_constant_s": 1e6, "contact_N": 1e4}
 SYNC_MODES = ("produce", "external")
 _PATCH_FIELDS = ("node_id", "decoder", "model", "mode", "force_node", "force_cob_ids",
                  "constants", "r0_ohm", "answer_order", "position_m", "bus", "force_bus",
-                 "serial", "orientation_deg", "contact")
+                 "serial", "orientation_deg", "contact", *PLACEMENT_KEYS)
 # What a patch reports about itself: 0x2001 (LSB) and 0x2003 (adc_bits is not reported).
 CONSTANT_KEYS = ("resistance_lsb_ohm", "youngs_modulus_pa", "resistivity_ohm_m", "length_m",
                  "area_m2", "max_strain", "full_scale_force_N", "taxel_pitch_m")
 
 
 def _patch(table: dict[str, Any], where: str, base: Path,
-           buses: tuple[BusConfig, ...], contact: ContactParams | None) -> PatchConfig:
+           buses: tuple[BusConfig, ...], contact: ContactParams | None,
+           robot: Robot | None = None) -> PatchConfig:
     _known(table, _PATCH_FIELDS, where)
     if "node_id" not in table:
         raise ConfigError(f"{where}.node_id", "missing")
@@ -264,6 +270,7 @@ def _patch(table: dict[str, Any], where: str, base: Path,
         kwargs["orientation_deg"] = check_orientation(
             _typed(table["orientation_deg"], float, f"{where}.orientation_deg"),
             f"{where}.orientation_deg")
+    kwargs["placement"] = placement_from_table(table, where, robot)
     if "contact" in table:
         kwargs["contact"] = contact_from_table(table["contact"], f"{where}.contact", contact)
     if "r0_ohm" in table:

@@ -201,9 +201,13 @@ class Publisher:
         summaries = contact_rows(contact, nodes)
         for i, job in enumerate(jobs):
             cycle, counter, timestamp = job.cycle
+            judge = nodes[i].contact
+            placed = judge is not None and judge.placement is not None
             out.append(ForceFrame(job.slot.channel.node_id, nodes[i].node_id, cycle, counter,
                                   timestamp, force[i], valid[i], reason[i], job.complete,
-                                  published[i], summaries[i]))
+                                  published[i], summaries[i],
+                                  *((judge.placement, judge.geometry.pitch_m)
+                                    if placed and judge is not None else ())))
         self._follow_baselines(jobs, out)
         stats = self.stats
         stats.samples += len(out)

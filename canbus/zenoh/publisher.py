@@ -25,6 +25,7 @@ from canbus.master.dataplane import ForceFrame
 from canbus.master.events import EmcyEvent, HostEvent, StateEvent
 from canbus.zenoh import schema
 from canbus.zenoh.config import ZenohSettings, open_zenoh
+from canbus.zenoh.contacts import CONTACTS_ENCODING, CycleGroups, contacts_key, contacts_message
 from canbus.zenoh.cputime import ThreadClock, native_threads, python_threads, threads_cpu
 
 if TYPE_CHECKING:
@@ -88,6 +89,8 @@ class ZenohPublisher:
         self.session = session
         self._own_session = session is None
         self._publishers: dict[int, tuple[Any, bytes]] = {}  # patch -> (publisher, bus utf-8)
+        self._contacts: dict[str, tuple[Any, CycleGroups]] = {}  # bus -> its contact list's
+        self.contacts_sent = 0
         self._events: Any = None
         self._stats_pub: Any = None
         self._token: Any = None
@@ -134,6 +137,15 @@ class ZenohPublisher:
                 congestion_control=zenoh.CongestionControl.DROP,
                 priority=zenoh.Priority.DATA_HIGH, express=self.settings.express)
             self._publishers[patch.node_id] = (publisher, patch.bus.encode())
+        placed = {p.bus for p in self.host.config.patches if p.placement is not None}
+        for bus in sorted(placed):  # the robot-wide contact list (docs/robot.md)
+            publisher = self.session.declare_publisher(
+                contacts_key(prefix, self.host_name, bus),
+                encoding=zenoh.Encoding(CONTACTS_ENCODING),
+                congestion_control=zenoh.CongestionControl.DROP,
+                priority=zenoh.Priority.DATA_HIGH, express=self.settings.express)
+            patches = sum(1 for p in self.host.config.patches if p.bus == bus)
+            self._contacts[bus] = (publisher, CycleGroups(patches))
         self._stats_pub = self.session.declare_publisher(
             schema.stats_key(prefix, self.host_name),
             encoding=zenoh.Encoding(schema.EVENT_ENCODING),
@@ -161,6 +173,11 @@ class ZenohPublisher:
         if self.session is None:
             return
         self._publish_stats()
+        for bus, (publisher, groups) in self._contacts.items():
+            for frames in groups.rest():
+                self._put_contacts(publisher, bus, frames)
+            publisher.undeclare()
+        self._contacts.clear()
         for publisher, _ in self._publishers.values():
             publisher.undeclare()
         self._publishers.clear()
@@ -209,11 +226,24 @@ class ZenohPublisher:
                 publisher.put(schema.encode_forces(frame, self._host_bytes, bus, published,
                                                    time.time()))
                 self.sent += 1
+                if self._contacts:
+                    self._group(frame)
             else:
                 self._publish_event(item)
         except Exception:
             self.put_errors += 1
             logger.exception("zenoh: could not publish %r", type(item).__name__)
+
+    def _group(self, frame: ForceFrame) -> None:
+        bus = self.host.config.patch(frame.patch).bus
+        mine = self._contacts.get(bus)
+        if mine is not None:
+            for frames in mine[1].add(frame):
+                self._put_contacts(mine[0], bus, frames)
+
+    def _put_contacts(self, publisher: Any, bus: str, frames: list[ForceFrame]) -> None:
+        publisher.put(contacts_message(self.host_name, bus, frames))
+        self.contacts_sent += 1
 
     def _publish_event(self, event: HostEvent) -> None:
         assert self.session is not None
@@ -257,7 +287,7 @@ class ZenohPublisher:
         """Samples queued, sent, dropped (queue full), events sent, errors."""
         return {"queued": self.queue.put_count, "sent": self.sent,
                 "dropped": self.queue.dropped, "events_sent": self.events_sent,
-                "put_errors": self.put_errors}
+                "contacts_sent": self.contacts_sent, "put_errors": self.put_errors}
 
     def cpu_seconds(self) -> dict[str, float]:
         """CPU spent publishing: the publishing thread, Zenoh's own threads, and the

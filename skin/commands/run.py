@@ -41,6 +41,7 @@ from skin.commands.common import argtypes
 if TYPE_CHECKING:
     import can
 
+    from canbus.master.channel import ForceFrame
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig
     from canbus.zenoh.publisher import ZenohPublisher
@@ -196,6 +197,49 @@ def _run_host(args: argparse.Namespace, config: HostConfig) -> int:
     return 0
 
 
+class _ContactLines:
+    """Prints a line whenever a contact on the robot's links begins or the patches it rests
+    on change (docs/robot.md): the host's force callback only queues the frame, a thread
+    of its own groups them into cycles and prints; it ends after the host stops."""
+
+    def __init__(self, host: HostManager) -> None:
+        import queue
+
+        self.host = host
+        self.queue: queue.SimpleQueue[ForceFrame | None] = queue.SimpleQueue()
+        self.thread = threading.Thread(target=self._follow, name="contacts", daemon=True)
+
+    def __enter__(self) -> _ContactLines:
+        self.thread.start()
+        self.host.on_forces(self.queue.put)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.host.remove_callback(self.queue.put)
+        self.queue.put(None)
+        self.thread.join()
+
+    def _frames(self) -> Iterator[ForceFrame]:
+        while (frame := self.queue.get()) is not None:
+            yield frame
+
+    def _follow(self) -> None:
+        from canbus.master.robot import robot_contacts
+
+        before: set[tuple[str, tuple[int, ...]]] = set()
+        for _, contacts in robot_contacts(self._frames()):
+            now = {(c.link, c.patches) for c in contacts}
+            for c in contacts:
+                if (c.link, c.patches) not in before:
+                    x, y, z = (1e3 * c.point_m).tolist()
+                    fx, fy, fz = c.force_N.tolist()
+                    print(f"{time.strftime('%H:%M:%S')} contact on {c.link} (patches "
+                          f"{'+'.join(map(str, c.patches))}): point ({x:.1f}, {y:.1f}, "
+                          f"{z:.1f}) mm, force ({fx:+.2f}, {fy:+.2f}, {fz:+.2f}) N",
+                          flush=True)
+            before = now
+
+
 def _beside(stack: Any, args: argparse.Namespace, config: HostConfig, host: HostManager
             ) -> tuple[ZenohPublisher | None, HostRecording | None]:
     """The Zenoh publisher and the ``--record`` recording, each closed after the host
@@ -203,6 +247,8 @@ def _beside(stack: Any, args: argparse.Namespace, config: HostConfig, host: Host
     publisher = _zenoh_publisher(host, config, args)
     if publisher is not None:
         stack.enter_context(publisher)
+    if args.contacts:
+        stack.enter_context(_ContactLines(host))
     if not args.record:
         return publisher, None
     from skin.commands.common.hostrecord import recording
@@ -395,6 +441,10 @@ def add_subparser(subparsers: Any) -> None:
                         help="write the run's figures as JSON")
     parser.add_argument("--status-every", type=argtypes.seconds, default=None, metavar="S",
                         help="print a health line every S seconds")
+    parser.add_argument("--contacts", action="store_true",
+                        help="print a line whenever a contact on the robot's links begins: "
+                             "link, patches, point and force in the link's frame "
+                             "(patches placed on links, docs/robot.md)")
     parser.add_argument("--zenoh", action="store_true",
                         help="publish every force sample, state change, EMCY and the "
                              "statistics on Zenoh (the config's [zenoh] table, else "

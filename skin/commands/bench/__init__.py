@@ -38,7 +38,7 @@ def add_subparser(subparsers: Any) -> None:
                     "and with --realtime, against a bare python-can receiver (docs/host.md).")
     parser.add_argument("target", nargs="?",
                         choices=("decoders", "cross", "paper", "sim", "dataplane", "server",
-                                 "publish", "contact", "realtime"),
+                                 "publish", "contact", "realtime", "robot"),
                         default="decoders")
     parser.add_argument("--quick", action="store_true",
                         help="one seed, smaller batches and sets (about a minute or less)")
@@ -164,6 +164,12 @@ def _realtime(args: argparse.Namespace) -> dict[str, Any]:
     return run_realtime(args)
 
 
+def _robot(args: argparse.Namespace) -> dict[str, Any]:
+    from skin.commands.bench.robot import run_robot  # docs/robot.md
+
+    return run_robot(args)
+
+
 def _cross(args: argparse.Namespace) -> dict[str, Any]:
     from bench.runs import mlp_params, run_cross
     from skin.commands.bench.cross import print_cross
@@ -200,4 +206,5 @@ def _decoders(args: argparse.Namespace) -> dict[str, Any]:
 _RUNNERS: dict[str, Callable[[argparse.Namespace], dict[str, Any]]] = {
     "sim": _sim, "dataplane": _dataplane, "server": _server, "contact": _contact,
     "cross": _cross, "paper": _paper, "decoders": _decoders, "realtime": _realtime,
+    "robot": _robot,
 }

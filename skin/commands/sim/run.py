@@ -160,7 +160,13 @@ def _run_pinned(args: argparse.Namespace) -> int:
     from skin.commands.common.busopen import announce, choose_bus, open_bus
     from skin.errors import ConfigError
 
-    scene = scene_on_patches(args.scene, args.patches)
+    source = None
+    if args.robot is not None:
+        from skin.commands.sim.robot import probe_source
+
+        scene, source = probe_source(args)
+    else:
+        scene = scene_on_patches(args.scene, args.patches)
     if not 1 <= args.buses <= len(scene.node_ids):
         raise ConfigError("--buses", f"must be in 1..{len(scene.node_ids)} (one patch or more "
                                      f"on each bus), got {args.buses}")
@@ -181,14 +187,14 @@ def _run_pinned(args: argparse.Namespace) -> int:
             connect(network)  # canopen's listeners on a notifier that survives the bus
             networks.append(network)
         announce("skin sim run", described, sends=True)
-        return _serve(args, scene, networks, flags, planned)
+        return _serve(args, scene, networks, flags, planned, source)
     finally:
         for network in networks:
             disconnect(network)
 
 
 def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Network],
-           flags: list[argparse.Namespace], planned: Plan) -> int:
+           flags: list[argparse.Namespace], planned: Plan, given: Any = None) -> int:
     from canbus.busio import gone
     from canbus.device.patch_server import PatchServer
     from canbus.device.source import SimulatorSource
@@ -198,10 +204,14 @@ def _serve(args: argparse.Namespace, scene: Scene, networks: list[canopen.Networ
     from skin.commands.common.signals import until_stopped
     from skin.commands.sim.identity import patch_identities
 
-    simulator = Simulator(scene, seed=args.seed)
-    truth = TruthSource(simulator) if args.truth else None
-    ahead = max(1, round(AHEAD_S * scene.rate_hz))
-    source = truth or SimulatorSource(simulator, ahead=ahead)
+    truth = None
+    if given is not None:  # the robot's probe scene (--robot), one loop computed, replayed
+        source = given
+    else:
+        simulator = Simulator(scene, seed=args.seed)
+        truth = TruthSource(simulator) if args.truth else None
+        ahead = max(1, round(AHEAD_S * scene.rate_hz))
+        source = truth or SimulatorSource(simulator, ahead=ahead)
     # With --truth each SYNC reads its own step in the SYNC handler (no sample thread).
     server = PatchServer(networks, source, event_rate_hz=0.0 if truth else scene.rate_hz,
                          accept_only_consumed=True, **patch_identities(args, scene))
@@ -341,6 +351,10 @@ def add_subparser(group_subparsers: Any) -> None:
                         help="also write the true forces of every answer as reference forces "
                              "(docs/calibrate.md); each SYNC then steps the simulator once "
                              "(one bus only)")
+    parser.add_argument("--robot", metavar="HOST.toml", default=None,
+                        help="SCENE is a probe scene (examples/robot/probe.toml) pressing the "
+                             "patches this host config places on the robot's links "
+                             "(docs/robot.md)")
     add_identity_arguments(parser)
     add_cpu_argument(parser, default="all")
     argtypes.add_bus_arguments(parser)

@@ -199,7 +199,7 @@ class SkinView:
     def lines(self, now: float | None = None, label: str | None = None) -> list[Line]:
         """One frame of the view as lines of (text, rich style) segments."""
         state = self.state(now)
-        return [*self._header(state, label), [], *self._grid(state)]
+        return [*self._header(state, label), [], *self._grid(state), *self._robot(state)]
 
     def text(self, now: float | None = None, label: str | None = None) -> str:
         """One frame as plain text (no escape codes), lines without trailing spaces."""
@@ -264,6 +264,30 @@ class SkinView:
                     if column < columns - 1:
                         line.append((" " * GAP_W, ""))
                 out.append(line)
+        return out
+
+    def _robot(self, state: ViewState) -> list[Line]:
+        """The contacts on the robot's links (docs/robot.md) of the patches' latest samples,
+        when they are placed on links (a host's frames: ``--decode --config``); else none."""
+        from skin.placement import merge
+
+        placed = [(one, s.last) for s in state.statuses.values()
+                  if (one := getattr(s.last, "on_link", None)) is not None]
+        if not placed:
+            return []
+        pitch = max(float(getattr(frame, "pitch_m", 0.0)) for _, frame in placed)
+        out: list[Line] = [[], [("on the robot", "bold"),
+                                ("  (link frame: point in mm, force on the link in N)", "dim")]]
+        contacts = merge([one for one, _ in placed], pitch)
+        for c in contacts:
+            x, y, z = (1e3 * c.point_m).tolist()
+            fx, fy, fz = c.force_N.tolist()
+            patches = "+".join(map(str, c.patches))
+            out.append([(f"{c.link} (patches {patches})", "bold"),
+                        (f"  point ({x:.1f}, {y:.1f}, {z:.1f})  force ({fx:+.2f}, {fy:+.2f}, "
+                         f"{fz:+.2f})", "")])
+        if not contacts:
+            out.append([("no contact", "dim")])
         return out
 
     def _block(self, status: PatchStatus | None, patch: int) -> list[Line]:
