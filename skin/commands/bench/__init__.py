@@ -1,4 +1,4 @@
-"""``skin bench [decoders|cross|paper|sim|dataplane|server|publish|contact|realtime]``: decoders'
+"""``skin bench [decoders|cross|paper|sim|dataplane|server|publish|contact|realtime|robot]``: decoders'
 speed against error and the paper's Table 1, decoders trained on one scene and tested on
 others, the paper's figures, the simulator's speed, the CAN data plane against canopen's
 PdoMap callbacks, the patch server against python-can's own send, hosts publishing on
@@ -35,7 +35,9 @@ def add_subparser(subparsers: Any) -> None:
                     "against the simulator's truth on indenter, slide, grasp and stick-slip, "
                     "and its cost in the data plane. realtime: N patches and the host on "
                     "udp_multicast beside K CPU-bound processes, the host at normal priority "
-                    "and with --realtime, against a bare python-can receiver (docs/host.md).")
+                    "and with --realtime, against a bare python-can receiver (docs/host.md). "
+                    "robot: the example robot's probe presses, contacts on its links against "
+                    "the true ones (docs/robot.md).")
     parser.add_argument("target", nargs="?",
                         choices=("decoders", "cross", "paper", "sim", "dataplane", "server",
                                  "publish", "contact", "realtime", "robot"),
