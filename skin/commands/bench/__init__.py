@@ -1,5 +1,5 @@
-"""``skin bench [decoders|cross|paper|sim|dataplane|server|publish|contact|realtime|robot]``: decoders'
-speed against error and the paper's Table 1, decoders trained on one scene and tested on
+"""``skin bench [decoders|cross|paper|sim|dataplane|server|publish|contact|realtime|robot]``:
+decoders' speed against error and the paper's Table 1, decoders trained on one scene and tested on
 others, the paper's figures, the simulator's speed, the CAN data plane against canopen's
 PdoMap callbacks, the patch server against python-can's own send, hosts publishing on
 Zenoh, or the contact summary against the simulator's truth."""
