@@ -50,7 +50,7 @@ MUTANTS = (
            "a receive thread behind the bus loses nothing: a cycle closes where the bus "
            "passed the next SYNC",
            "canbus/master/dataplane.py",
-           "            if self._cycle is None and not self._unpassed:",
+           "            if self._cycle is None and not self._passage and not self.sync_echo:",
            "            if True:",
            ("tests/canbus/test_dataplane_answers.py",)),
     Mutant("window-ignored",

@@ -36,17 +36,9 @@ docs/host.md). Frames stamped after the window are held until the next SYNC, whi
 takes the ones inside its own window (a patch may answer SYNC k+1 before the host has
 called :meth:`DataPlane.on_sync`) and counts the rest ``late``.
 
-When a cycle closes. SYNC ``k+1`` closes cycle ``k`` where the bus passed it, not where
-the host decided to send it: the SYNC producer announces each SYNC with
-:meth:`DataPlane.on_sync_sent` before sending it, and the cycle stays open until the data
-plane takes a frame stamped at or after that SYNC (its echo, a patch's answer to it, any
-later frame: the bus's own order), so frames of cycle ``k`` that were on the bus before
-SYNC ``k+1`` but reached the receive thread after it was sent (behind the GIL, on a busy
-machine) still count for cycle ``k``. A bus that shows nothing for ``max_bus_lag_s``
-after a SYNC has its cycle opened anyway, at the next SYNC sent or :meth:`flush`.
-:meth:`DataPlane.on_sync` opens the cycle at once: for a SYNC heard on the bus (a listen-only
-host's :class:`~canbus.master.sync_producer.SyncFollower`), where it is already in the
-bus's order.
+When a cycle closes: where the bus passed the next SYNC, not where the host sent it
+(:mod:`canbus.master.syncpassage`; :meth:`DataPlane.on_sync_sent` announces a SYNC the host
+sends, :meth:`DataPlane.on_sync` opens the cycle of one heard on the bus, at once).
 
 A complete patch is published at once; every other patch is published when the next
 SYNC (or :meth:`flush`) closes the cycle, incomplete: taxels carried by a missing PDO
@@ -64,7 +56,6 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from collections import deque
 from collections.abc import Sequence
 
 import can
@@ -82,6 +73,7 @@ from canbus.master.channel import (
 )
 from canbus.master.frame_kinds import SERVICE_COB_IDS, SYNC
 from canbus.master.publisher import Publisher
+from canbus.master.syncpassage import Sync, SyncPassage
 from skin.constants import TAXELS_PER_PATCH
 from skin.errors import ConfigError
 
@@ -128,12 +120,7 @@ class DataPlane(can.Listener):
         self._slots: dict[int, AnswerSlot] = {}
         self._shapes: dict[object, int] = {}  # PDO layout and pillars -> slot key
         self._cycle: tuple[int, int, float] | None = None
-        self._unpassed: deque[tuple[int, int, float]] = deque()  # SYNCs sent, not yet passed
-        self._next_sync_t = math.inf  # the oldest of them: a frame stamped from here passes it
-        self.sync_echo = False
-        """The bus hands this data plane the echo of the SYNCs its host sends, with their
-        counter (udp_multicast, SYNC not claimed): the echo, not a time stamp, is where the
-        bus passed it."""
+        self._passage = SyncPassage()  # the SYNCs sent whose passage the bus has not shown
         self._start, self._end = math.inf, -math.inf  # no cycle open
         self._held: list[tuple[_Entry, bytes, float]] = []
         self._queue: list[SampleJob] = []
@@ -228,7 +215,7 @@ class DataPlane(can.Listener):
 
     def take(self, msg: can.Message) -> bool:
         """Handle ``msg`` if it is a PDO of a channel; False (and counted unknown) if not."""
-        if msg.timestamp >= self._next_sync_t:
+        if msg.timestamp >= self._passage.next_t:
             self._bus_passed(msg.timestamp)
         entry = self._table.get(msg.arbitration_id)
         if entry is None or msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
@@ -236,7 +223,7 @@ class DataPlane(can.Listener):
             if msg.arbitration_id in self.bus_traffic and not msg.is_extended_id \
                     and not msg.is_error_frame:
                 self.stats.bus_frames += 1  # SYNC, heartbeats, SDO, ... (frame_kinds)
-                if msg.arbitration_id == SYNC and self._unpassed and self.sync_echo:
+                if msg.arbitration_id == SYNC and self._passage and self.sync_echo:
                     self._sync_echoed(msg.data[0] if msg.data else 0)
             else:
                 self.stats.unknown_frames += 1
@@ -319,7 +306,7 @@ class DataPlane(can.Listener):
         """SYNC ``cycle`` passed on the bus at ``timestamp``: close the previous cycle (and
         any announced by :meth:`on_sync_sent` before it), open this one."""
         with self._lock:
-            self._open_unpassed(math.inf)
+            self._open_all(self._passage.passed_until(math.inf))
             self._open(cycle, sync_counter, timestamp)
         self._publish_now()
 
@@ -327,39 +314,44 @@ class DataPlane(can.Listener):
         """This host sends SYNC ``cycle`` at ``timestamp``: the open cycle closes when the bus
         shows it passed (module docstring), or at the latest ``max_bus_lag_s`` after it."""
         with self._lock:
-            if self._cycle is None and not self._unpassed and not self.sync_echo:
+            if self._cycle is None and not self._passage and not self.sync_echo:
                 self._open(cycle, sync_counter, timestamp)
             else:
-                self._unpassed.append((cycle, sync_counter, timestamp))
-                self._open_unpassed(timestamp - self.max_bus_lag_s)
+                self._passage.sent((cycle, sync_counter, timestamp))
+                self._open_all(self._passage.passed_until(timestamp - self.max_bus_lag_s))
         self._publish_now()
 
     def _bus_passed(self, timestamp: float) -> None:
         """A frame stamped ``timestamp`` was taken: every SYNC sent before it has passed."""
         with self._lock:
-            self._open_unpassed(timestamp)
+            self._open_all(self._passage.passed_until(timestamp))
         self._publish_now()
 
     def _sync_echoed(self, counter: int) -> None:
         """The echo of the SYNC with ``counter``: the bus passed it (and any sent before it
         whose echo was lost) here; an echo of a SYNC opened already changes nothing."""
         with self._lock:
-            unpassed = self._unpassed
-            if not any(sync[1] == counter for sync in unpassed):
-                return
-            while unpassed:
-                sync = unpassed.popleft()
-                self._open(*sync)
-                if sync[1] == counter:
-                    break
-        self._publish_now()
+            passed = self._passage.echoed(counter)
+            self._open_all(passed)
+        if passed:
+            self._publish_now()
 
-    def _open_unpassed(self, until: float) -> None:
-        """Open, in turn, every announced SYNC sent at or before ``until`` (lock held)."""
-        unpassed = self._unpassed
-        while unpassed and unpassed[0][2] <= until:
-            self._open(*unpassed.popleft())
-        self._next_sync_t = unpassed[0][2] if unpassed and not self.sync_echo else math.inf
+    @property
+    def sync_echo(self) -> bool:
+        """The bus hands this data plane the echo of the SYNCs its host sends, with their
+        counter (udp_multicast, SYNC not claimed): the echo, not a time stamp, is where the
+        bus passed it."""
+        return self._passage.by_echo
+
+    @sync_echo.setter
+    def sync_echo(self, value: bool) -> None:
+        with self._lock:
+            self._passage.by_echo = value
+
+    def _open_all(self, syncs: list[Sync]) -> None:
+        """Open each of ``syncs`` in turn, closing the cycle before it (lock held)."""
+        for sync in syncs:
+            self._open(*sync)
 
     def _open(self, cycle: int, sync_counter: int, timestamp: float) -> None:
         """Close the open cycle, open ``cycle`` and judge the frames held for it (lock held)."""
@@ -389,7 +381,7 @@ class DataPlane(can.Listener):
     def flush(self) -> None:
         """Close the current cycle now and publish everything queued before returning."""
         with self._lock:
-            self._open_unpassed(math.inf)
+            self._open_all(self._passage.passed_until(math.inf))
             self._close()
             self._cycle = None
             self._start, self._end = math.inf, -math.inf
