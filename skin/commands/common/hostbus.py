@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     import can
 
+    from canbus.busio import ResilientBus
+    from canbus.master.busconfig import BusConfig
     from canbus.master.hostconfig import HostConfig
 
 logger = logging.getLogger("skin.commands")
@@ -72,9 +74,19 @@ def _warn_if_in_process(interface: str | None, flags: dict[str, Any], source: st
 
 def open_all(config: HostConfig, stack: ExitStack, *,
              rcvbuf: int = 0) -> dict[str, can.BusABC]:
-    """Open every bus of ``config``, each a ``canbus.busio.ResilientBus`` (opened again
-    when it keeps failing; ``rcvbuf``: its socket's receive buffer, each time); each is
-    shut down when ``stack`` closes."""
+    """Open every bus of ``config`` (:func:`open_resilient`); each is shut down when
+    ``stack`` closes."""
+    opened: dict[str, can.BusABC] = {}
+    for bus in config.buses:
+        handle = open_resilient(bus, rcvbuf, name=f"{bus.name} ({bus.described})")
+        stack.callback(handle.shutdown)
+        opened[bus.name] = handle
+    return opened
+
+
+def open_resilient(bus: BusConfig, rcvbuf: int, *, name: str) -> ResilientBus:
+    """``bus`` as a ``canbus.busio.ResilientBus`` (opened again when it keeps failing;
+    ``rcvbuf``: its socket's receive buffer, each time), python-can's log lines held back."""
     from functools import partial
 
     from canbus.busio import ResilientBus
@@ -82,16 +94,10 @@ def open_all(config: HostConfig, stack: ExitStack, *,
     from canbus.tools.recorder import enlarge_receive_buffer
     from skin.commands.common.logs import held_back
 
-    opened: dict[str, can.BusABC] = {}
-    for bus in config.buses:
-        with held_back("can"):
-            handle = ResilientBus(partial(open_bus, bus),
-                                  name=f"{bus.name} ({bus.described})",
-                                  prepare=partial(enlarge_receive_buffer, size=rcvbuf)
-                                  if rcvbuf else None)
-        stack.callback(handle.shutdown)
-        opened[bus.name] = handle
-    return opened
+    with held_back("can"):
+        return ResilientBus(partial(open_bus, bus), name=name,
+                            prepare=partial(enlarge_receive_buffer, size=rcvbuf)
+                            if rcvbuf else None)
 
 
 def describe(config: HostConfig) -> str:

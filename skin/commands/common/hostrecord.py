@@ -75,13 +75,9 @@ def recording(path: str, config: HostConfig, host: HostManager,
 @contextlib.contextmanager
 def _in_process(path: str, config: HostConfig, host: HostManager, channel: str | None,
                 places: Any, rcvbuf: int, result: HostRecording) -> Iterator[None]:
-    from functools import partial
-
-    from canbus.busio import ResilientBus
-    from canbus.master.busconfig import open_bus
     from canbus.receiveloop import ReceiveLoop
-    from canbus.tools.recorder import Recorder, enlarge_receive_buffer
-    from skin.commands.common.logs import held_back
+    from canbus.tools.recorder import Recorder
+    from skin.commands.common.hostbus import open_resilient
     from skin.commands.common.recordproc import NamedFrames
 
     recorder = Recorder(path, channel=channel, placements=places)
@@ -93,11 +89,8 @@ def _in_process(path: str, config: HostConfig, host: HostManager, channel: str |
     with ExitStack() as stack:
         stack.callback(_stopped, recorder, result)  # last: after every frame was handed on
         for bus in config.buses:
-            with held_back("can"):
-                handle = ResilientBus(partial(open_bus, bus),
-                                      name=f"recording {bus.name} ({bus.described})",
-                                      prepare=partial(enlarge_receive_buffer, size=rcvbuf)
-                                      if rcvbuf else None)
+            handle = open_resilient(bus, rcvbuf,
+                                    name=f"recording {bus.name} ({bus.described})")
             stack.callback(handle.shutdown)
             listener = NamedFrames(recorder, bus.name) if len(config.buses) > 1 else recorder
             loop = ReceiveLoop(handle, [listener], timeout=0.05, name=f"record {bus.name}")
