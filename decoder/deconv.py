@@ -21,7 +21,8 @@ from typing import Any, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from decoder.domain import Box, Domain, check_margin, domain_reasons, per_taxel
+from decoder.box import Box
+from decoder.domain import Domain, check_margin, domain_reasons, per_taxel
 from decoder.patchcheck import block_margin
 from decoder.physics import features, taxel_reasons, to_force
 from decoder.protocol import (

@@ -8,7 +8,7 @@ Four checks, each fitted on the training data and kept in the model file:
   tolerance as the others instead of none.
 - ``Ellipsoid``: the Mahalanobis distance of a whole sample from the training
   samples' mean under their covariance. The features are standardised and the
-  covariance gets a ridge of ``RIDGE``, so a direction the training data never
+  covariance gets a ridge of ``decoder.box.RIDGE``, so a direction the training data never
   moved in (a load pattern it never saw) is far away. A sample is inside when its
   distance is at most ``DENSITY_FACTOR`` times the largest training distance.
 - ``Band``: per-output bound on the size of a learned quantity (an MLP's
@@ -31,21 +31,17 @@ to taxel ``f // k``: :func:`per_taxel` turns a feature mask into a taxel mask.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
+from decoder.box import F64, Box, Mask, expect_array, whitening
+from decoder.patchcheck import DepartureCheck, PatternCheck
 from decoder.reasons import Reason
 from skin.constants import TAXELS_PER_PATCH
 from skin.errors import DecodeError, ModelFileError
-
-if TYPE_CHECKING:
-    from decoder.patchcheck import DepartureCheck, PatternCheck
-
-F64 = NDArray[np.float64]
-Mask = NDArray[np.bool_]
 
 DENSITY_FACTOR = 1.1
 """A sample is inside the ellipsoid up to 1.1x the farthest training sample's distance. A new
@@ -57,9 +53,6 @@ BAND_FLOOR = 0.001
 data exactly still tolerates rounding."""
 TAXEL_BAND_FACTOR = 1.2
 """A taxel is inside its band up to 1.2x the largest whitened length among held-out rows."""
-RIDGE = 1e-6
-"""Added to the standardised covariance's diagonal: directions with less than about 0.1 % of
-a feature's spread are taken as never visited."""
 
 
 def check_margin(range_margin: float) -> float:
@@ -80,77 +73,6 @@ def per_taxel(mask: Mask) -> Mask:
     """(n, 9·k) feature mask -> (n, 9) taxel mask: a taxel is marked if any of its features is."""
     per = mask.shape[1] // TAXELS_PER_PATCH
     return np.asarray(mask.reshape(mask.shape[0], TAXELS_PER_PATCH, per).any(axis=2))
-
-
-def _expect(value: Any, field: str, shape: tuple[int, ...]) -> F64:
-    if not isinstance(value, np.ndarray) or value.dtype != np.float64 or value.shape != shape:
-        got = value.shape if isinstance(value, np.ndarray) else type(value).__name__
-        raise ModelFileError(f"{field}: expected float64 array of shape {shape}, got {got}")
-    return value
-
-
-@dataclass(frozen=True)
-class Box:
-    """Per-feature bounds (k,), margins included.
-
-    A value is inside when |x - mid| <= half, one formula for the mask and the quick test,
-    so that they agree to the last bit; NaN is outside and infinities never overflow."""
-
-    lo: F64
-    hi: F64
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "_mid", 0.5 * self.lo + 0.5 * self.hi)
-        object.__setattr__(self, "_half", 0.5 * self.hi - 0.5 * self.lo)
-
-    @classmethod
-    def fit(cls, x: F64, margin: float) -> Box:
-        lo, hi = x.min(axis=0), x.max(axis=0)
-        widen = margin * float(np.max(hi - lo))
-        return cls(lo - widen, hi + widen)
-
-    def inside(self, x: F64) -> Mask:
-        """Elementwise: (n, k) or (k,) -> same shape; NaN is outside."""
-        inside: Mask = np.abs(x - self._mid) <= self._half  # type: ignore[attr-defined]
-        return inside
-
-    def all_inside(self, x: F64) -> bool:
-        """Whether every value is inside (False for any NaN)."""
-        return bool(self.inside(x).all())
-
-    def clamp(self, x: F64) -> F64:
-        clamped: F64 = np.minimum(np.maximum(x, self.lo), self.hi)
-        return clamped
-
-    def to_state(self) -> dict[str, F64]:
-        return {"lo": self.lo, "hi": self.hi}
-
-    @classmethod
-    def from_state(cls, state: Any, field: str, size: int) -> Box:
-        if not isinstance(state, dict) or set(state) != {"lo", "hi"}:
-            raise ModelFileError(f"{field}: expected a map with keys ['hi', 'lo']")
-        lo = _expect(state["lo"], f"{field}.lo", (size,))
-        hi = _expect(state["hi"], f"{field}.hi", (size,))
-        if np.any(lo > hi):
-            raise ModelFileError(f"{field}: a range has lo > hi")
-        return cls(lo, hi)
-
-
-def whitening(x: F64) -> tuple[F64, F64]:
-    """Mean (k,) and upper-triangular ``whiten`` (k, k) such that (x - mean) @ whiten has
-    identity covariance over the rows of ``x`` (n, k): standardised, with a ridge of
-    ``RIDGE`` on the covariance."""
-    mean = x.mean(axis=0)
-    centred = x - mean
-    scale = centred.std(axis=0)
-    scale = np.maximum(scale, 1e-12 * max(float(scale.max()), 1e-300))
-    z = centred / scale
-    cov = z.T @ z / max(x.shape[0] - 1, 1)
-    cov.flat[:: cov.shape[0] + 1] += RIDGE
-    upper = scipy.linalg.cholesky(cov, lower=False)  # cov = Uᵀ U
-    # (x - mean) / scale @ U⁻¹ has identity covariance.
-    whiten = scipy.linalg.solve_triangular(upper, np.eye(cov.shape[0]), lower=False)
-    return mean, np.ascontiguousarray(whiten / scale[:, None])
 
 
 @dataclass(frozen=True)
@@ -194,8 +116,8 @@ class Ellipsoid:
     def from_state(cls, state: Any, field: str, size: int) -> Ellipsoid:
         if not isinstance(state, dict) or set(state) != {"mean", "whiten", "limit"}:
             raise ModelFileError(f"{field}: expected a map with keys ['limit', 'mean', 'whiten']")
-        mean = _expect(state["mean"], f"{field}.mean", (size,))
-        whiten = _expect(state["whiten"], f"{field}.whiten", (size, size))
+        mean = expect_array(state["mean"], f"{field}.mean", (size,))
+        whiten = expect_array(state["whiten"], f"{field}.whiten", (size, size))
         limit = state["limit"]
         if isinstance(limit, bool) or not isinstance(limit, float | int) or not limit > 0:
             raise ModelFileError(f"{field}.limit: must be a positive number, got {limit!r}")
@@ -226,7 +148,7 @@ class Band:
 
     @classmethod
     def from_state(cls, state: Any, field: str, size: int) -> Band:
-        bound = _expect(state, field, (size,))
+        bound = expect_array(state, field, (size,))
         if np.any(bound < 0):
             raise ModelFileError(f"{field}: must be >= 0")
         return cls(bound)
@@ -293,8 +215,9 @@ class TaxelBand:
         if not isinstance(state, dict) or set(state) != {"mean", "whiten", "limit"}:
             raise ModelFileError(f"{field}: expected a map with keys ['limit', 'mean', 'whiten']")
         pillars = size // TAXELS_PER_PATCH
-        mean = _expect(state["mean"], f"{field}.mean", (size,))
-        whiten = _expect(state["whiten"], f"{field}.whiten", (TAXELS_PER_PATCH, pillars, pillars))
+        mean = expect_array(state["mean"], f"{field}.mean", (size,))
+        whiten = expect_array(state["whiten"], f"{field}.whiten",
+                              (TAXELS_PER_PATCH, pillars, pillars))
         limit = state["limit"]
         if isinstance(limit, bool) or not isinstance(limit, float | int) or not limit > 0:
             raise ModelFileError(f"{field}.limit: must be a positive number, got {limit!r}")
@@ -329,8 +252,6 @@ class Domain:
 
     @classmethod
     def from_state(cls, state: Any, field: str, n_in: int, n_out: int) -> Domain:
-        from decoder.patchcheck import DepartureCheck, PatternCheck
-
         if not isinstance(state, dict) or not {"inputs", "outputs"} <= set(state) \
                 <= {"inputs", "outputs", *OPTIONAL}:
             raise ModelFileError(f"{field}: expected a map with keys 'inputs', 'outputs' "

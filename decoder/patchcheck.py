@@ -28,7 +28,7 @@ ceil((m + 1)·q)-th smallest of m values, the split-conformal rank).
 Whether the validation rows can calibrate the departure check is itself measured
 (:func:`exchangeability`): the pattern distance of a held-out block, against that of rows
 held out at random. On data whose rows are exchangeable the two agree (ratio at most 1.14
-over the 105 drawn scene pairs of ``bench.pairs`` whose training scene is not a grasp, and
+over the 105 drawn scene pairs of ``skin.benchmarks.pairs`` whose training scene is not a grasp, and
 over the shipped scenes but `grasp`); a few long episodes make a held-out block far less
 familiar than a random row (ratio 11 to 10^7 on the 15 drawn grasps, 30 on the shipped
 `grasp`). Then the validation rows, random rows of the training episodes, would set the
@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from decoder.domain import F64, Box, Mask, whitening
+from decoder.box import F64, Box, Mask, whitening
 from skin.constants import TAXELS_PER_PATCH
 from skin.errors import ModelFileError
 
@@ -57,11 +57,11 @@ PATCH_Q = 0.99
 TAXEL_Q = 0.98
 SLACK = 1.25
 """Every limit is this times its held-out quantile. A quantile of 150 validation rows is itself
-a draw: a fresh sample passes the largest of m exchangeable values with probability
-m/(m + 1) only on average over training sets, and one set in 25 lets through fewer than
-96.5 % of its own scene. Three checks add up. Over 120 drawn scene pairs of ``bench.pairs``,
-lm-mlp flagged at most 3.7 % of its own scene with the slack (median 0.5 %); the same limits
-without it, computed on the same networks, flagged up to 5.6 % (docs/decoders.md)."""
+a draw: a fresh sample passes the largest of m exchangeable values with probability m/(m + 1)
+only on average over training sets, and one set in 25 lets through fewer than 96.5 % of its own
+scene. Three checks add up. Over 120 drawn scene pairs of ``skin.benchmarks.pairs``, lm-mlp
+flagged at most 3.7 % of its own scene with the slack (median 0.5 %); the same limits without
+it, computed on the same networks, flagged up to 5.6 % (docs/decoders.md)."""
 EXCHANGEABLE_RATIO = 2.0
 """Above this ratio of held-out-block to held-out-row pattern distances the training rows are
 episodes, and the validation rows cannot calibrate the departure check."""

@@ -4,7 +4,7 @@ The same summary the host computes from decoded forces (:mod:`skin.contact`), he
 the simulator's true taxel forces (before crosstalk), with every taxel valid and every
 loaded one in contact (``taxel_contact_N`` = 0); in contact by the same onset and
 release thresholds. Slip is not judged from the forces: it is what the loads did
-(:attr:`sim.Frame.slip`: the ``slide`` sphere whenever it touches, the ``stick_slip``
+(:attr:`sim.simulator.Frame.slip`: the ``slide`` sphere whenever it touches, the ``stick_slip``
 load in its slip phase), counted while the patch is in contact.
 """
 

@@ -9,7 +9,7 @@ from collections.abc import Generator, Iterator
 import pytest
 from hypothesis import HealthCheck, settings
 
-from bench.rigs import children, ports
+from tests.support.rigs import children, ports
 
 # Hypothesis' per-example deadline (200 ms) and its too_slow health check are speed tests in
 # disguise: on a busy two-core machine a fine example can take longer. Speed is measured by
@@ -37,7 +37,7 @@ def pytest_configure(config: pytest.Config) -> None:
 @pytest.fixture
 def udp_bus() -> tuple[str, int]:
     """A multicast group and UDP port no other test uses, here or in another process
-    (bench/rigs/ports.py): a udp_multicast bus of the test's own."""
+    (tests/support/rigs/ports.py): a udp_multicast bus of the test's own."""
     return ports.udp_bus()
 
 
@@ -55,7 +55,7 @@ def udp_port(udp_bus: tuple[str, int]) -> int:
 
 @pytest.fixture(autouse=True)
 def _children_end_with_the_test() -> Iterator[None]:
-    """Every child process a test started (bench/rigs/children.py) has ended when it ends:
+    """Every child process a test started (tests/support/rigs/children.py) has ended when it ends:
     one still running is killed and fails the test."""
     children.started.clear()
     yield

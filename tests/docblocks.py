@@ -51,7 +51,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bench.rigs import children
+from tests.support.rigs import children
 
 ROOT = Path(__file__).resolve().parents[1]
 SHELL = {"", "sh", "bash", "console", "shell"}

@@ -9,16 +9,16 @@ import signal
 import sys
 from pathlib import Path
 
-from bench.rigs.children import spawn
-from bench.rigs.waiting import wait_until
+from tests.support.rigs.children import spawn
+from tests.support.rigs.waiting import wait_until
 
 ROOT = Path(__file__).resolve().parents[1]
 INNER = '''
 import sys
 from pathlib import Path
 
-from bench.rigs.children import spawn
-from bench.rigs.waiting import wait_until
+from tests.support.rigs.children import spawn
+from tests.support.rigs.waiting import wait_until
 
 CHILD = [sys.executable, "-c",
          "import time; print('the child is up', flush=True); time.sleep(600)"]

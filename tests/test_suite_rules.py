@@ -1,20 +1,21 @@
-"""The suite's own rules (docs/testing.md), checked over every test module and every rig:
+"""The suite's own rules (docs/testing.md), checked over every test module and every rig
+(``tests.support.rigs``, below as ``rigs``):
 
 * no ``time.sleep`` waits for something to happen: wait for the event with
-  ``bench.rigs.waiting.wait_until`` (or a child's line with ``Child.wait_for``); a sleep that
+  ``rigs.waiting.wait_until`` (or a child's line with ``Child.wait_for``); a sleep that
   keeps a pace is marked ``# pacing: <why>`` on its line;
-* every process is started by ``bench.rigs.children`` (it dies with the test, its output is
+* every process is started by ``rigs.children`` (it dies with the test, its output is
   shown when the test fails);
-* every port and multicast group comes from ``bench.rigs.ports`` (unique on the machine,
+* every port and multicast group comes from ``rigs.ports`` (unique on the machine,
   outside the ephemeral range), never spelt out or derived from the process id (a value
   no socket is opened on is marked ``# no socket: <why>``);
 * Hypothesis settings come from the profiles of tests/conftest.py: no per-test deadline,
   database or derandomize;
 * a test asserts behaviour, not wall-clock time: an assert that reads a wall clock
   (directly or through a name set from one) is a benchmark in disguise; measure it in
-  bench/, or on a clock the test controls (the timed bus's ``now()``), or, where the
-  comparison holds on any machine however loaded (an order, not a bound), say so with
-  ``# any machine: <why>`` on the assert's line.
+  a benchmark (``skin bench``), or on a clock the test controls (the timed bus's ``now()``),
+  or, where the comparison holds on any machine however loaded (an order, not a bound), say
+  so with ``# any machine: <why>`` on the assert's line.
 """
 
 from __future__ import annotations
@@ -27,9 +28,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SLEEP_HOME = "bench/rigs/waiting.py"
-PROCESS_HOME = "bench/rigs/children.py"
-PORT_HOME = "bench/rigs/ports.py"
+SLEEP_HOME = "tests/support/rigs/waiting.py"
+PROCESS_HOME = "tests/support/rigs/children.py"
+PORT_HOME = "tests/support/rigs/ports.py"
 PROCESS_CALLS = {("subprocess", name) for name in (
     "Popen", "run", "call", "check_call", "check_output", "getoutput", "getstatusoutput")} | {
     ("os", name) for name in ("system", "popen", "fork", "forkpty", "execv", "execvp",
@@ -42,7 +43,10 @@ PORT_TEXT = re.compile(r"\bport\s*=\s*\d")
 
 
 def _modules() -> list[Path]:
-    return sorted([*(ROOT / "tests").rglob("*.py"), *(ROOT / "bench" / "rigs").glob("*.py")])
+    # The scripts directly in tests/support (figures, the mutants runner) run outside the
+    # suite, by hand; its rigs are the suite's own.
+    scripts = ROOT / "tests" / "support"
+    return sorted(p for p in (ROOT / "tests").rglob("*.py") if p.parent != scripts)
 
 
 def _rel(path: Path) -> str:
@@ -98,7 +102,7 @@ def test_no_sleep_waits_for_something(path: Path) -> None:
              if not _marked(call, lines, "# pacing:")]
     assert not found, (
         "time.sleep as synchronisation: wait for the event itself with "
-        "bench.rigs.waiting.wait_until(condition, what=...) (a child's output: "
+        "tests.support.rigs.waiting.wait_until(condition, what=...) (a child's output: "
         "Child.wait_for); a sleep that only keeps a pace gets '# pacing: <why>' on its line:\n"
         + "\n".join(found))
 
@@ -114,7 +118,7 @@ def test_every_process_is_started_by_the_children_helper(path: Path) -> None:
         found += [_where(path, call, lines) for call in _calls(tree, module, names)]
     found += [_where(path, node, lines) for node in ast.walk(tree) if _imports_processes(node)]
     assert not found, (
-        "start processes with bench.rigs.children.spawn(args) or .run(args, timeout=...): "
+        "start processes with tests.support.rigs.children.spawn(args) or .run(args, timeout=...): "
         "they die with the test (process group, PR_SET_PDEATHSIG) and their output shows "
         "when it fails:\n" + "\n".join(found))
 
@@ -156,7 +160,7 @@ def test_ports_and_groups_come_from_the_allocator(path: Path) -> None:
              and not _marked(spot := node.value if isinstance(node, ast.keyword) else node,
                              lines, "# no socket:")]
     assert not found, (
-        "take ports and multicast groups from bench.rigs.ports (udp_bus(), tcp_port(); the "
+        "take ports and multicast groups from tests.support.rigs.ports (udp_bus(), tcp_port(); the "
         "udp_bus / udp_channel / udp_port fixtures): unique across parallel runs and outside "
         "the ephemeral range; port 0 where the interface says which port it took. A value "
         "no socket is opened on (a config's default checked) gets '# no socket: <why>':\n"
@@ -221,7 +225,7 @@ def test_tests_assert_behaviour_not_wall_clock_time(path: Path) -> None:
                   and not _marked(node, lines, "# any machine:")]
     assert not found, (
         "an assert on wall-clock time fails on a busy machine: assert what happened (order, "
-        "counts, values), measure time in a benchmark (bench/), or on the timed bus's own "
+        "counts, values), measure time in a benchmark (skin bench), or on the timed bus's own "
         "clock; an order that holds however loaded the machine is, mark "
         "'# any machine: <why>':\n" + "\n".join(sorted(set(found))))
 

@@ -95,7 +95,7 @@ class HostManager:
     decode what another master runs and send nothing. ``clock`` (default: real time,
     checked by each heartbeat consumer's thread) times the heartbeats and leaves the
     checks to the caller (``link.monitor.check()``): a recording's clock when one is
-    decoded offline (``canbus.master.offline``).
+    decoded offline (``canbus.offline.decode``).
     """
 
     def __init__(self, bus: Buses, config: HostConfig, *,

@@ -33,7 +33,7 @@ from skin.inputs.tomlfile import read_toml
 from skin.placement import PatchPlacement
 
 if TYPE_CHECKING:
-    from canbus.zenoh.config import ZenohSettings
+    from canbus.master.zenoh_settings import ZenohSettings
 
 MODES = ("z", "xyz")
 POSITION_LIMIT_M = 1000.0
@@ -105,7 +105,7 @@ class HostConfig:
     drift: DriftConfig | None = None
     contact: ContactParams | None = field(default_factory=ContactParams)  # None: no summary
     buses: tuple[BusConfig, ...] = (BusConfig(),)
-    zenoh: ZenohSettings | None = None  # [zenoh]: publish on Zenoh (canbus.zenoh.config)
+    zenoh: ZenohSettings | None = None  # [zenoh]: publish on Zenoh (canbus.master.zenoh_settings)
     source: str = field(default="<config>", compare=False)
     checked: bool = field(default=False, compare=False, repr=False)
 
@@ -198,7 +198,7 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
     patches = tuple(_patch(t, f"patches[{i}]", base, buses, contact, robot)
                     for i, t in enumerate(tables))
     if "zenoh" in data:
-        from canbus.zenoh.config import zenoh_settings_from_table
+        from canbus.master.zenoh_settings import zenoh_settings_from_table
 
         kwargs["zenoh"] = zenoh_settings_from_table(data["zenoh"], base=base,
                                                     buses=tuple(b.name for b in buses))

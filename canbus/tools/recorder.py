@@ -38,7 +38,6 @@ import contextlib
 import logging
 import os
 import re
-import socket
 import threading
 import time
 from collections import deque
@@ -66,7 +65,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 __all__ = ["DEFAULT_LOG_CHANNEL", "CandumpLogWriter", "Recorder", "check_channel_name",
-           "enlarge_receive_buffer", "log_channel_name", "recording_format", "rotated_path"]
+           "log_channel_name", "recording_format", "rotated_path"]
 
 
 def recording_format(path: str | os.PathLike[str], *, field: str = "--record") -> str:
@@ -77,38 +76,6 @@ def recording_format(path: str | os.PathLike[str], *, field: str = "--record") -
         raise ConfigError(field, f"unknown recording format {suffix or '(no suffix)'!r} "
                           f"of {os.fspath(path)!r}; use one of {known}")
     return suffix
-
-
-DEFAULT_RCVBUF = 4 * 1024 * 1024
-"""The socket receive buffer the commands ask for (``--rcvbuf``): about 200 ms of
-udp_multicast frames at 20,000 frames/s."""
-
-
-def enlarge_receive_buffer(bus: can.BusABC, size: int) -> int | None:
-    """Ask the kernel for a ``size``-byte receive buffer on a socket bus; the size granted.
-
-    At 20,000 frames/s Linux's default (net.core.rmem_default, 208 KiB, about 12 ms of
-    udp_multicast datagrams) overflows whenever the receive thread waits for the GIL a
-    little longer, and the kernel drops frames. candump's ``-r`` does the same for
-    SocketCAN. The grant is capped by net.core.rmem_max (Linux doubles the value asked).
-    None when the bus is not a socket.
-    """
-    try:
-        fd = bus.fileno()
-    except (NotImplementedError, AttributeError, OSError, ValueError):
-        return None
-    if not isinstance(fd, int) or fd < 0:
-        return None
-    try:
-        sock = socket.socket(fileno=os.dup(fd))
-    except OSError:
-        return None
-    with contextlib.closing(sock):
-        try:
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
-            return int(sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
-        except OSError:
-            return None
 
 
 FLUSH_S = 0.1

@@ -23,8 +23,8 @@ from typing import TYPE_CHECKING, Any
 
 from canbus.master.dataplane import ForceFrame
 from canbus.master.events import EmcyEvent, HostEvent, StateEvent
+from canbus.master.zenoh_settings import ZenohSettings, open_zenoh
 from canbus.zenoh import schema
-from canbus.zenoh.config import ZenohSettings, open_zenoh
 from canbus.zenoh.contacts import CONTACTS_ENCODING, CycleGroups, contacts_key, contacts_message
 from canbus.zenoh.cputime import ThreadClock, native_threads, python_threads, threads_cpu
 

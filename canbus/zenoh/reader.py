@@ -27,8 +27,8 @@ from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
 from canbus.master.dataplane import ForceFrame
+from canbus.master.zenoh_settings import ZenohSettings, open_zenoh
 from canbus.zenoh import schema
-from canbus.zenoh.config import ZenohSettings, open_zenoh
 from canbus.zenoh.schema import Sample
 
 if TYPE_CHECKING:

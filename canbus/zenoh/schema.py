@@ -36,7 +36,6 @@ changes meaning or place. Events (state, EMCY, statistics) are msgpack maps with
 from __future__ import annotations
 
 import math
-import re
 import struct
 from dataclasses import dataclass
 from typing import Any
@@ -45,11 +44,11 @@ import msgpack
 import numpy as np
 
 from canbus.master.dataplane import ForceFrame
+from canbus.master.zenoh_settings import DEFAULT_PREFIX, key_chunk_problem
 from skin.errors import SkinError
 
 SCHEMA_VERSION = 1
 EVENT_VERSION = 1
-DEFAULT_PREFIX = "canskin"
 FORCE_ENCODING = "application/octet-stream;canskin.forces.v1"
 EVENT_ENCODING = "application/msgpack;canskin.event.v1"
 
@@ -66,30 +65,6 @@ class SchemaError(SkinError, ValueError):
 
 
 # -- keys ------------------------------------------------------------------------------------
-
-_CHUNK = re.compile(r"[^/*$?#\s]+")
-
-
-def key_chunk_problem(name: str) -> str | None:
-    """Why ``name`` cannot be one chunk of a key expression (None: it can)."""
-    if not name:
-        return "must not be empty"
-    if not _CHUNK.fullmatch(name):
-        return f"{name!r} holds a character a Zenoh key chunk cannot ('/', '*', '$', '?', " \
-               "'#' or white space)"
-    if name.startswith("@"):
-        return f"{name!r} starts with '@' (Zenoh's verbatim chunks)"
-    return None
-
-
-def prefix_problem(prefix: str) -> str | None:
-    """Why ``prefix`` cannot lead every key (None: it can); it may hold several chunks."""
-    for chunk in prefix.split("/"):
-        problem = key_chunk_problem(chunk)
-        if problem is not None:
-            return problem
-    return None
-
 
 def forces_key(prefix: str, host: str, bus: str, patch: int | str) -> str:
     """``{prefix}/{host}/{bus}/forces/{patch}``."""

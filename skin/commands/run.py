@@ -128,7 +128,7 @@ def _run(args: argparse.Namespace) -> int:
             require_mcap()
     config = resolve(load_host_config(find_config(args.config)), args)
     if args.zenoh or (config.zenoh is not None and config.zenoh.enabled):
-        from canbus.zenoh.config import require_zenoh
+        from canbus.master.zenoh_settings import require_zenoh
 
         require_zenoh("--zenoh" if args.zenoh else "zenoh")
     with pinned(args.cpu), realtime(args.realtime):  # before any thread starts
@@ -316,7 +316,7 @@ def _zenoh_publisher(host: HostManager, config: HostConfig,
         return None
     from dataclasses import replace
 
-    from canbus.zenoh.config import ZenohSettings
+    from canbus.master.zenoh_settings import ZenohSettings
     from canbus.zenoh.publisher import ZenohPublisher
 
     settings = replace(config.zenoh or ZenohSettings(), enabled=True)

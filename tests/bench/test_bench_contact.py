@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import bench.contact
-from bench.contact import Estimate, slip_figures
+import skin.benchmarks.contact
 from sim.contact_truth import TrueContact
+from skin.benchmarks.contact import Estimate, slip_figures
 from skin.cli import main
 from skin.contact import summarize
 from skin.contact_state import track
@@ -23,7 +23,7 @@ SCENE_KEYS = {"cop_err_mm", "net_fz_err_pct_fs", "net_fz_err_pct_fs_stats",
 
 def test_skin_bench_contact_writes_every_key(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                              capsys: pytest.CaptureFixture[str]) -> None:
-    monkeypatch.setattr(bench.contact, "QUICK", {"steps": 250, "train_steps": 300,
+    monkeypatch.setattr(skin.benchmarks.contact, "QUICK", {"steps": 250, "train_steps": 300,
                                                  "cost_cycles": 4, "cost_repeats": 1})
     out = tmp_path / "contact.json"
     assert main(["bench", "contact", "--quick", "--json", str(out)]) == 0
@@ -53,7 +53,8 @@ def _truth(slip: list[int]) -> TrueContact:
     n = len(slip)
     force = np.zeros((n, 9, 3))
     force[:, 4, 2] = 1.0
-    _, batch = track(summarize(force, np.ones((n, 9), dtype=bool)), bench.contact.ContactParams())
+    params = skin.benchmarks.contact.ContactParams()
+    _, batch = track(summarize(force, np.ones((n, 9), dtype=bool)), params)
     return TrueContact(1, batch, np.array(slip, dtype=bool))
 
 

@@ -8,18 +8,18 @@ from pathlib import Path
 
 import pytest
 
-from bench.pairs import PAIRS
+from skin.benchmarks.pairs import PAIRS
 from skin.cli import main
 
 
 def test_bench_cross_reports_the_promise_per_pair(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
-    import bench.cross
-    import bench.runs
+    import skin.benchmarks.cross
+    import skin.benchmarks.runs
 
-    monkeypatch.setattr(bench.runs, "Z_SCENES", ("paper-noisy", "indenter"))
-    monkeypatch.setattr(bench.runs, "XYZ_SCENES", ())
-    monkeypatch.setattr(bench.cross, "PAIRS", PAIRS[:1])
+    monkeypatch.setattr(skin.benchmarks.runs, "Z_SCENES", ("paper-noisy", "indenter"))
+    monkeypatch.setattr(skin.benchmarks.runs, "XYZ_SCENES", ())
+    monkeypatch.setattr(skin.benchmarks.cross, "PAIRS", PAIRS[:1])
     monkeypatch.setattr("decoder.registry.available_decoders",
                         lambda: ("analytic", "deconv", "lm-mlp", "hybrid"))
     out = tmp_path / "cross.json"

@@ -1,5 +1,5 @@
-"""``python -m bench.limits_reach``: lm-mlp's limits scaled with hindsight. Its figures back a
-claim of docs/decoders.md, so with the limits as fitted it must judge a pair exactly as
+"""``python -m tests.support.limits_reach``: lm-mlp's limits scaled with hindsight. Its figures
+back a claim of docs/decoders.md, so with the limits as fitted it must judge a pair exactly as
 ``skin bench cross`` does, and scaling must move the flags the way a limit does."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ from functools import cache
 import numpy as np
 import pytest
 
-from bench.judge import judge
-from bench.limits_reach import PairStats, as_fitted, judge_scaled, pair_stats, reach
-from bench.pairs import pair_data, random_pair
 from decoder.registry import create_decoder
+from skin.benchmarks.judge import judge
+from skin.benchmarks.pairs import pair_data, random_pair
+from tests.support.limits_reach import PairStats, as_fitted, judge_scaled, pair_stats, reach
 
 pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
 

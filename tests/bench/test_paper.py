@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.paper import KEYS, PAPER, claims, relative_errors
+from skin.benchmarks.paper import KEYS, PAPER, claims, relative_errors
 from skin.cli import main
 
 pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels

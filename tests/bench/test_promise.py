@@ -9,9 +9,9 @@ from typing import Any
 
 import pytest
 
-from bench.cross import promise_rows, summary
-from bench.judge import FACTOR, HOME_SHARE, judge_pair
-from bench.pairs import PAIRS, ScenePair, pair_data, random_pair
+from skin.benchmarks.cross import promise_rows, summary
+from skin.benchmarks.judge import FACTOR, HOME_SHARE, judge_pair
+from skin.benchmarks.pairs import PAIRS, ScenePair, pair_data, random_pair
 
 pytestmark = pytest.mark.blas  # floats through BLAS: CI runs it again on other kernels
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.realtime import _figures, run_realtime_benchmark
+from skin.benchmarks.realtime import _figures, run_realtime_benchmark
 
 
 def _mark(t: float, frames: int, bare_cpu: float, host_cpu: float, sim_cpu: float,

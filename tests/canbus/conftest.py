@@ -8,7 +8,7 @@ from collections.abc import Iterator
 import can.interfaces.virtual
 import pytest
 
-from bench.rigs.dataplane import Host
+from tests.support.rigs.dataplane import Host
 
 
 @pytest.fixture(autouse=True)
@@ -21,7 +21,7 @@ def _no_open_virtual_channels() -> Iterator[None]:
 
 @pytest.fixture
 def host() -> Iterator[Host]:
-    """A data plane publishing to a sink bus, with patches 1 and 2 (bench.rigs.dataplane)."""
+    """A data plane publishing to a sink bus, with patches 1 and 2 (rigs.dataplane)."""
     h = Host()
     yield h
     h.close()

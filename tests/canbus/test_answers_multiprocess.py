@@ -1,4 +1,4 @@
-"""The deployment's shape, with late answers on purpose: a patch (``bench.rigs.late_patch``,
+"""The deployment's shape, with late answers on purpose: a patch (``tests.support.rigs.late_patch``,
 which sends every 7th answer in two parts, the second after the next SYNC, and holds every
 11th back until after the next SYNC) and the host (``skin run``) in two processes on
 udp_multicast, python-can's own ``can.logger`` recording. The recording must show those
@@ -20,15 +20,15 @@ import can
 import numpy as np
 import pytest
 
-from bench.rigs.answer_audit import audit
-from bench.rigs.children import run, spawn
-from bench.rigs.waiting import wait_until
 from canbus.master.dataplane import ForceFrame
 from canbus.master.forceframes import forces_to_mN
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import load_host_config
-from canbus.tools.recorder import DEFAULT_RCVBUF, enlarge_receive_buffer
+from canbus.rxbuffer import DEFAULT_RCVBUF, enlarge_receive_buffer
 from canbus.tools.recording import Recording
+from tests.support.rigs.answer_audit import audit
+from tests.support.rigs.children import run, spawn
+from tests.support.rigs.waiting import wait_until
 
 ANSWERS = 700  # the patch's answers before the host stops: 100 split, 54 held back
 
@@ -47,7 +47,8 @@ def test_late_answers_never_make_a_mixed_sample(udp_channel: str, udp_port: int,
     recording = tmp_path / "run.log"
     logger = spawn([sys.executable, "-m", "can.logger", *bus, "-f", str(recording)],
                    env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    patch = spawn([sys.executable, "-m", "bench.rigs.late_patch", udp_channel, str(udp_port)])
+    patch = spawn([sys.executable, "-m", "tests.support.rigs.late_patch", udp_channel,
+                   str(udp_port)])
     host = None
     try:
         logger.wait_for("Connected to", timeout=60)

@@ -19,7 +19,6 @@ import pytest
 from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
-from bench.rigs.waiting import wait_until
 from canbus.master.cobids import predefined_tpdo_cob_ids, restricted
 from canbus.master.hostconfig import HostConfig, PatchConfig, load_host_config
 from canbus.tools.attribution import Attribution, KnownNode, cob_ranges
@@ -31,6 +30,7 @@ from skin.commands.common.known_nodes import known_nodes
 from skin.commands.sniff.view import LinePrinter, ViewStats
 from skin.errors import ConfigError
 from tests.canbus.skin_traffic import Traffic, traffic
+from tests.support.rigs.waiting import wait_until
 
 CYCLES = 20
 EXAMPLE = load_host_config("examples/host.toml")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.server import check_answers
+from skin.benchmarks.server import check_answers
 from skin.cli import main
 
 

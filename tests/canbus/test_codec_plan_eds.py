@@ -12,12 +12,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from bench.rigs import children
 from canbus import codes
 from canbus.od import SHIPPED, eds_file, load_od
 from canbus.pdo_codec import PdoCodec, read_defaults, read_layouts
 from canbus.tools.edscheck import check
 from skin.errors import ConfigError
+from tests.support.rigs import children
 
 FILES = Path(__file__).parents[1] / "files"
 

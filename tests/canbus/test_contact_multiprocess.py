@@ -11,7 +11,6 @@ import canopen
 import numpy as np
 import pytest
 
-from bench.rigs import children
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import SimulatorSource
 from canbus.master.dataplane import ForceFrame
@@ -20,6 +19,7 @@ from canbus.master.hostconfig import HostConfig, PatchConfig
 from sim import Simulator, load_scene
 from skin.contact import ContactParams
 from skin.contact_state import ContactSummary
+from tests.support.rigs import children
 
 CYCLES = 40
 NO_VALUE = -0x8000
@@ -54,7 +54,7 @@ def test_a_canopen_master_maps_the_contact_pdo_and_reads_what_the_api_gives(
             host.on_forces(frames.append)
             assert host.wait_operational(timeout=10.0), host.health()
             run = children.run(
-                [sys.executable, "-m", "bench.rigs.contact_master",
+                [sys.executable, "-m", "tests.support.rigs.contact_master",
                  udp_channel, str(udp_port), "65", str(CYCLES), str(out)],
                 cwd=Path(__file__).resolve().parents[2], timeout=60)
     finally:

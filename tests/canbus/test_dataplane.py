@@ -11,8 +11,6 @@ import numpy as np
 import pytest
 from numpy.typing import ArrayLike
 
-from bench.rigs.dataplane import LSB, WINDOW_S, Host, Patch, consume, load, mN, sync_time
-from bench.rigs.waiting import holds_for, wait_until
 from canbus.codes import code_to_resistance, resistance_to_code
 from canbus.device.nmt_slave import OPERATIONAL, STOPPED
 from canbus.device.patch_server import PatchServer
@@ -28,6 +26,8 @@ from decoder.registry import create_decoder
 from skin.constants import DEFAULT_CONSTANTS
 from skin.errors import ConfigError
 from skin.tripod import resistance_from_force
+from tests.support.rigs.dataplane import LSB, WINDOW_S, Host, Patch, consume, load, mN, sync_time
+from tests.support.rigs.waiting import holds_for, wait_until
 
 
 def test_complete_samples_decode_exactly_and_go_out_as_force_tpdos(host: Host) -> None:

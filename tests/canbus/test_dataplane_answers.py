@@ -15,8 +15,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.rigs.dataplane import WINDOW_S, Host, Patch, load, sync_time
 from decoder.reasons import Reason
+from tests.support.rigs.dataplane import WINDOW_S, Host, Patch, load, sync_time
 
 PERIOD_S = 0.01  # SYNC k at sync_time(k) = T0 + k / 100
 PDOS = 7  # a 3-axis answer
@@ -259,9 +259,10 @@ def _run(host: Host, frames: list[can.Message], *, lag_s: list[float] | None,
        echo=st.booleans())
 def test_a_receive_thread_behind_the_bus_loses_nothing(plan_a: dict, plan_b: dict,
                                                        lags: list[float], echo: bool) -> None:
-    """The host sends SYNC k+1 while frames of cycle k are still queued for its receive
-    thread (up to two periods behind): every sample is the one a host reading the bus in
-    its own order publishes, bit for bit (DESIGN: a cycle closes where the bus passed SYNC)."""
+    """The host sends SYNC k+1 while frames of cycle k are still queued for its receive thread
+    (up to two periods behind): every sample is the one a host reading the bus in its own order
+    publishes, bit for bit (docs/architecture.md: a cycle closes where the bus passed the next
+    SYNC)."""
     if not _RIG:
         _RIG.append(Host())
     host = _RIG[0]

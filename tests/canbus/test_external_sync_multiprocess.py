@@ -18,10 +18,10 @@ import canopen
 import numpy as np
 import pytest
 
-from bench.rigs.children import spawn
-from bench.rigs.waiting import holds_for, wait_until
 from canbus.od import load_od
 from skin.commands.common.busargs import DEFAULT_CHANNELS
+from tests.support.rigs.children import spawn
+from tests.support.rigs.waiting import holds_for, wait_until
 
 REST_SCENE = """
 [scene]

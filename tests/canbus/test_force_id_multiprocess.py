@@ -12,8 +12,8 @@ from pathlib import Path
 
 import can
 
-from bench.rigs.children import Child, spawn
-from bench.rigs.waiting import wait_until
+from tests.support.rigs.children import Child, spawn
+from tests.support.rigs.waiting import wait_until
 
 SKIN = [sys.executable, "-m", "skin.cli"]
 HOST8 = Path(__file__).parents[2] / "examples" / "host8.toml"
@@ -44,7 +44,7 @@ def test_only_another_node_at_a_force_node_id_is_reported(udp_channel: str,
             wait_until(lambda: _beats_of_every_force_node(spy, seen, 2),
                        what="2 heartbeats of every force node")
             assert "another node" not in host.stderr(), host.output()
-            started.append(spawn([sys.executable, "-m", "bench.rigs.second_node",
+            started.append(spawn([sys.executable, "-m", "tests.support.rigs.second_node",
                                   udp_channel, str(udp_port), "72"]))
             host.wait_for(WARNING, stream="stderr", timeout=60)
         finally:

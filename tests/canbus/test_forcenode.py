@@ -14,12 +14,12 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from bench.rigs.waiting import wait_until
 from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL, STOPPED
 from canbus.master.forceframes import COMPLETE, NO_VALUE, forces_to_mN
 from canbus.master.forcenode import ForceNode, force_node_cob_ids
 from canbus.od import load_od
 from skin.errors import BusError, ConfigError
+from tests.support.rigs.waiting import wait_until
 
 CYCLE_S = 0.05
 

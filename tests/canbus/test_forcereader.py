@@ -16,7 +16,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.master.forceframes import forces_to_mN
 from canbus.master.forcenode import ForceNode
@@ -28,6 +27,7 @@ from canbus.tools.forcereader import UNSPECIFIED, ForceNodeSpec, ForceReader, Fo
 from canbus.tools.resistance_reader import ResistanceReader, ResistanceSample
 from canbus.tools.sample_tracker import LIVE, LOST, STALE, WAITING, SampleTracker
 from decoder.reasons import Reason
+from tests.support.rigs.waiting import wait_until
 
 NODE = ForceNode(65, 1)  # only packs frames: never attached to a bus
 

@@ -12,7 +12,6 @@ import canopen
 import numpy as np
 import pytest
 
-from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.device.nmt_slave import PRE_OPERATIONAL
 from canbus.device.patch_node import PatchNode
@@ -31,6 +30,7 @@ from sim import Simulator, load_scene
 from skin.constants import DEFAULT_CONSTANTS
 from skin.errors import BusError
 from skin.tripod import resistance_from_force
+from tests.support.rigs.waiting import wait_until
 
 LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
 R0 = DEFAULT_CONSTANTS.nominal_resistance_ohm

@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 from canopen.sdo.exceptions import SdoAbortedError
 
-from bench.rigs.waiting import holds_for
 from canbus.device.patch_server import PatchServer
 from canbus.master.busconfig import BusConfig
 from canbus.master.dataplane import ForceFrame
@@ -22,6 +21,7 @@ from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, PatchConfig
 from canbus.od import load_od
 from tests.canbus.test_host import eventually, expected, press, source
+from tests.support.rigs.waiting import holds_for
 
 FD = can.CanProtocol.CAN_FD
 

@@ -25,13 +25,13 @@ from pathlib import Path
 import can
 import pytest
 
-from bench.rigs import children
-from bench.rigs.children import Child
-from bench.rigs.ports import udp_bus
-from bench.rigs.waiting import wait_until
 from canbus.master.cobids import predefined_tpdo_cob_ids
 from canbus.receiveloop import ReceiveLoop
 from tests.canbus.faults import UdpInjector, rss_bytes, stall
+from tests.support.rigs import children
+from tests.support.rigs.children import Child
+from tests.support.rigs.ports import udp_bus
+from tests.support.rigs.waiting import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 PATCHES = (1, 2, 3)

@@ -26,7 +26,6 @@ import canopen
 import numpy as np
 import pytest
 
-from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
@@ -38,6 +37,7 @@ from decoder.analytic import AnalyticDecoder
 from decoder.reasons import Reason
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
+from tests.support.rigs.waiting import wait_until
 
 LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
 WAIT_S = 30.0

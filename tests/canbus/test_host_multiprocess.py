@@ -10,7 +10,6 @@ import can
 import canopen
 import numpy as np
 
-from bench.rigs.children import run
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource, SimulatorSource
 from canbus.master.dataplane import ForceFrame
@@ -19,6 +18,7 @@ from canbus.master.hostconfig import HostConfig, PatchConfig
 from sim import Simulator, load_scene
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
+from tests.support.rigs.children import run
 
 CYCLES = 10
 NO_VALUE = -0x8000
@@ -54,7 +54,7 @@ def test_a_canopen_master_in_another_process_reads_what_the_api_gives(
         with indenter, pressed, HostManager(bus, config) as host:
             host.on_forces(frames.append)
             assert host.wait_operational(timeout=10.0), host.health()
-            master = run([sys.executable, "-m", "bench.rigs.force_master",
+            master = run([sys.executable, "-m", "tests.support.rigs.force_master",
                           udp_channel, str(udp_port), "65,90", str(CYCLES), str(out)],
                          timeout=120)
     finally:

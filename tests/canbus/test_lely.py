@@ -15,8 +15,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bench.rigs import children
 from canbus.tools.edscheck import check
+from tests.support.rigs import children
 
 ROOT = Path(__file__).resolve().parents[2]
 EDS = ROOT / "eds"

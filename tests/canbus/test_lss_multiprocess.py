@@ -22,11 +22,11 @@ import canopen
 import numpy as np
 import pytest
 
-from bench.rigs.children import spawn
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import load_host_config
 from canbus.od import load_od
 from skin.commands.calibrate.output import write_rest_to_node
+from tests.support.rigs.children import spawn
 
 PATCHES = 8
 SERIAL_BASE = 0x5100_0000

@@ -14,12 +14,12 @@ import pytest
 pytest.importorskip("mcap_ros2", reason="the mcap extra is not installed")
 
 
-from bench.rigs.recording import record
 from canbus.offline.mcap import read_forces
 from canbus.tools.recorder import Recorder
 from canbus.tools.recording import Recording
 from skin.cli import main
 from tests.canbus.mcap_independent import decoded
+from tests.support.rigs.recording import record
 
 FORMATS = (".log", ".asc", ".blf", ".pcap")
 

@@ -25,13 +25,13 @@ pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not inst
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
-from bench.rigs.children import spawn
-from bench.rigs.mcap_run import frames_key, live_run, not_a_run_of, same_frame
-from bench.rigs.ports import udp_bus
-from bench.rigs.waiting import wait_until
 from canbus.offline.mcap import read_forces
 from canbus.tools.recording import Recording
 from tests.canbus.mcap_independent import can_frames, samples
+from tests.support.rigs.children import spawn
+from tests.support.rigs.mcap_run import frames_key, live_run, not_a_run_of, same_frame
+from tests.support.rigs.ports import udp_bus
+from tests.support.rigs.waiting import wait_until
 
 SKIN = [sys.executable, "-m", "skin.cli"]
 
@@ -79,8 +79,8 @@ def test_kill_9_leaves_an_mcap_readable_up_to_its_tail(tmp_path: Path, killed: s
     input, and it closes the file complete and indexed; kill -9 of both (the process
     group) leaves every chunk written, read to its tail by the mcap library and by
     ``Recording(partial=True)``."""
-    from bench.rigs.mcap_run import host_toml
-    from bench.rigs.ports import tcp_port
+    from tests.support.rigs.mcap_run import host_toml
+    from tests.support.rigs.ports import tcp_port
 
     channel, port = udp_bus()
     config = tmp_path / "host.toml"

@@ -6,12 +6,12 @@ import sys
 import canopen
 import numpy as np
 
-from bench.rigs.children import run
 from canbus import codes
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import SimulatorSource
 from sim import Simulator, load_scene
 from skin.constants import DEFAULT_CONSTANTS
+from tests.support.rigs.children import run
 
 SKIP, SYNCS = 4, 3  # steps 5..7 of the indenter scene press up to 2.5 N
 
@@ -35,7 +35,7 @@ def test_canopen_master_decodes_the_simulator_resistances(udp_channel: str,
     net.connect(interface="udp_multicast", channel=udp_channel, port=udp_port)
     try:
         with PatchServer(net, SimulatorSource(simulator)) as server:
-            master = run([sys.executable, "-m", "bench.rigs.patch_master", udp_channel,
+            master = run([sys.executable, "-m", "tests.support.rigs.patch_master", udp_channel,
                           str(udp_port), str(SYNCS)], timeout=120)
     finally:
         net.disconnect()

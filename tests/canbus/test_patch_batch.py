@@ -7,7 +7,6 @@ import struct
 import numpy as np
 import pytest
 
-from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL
 from canbus.device.patch_node import (
@@ -17,6 +16,7 @@ from canbus.device.patch_node import (
     batch_update,
 )
 from canbus.pdo_codec import TPDO_MAP
+from tests.support.rigs.waiting import wait_until
 
 LSB = 0.05
 _EMCY = struct.Struct("<HBBB3x")

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from canopen.sdo.exceptions import SdoAbortedError
 
-from bench.rigs.waiting import wait_until
 from canbus.device.nmt_slave import OPERATIONAL, PRE_OPERATIONAL, STOPPED
 from canbus.device.patch_node import PatchNode
 from canbus.device.patch_server import PatchServer
@@ -18,6 +17,7 @@ from canbus.device.source import ArraySource
 from canbus.device.tpdo import TpdoTable
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
+from tests.support.rigs.waiting import wait_until
 
 
 def _resistances(samples: int = 4) -> np.ndarray:

@@ -15,7 +15,6 @@ import canopen
 import numpy as np
 import pytest
 
-from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.busload import TPDO_BASES
 from canbus.device.nmt_slave import OPERATIONAL
@@ -26,6 +25,7 @@ from canbus.framebits import frame_bits
 from canbus.pdo_codec import TPDO_COMM, TPDO_MAP, PdoCodec
 from canbus.txmessage import TxMessage
 from skin.constants import DEFAULT_CONSTANTS
+from tests.support.rigs.waiting import wait_until
 
 LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
 SYNC = 0x080

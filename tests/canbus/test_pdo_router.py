@@ -5,12 +5,12 @@ from __future__ import annotations
 import can
 import pytest
 
-from bench.dataplane import SinkBus
 from canbus.device.patch_node import PatchNode
 from canbus.master.dataplane import DataPlane, PatchChannel
 from canbus.master.forcenode import ForceNode
 from canbus.master.pdo_router import PdoRouter
 from decoder.registry import create_decoder
+from skin.benchmarks.dataplane import SinkBus
 
 
 class _Seen(can.Listener):

@@ -11,10 +11,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.rigs import children
 from canbus import busload, frametime
 from canbus.busload import plan
 from canbus.sizing import size
+from tests.support.rigs import children
 
 
 def _skin_plan(*args: str) -> subprocess.CompletedProcess[str]:

@@ -8,16 +8,16 @@ from pathlib import Path
 import can
 import pytest
 
-from bench.rigs import children
+from canbus.rxbuffer import enlarge_receive_buffer
 from canbus.tools.recorder import (
     CandumpLogWriter,
     Recorder,
-    enlarge_receive_buffer,
     log_channel_name,
     recording_format,
 )
 from canbus.tools.recording import Recording
 from skin.errors import ConfigError
+from tests.support.rigs import children
 
 T0 = 1_700_000_000.0
 

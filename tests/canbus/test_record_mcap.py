@@ -19,7 +19,6 @@ pytest.importorskip("mcap_ros2", reason="the mcap extra is not installed")
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 
-from bench.rigs.waiting import wait_until
 from canbus.master.channel import ForceFrame
 from canbus.offline.mcap import read_forces
 from canbus.tools import recorder as recorder_module
@@ -29,6 +28,7 @@ from canbus.tools.recording import Recording
 from skin.cli import main
 from skin.errors import OutputError, RecordingError
 from tests.canbus.mcap_independent import column, decoded
+from tests.support.rigs.waiting import wait_until
 
 T0 = 1_700_000_000.123456
 
@@ -236,13 +236,13 @@ def test_a_host_on_an_in_process_bus_records_its_samples_in_its_own_process(
     thread beside the host holds every sample the API gave, bit for bit, and the frames."""
     import canopen
 
-    from bench.rigs.zenoh_host import presses
     from canbus.device.patch_server import PatchServer
     from canbus.device.source import ArraySource
     from canbus.master.busconfig import BusConfig
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig, PatchConfig
     from skin.commands.common.hostrecord import recording
+    from tests.support.rigs.zenoh_host import presses
 
     channel = "mcap-in-process"
     config = HostConfig(patches=(PatchConfig(1, position_m=(0.0, 0.1)), PatchConfig(2)),

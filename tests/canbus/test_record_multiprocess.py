@@ -14,9 +14,9 @@ from pathlib import Path
 
 import can
 
-from bench.rigs.children import spawn
-from bench.rigs.waiting import wait_until
 from canbus.tools.recording import Recording
+from tests.support.rigs.children import spawn
+from tests.support.rigs.waiting import wait_until
 
 FRAMES = 300
 

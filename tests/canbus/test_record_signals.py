@@ -1,6 +1,6 @@
 """`skin sniff --record` stopped by SIGTERM, and killed by SIGKILL, beside python-can's
 `can.logger` on the same udp_multicast bus (own group and port, see conftest.py), while
-frames flow: bench/rigs/stop.py."""
+frames flow: tests/support/rigs/stop.py."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 import can
 import pytest
 
-from bench.rigs.stop import IDS, run
+from tests.support.rigs.stop import IDS, run
 
 RATE = 2000  # frames/s: 2 s of it fills one 128 KiB .blf container of can.logger's
 

@@ -11,11 +11,11 @@ from pathlib import Path
 import can
 import pytest
 
-from bench.rigs.waiting import wait_until
 from canbus.tools import recorder as recorder_module
 from canbus.tools.recorder import Recorder, rotated_path
 from canbus.tools.recording import Recording
 from skin.errors import RecordingError
+from tests.support.rigs.waiting import wait_until
 
 PROMISED_LOSS_S = 0.1
 """docs/sniffer.md: kill -9 loses at most the last 0.1 s of frames."""

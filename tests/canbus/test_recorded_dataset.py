@@ -12,7 +12,6 @@ import can
 import numpy as np
 import pytest
 
-from bench.rigs.recording import assert_rows_are_steps, record, rewrite, scene
 from canbus.offline.dataset import JoinChoice, dataset_from_recording
 from canbus.offline.recorded import read_patch_samples
 from decoder.reasons import Reason
@@ -20,6 +19,7 @@ from skin.cli import main
 from skin.dataset import read_dataset
 from skin.errors import RecordingError
 from skin.reference import ReferenceWriter, read_reference
+from tests.support.rigs.recording import assert_rows_are_steps, record, rewrite, scene
 
 SDO = range(0x580, 0x680)
 PATCH_TPDOS = {0x181, 0x281, 0x381, 0x481, 0x201, 0x301, 0x401}

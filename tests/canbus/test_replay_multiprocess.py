@@ -18,14 +18,14 @@ import can
 import numpy as np
 import pytest
 
-from bench.rigs.children import Child, spawn
-from bench.rigs.ports import udp_bus
-from bench.rigs.waiting import wait_until
 from canbus.master.dataplane import ForceFrame
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, PatchConfig
-from canbus.tools.recorder import enlarge_receive_buffer
+from canbus.rxbuffer import enlarge_receive_buffer
 from canbus.tools.recording import Recording
+from tests.support.rigs.children import Child, spawn
+from tests.support.rigs.ports import udp_bus
+from tests.support.rigs.waiting import wait_until
 
 PATCHES = 4
 CYCLES = 300  # live cycles recorded, every patch operational

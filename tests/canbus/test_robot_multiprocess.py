@@ -9,8 +9,8 @@ import signal
 import sys
 from pathlib import Path
 
-from bench.rigs.children import spawn
-from bench.rigs.ports import udp_bus
+from tests.support.rigs.children import spawn
+from tests.support.rigs.ports import udp_bus
 
 SKIN = [sys.executable, "-m", "skin.cli"]
 ROBOT = Path(__file__).resolve().parents[2] / "examples" / "robot"

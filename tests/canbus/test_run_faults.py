@@ -19,12 +19,12 @@ from pathlib import Path
 import canopen
 import pytest
 
-from bench.rigs import children
-from bench.rigs.waiting import wait_until
 from canbus.device.patch_server import PatchServer
 from skin.cli import main
 from tests.canbus.faults import GONE, gone_bus_registered
 from tests.canbus.test_host import press, source
+from tests.support.rigs import children
+from tests.support.rigs.waiting import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 WAIT_S = 30.0

@@ -12,10 +12,10 @@ import canopen
 import numpy as np
 import pytest
 
-from bench.rigs.waiting import wait_until
 from sim import Simulator, load_scene
 from skin.reference import read_reference
 from tests.canbus.virtual_channels import run_until_done
+from tests.support.rigs.waiting import wait_until
 
 
 def test_the_truth_of_every_answer(request: pytest.FixtureRequest, tmp_path: Path) -> None:

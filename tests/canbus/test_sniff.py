@@ -23,8 +23,6 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from bench.rigs import children
-from bench.rigs.waiting import wait_until
 from canbus.device.nmt_slave import OPERATIONAL
 from canbus.device.patch_server import PatchServer
 from canbus.frametime import classic_frame_bits
@@ -39,6 +37,8 @@ from skin.commands.common import busopen
 from skin.commands.sniff.view import ViewStats, render
 from skin.constants import DEFAULT_CONSTANTS
 from tests.canbus.virtual_channels import ctrl_c, listening, read_out
+from tests.support.rigs import children
+from tests.support.rigs.waiting import wait_until
 
 SYNCS = 6
 CYCLE_S = 0.05

@@ -32,8 +32,6 @@ import canopen
 import numpy as np
 import pytest
 
-from bench.rigs import children
-from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
@@ -50,6 +48,8 @@ from skin.cli import main
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 from tests.canbus.virtual_channels import ctrl_c, listening, read_out
+from tests.support.rigs import children
+from tests.support.rigs.waiting import wait_until
 
 LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
 CYCLES = 12

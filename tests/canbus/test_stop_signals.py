@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.rigs.children import Child, spawn
+from tests.support.rigs.children import Child, spawn
 
 FILES = Path(__file__).parents[1] / "files" / "recordings"
 

@@ -13,14 +13,14 @@ import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
-from bench.rigs.children import run, spawn
-from bench.rigs.ports import tcp_port
-from bench.rigs.waiting import wait_until
 from canbus.master.hostconfig import host_config_from_dict
-from canbus.zenoh.config import ZenohSettings, zenoh_settings_from_table
+from canbus.master.zenoh_settings import ZenohSettings, zenoh_settings_from_table
 from canbus.zenoh.reader import subscribe
 from skin.cli import main
 from skin.errors import ConfigError
+from tests.support.rigs.children import run, spawn
+from tests.support.rigs.ports import tcp_port
+from tests.support.rigs.waiting import wait_until
 
 SKIN = [sys.executable, "-m", "skin.cli"]
 

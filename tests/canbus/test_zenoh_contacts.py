@@ -12,12 +12,12 @@ pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not inst
 
 import zenoh
 
-from bench.rigs.waiting import wait_until
-from bench.rigs.zenoh_host import publishing_host
 from canbus.master.robot import contacts_of
 from canbus.zenoh.contacts import CONTACTS_ENCODING, contacts_key, decode_contacts
 from canbus.zenoh.reader import open_session
 from skin.placement import LinkContact, PatchPlacement, Pose
+from tests.support.rigs.waiting import wait_until
+from tests.support.rigs.zenoh_host import publishing_host
 
 PALM = {1: PatchPlacement("palm", Pose((-0.0225, 0.0, 0.01))),
         2: PatchPlacement("palm", Pose((0.0225, 0.0, 0.01)))}

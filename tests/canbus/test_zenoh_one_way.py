@@ -17,11 +17,11 @@ import pytest
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
 
-from bench.rigs.children import Child, spawn
-from bench.rigs.waiting import wait_until
-from bench.rigs.zenoh_host import Rig, publishing_host
 from canbus.zenoh import schema
 from canbus.zenoh.reader import open_session
+from tests.support.rigs.children import Child, spawn
+from tests.support.rigs.waiting import wait_until
+from tests.support.rigs.zenoh_host import Rig, publishing_host
 
 ROOT = Path(__file__).resolve().parents[2]
 SYNC = 0x080
@@ -146,7 +146,7 @@ def test_nothing_put_or_asked_on_zenoh_reaches_the_host_or_the_bus() -> None:
 
 
 def _reader(endpoint: str, delay: float) -> Child:
-    reader = spawn([sys.executable, "-m", "bench.rigs.zenoh_slow_reader", endpoint,
+    reader = spawn([sys.executable, "-m", "tests.support.rigs.zenoh_slow_reader", endpoint,
                     str(delay)], cwd=ROOT)
     reader.wait_for("subscribed", timeout=60)
     return reader

@@ -9,10 +9,10 @@ import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
-from bench.rigs.waiting import wait_until
-from bench.rigs.zenoh_host import publishing_host
 from canbus.master.dataplane import ForceFrame
 from canbus.zenoh.reader import open_session, subscribe, subscribe_events
+from tests.support.rigs.waiting import wait_until
+from tests.support.rigs.zenoh_host import publishing_host
 
 
 def _same(a: ForceFrame, b: ForceFrame) -> None:

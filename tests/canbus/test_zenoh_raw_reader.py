@@ -13,8 +13,8 @@ import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
-from bench.rigs.children import run
-from bench.rigs.zenoh_host import publishing_host
+from tests.support.rigs.children import run
+from tests.support.rigs.zenoh_host import publishing_host
 
 SCRIPT = Path(__file__).resolve().parents[2] / "examples" / "zenoh_raw_reader.py"
 COUNT = 40

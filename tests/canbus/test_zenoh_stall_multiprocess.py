@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.rigs.children import spawn
-from bench.rigs.ports import tcp_port
+from tests.support.rigs.children import spawn
+from tests.support.rigs.ports import tcp_port
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
@@ -39,7 +39,7 @@ def test_a_stalled_reader_and_a_connection_that_never_reads_cost_the_can_side_no
     host = spawn([*SKIN, "run", str(config), "--seconds", str(SECONDS), "--json", str(out)])
     try:
         host.wait_for("zenoh: publishing", timeout=60)
-        reader = spawn([sys.executable, "-m", "bench.rigs.zenoh_slow_reader", endpoint,
+        reader = spawn([sys.executable, "-m", "tests.support.rigs.zenoh_slow_reader", endpoint,
                         str(STALL_S)])
         reader.wait_for("got 1", timeout=60)  # it holds Zenoh's thread from here on
         with socket.create_connection(("127.0.0.1", port)) as deaf:  # connects, never reads

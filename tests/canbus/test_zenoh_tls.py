@@ -12,13 +12,13 @@ import pytest
 
 pytest.importorskip("zenoh", reason="eclipse-zenoh (the zenoh extra) is not installed")
 
-from bench.rigs.children import run
-from bench.rigs.ports import tcp_port
-from bench.rigs.waiting import wait_until
-from bench.rigs.zenoh_host import publishing_host
 from canbus.master.hostconfig import load_host_config
-from canbus.zenoh.config import ZenohSettings
+from canbus.master.zenoh_settings import ZenohSettings
 from canbus.zenoh.reader import subscribe
+from tests.support.rigs.children import run
+from tests.support.rigs.ports import tcp_port
+from tests.support.rigs.waiting import wait_until
+from tests.support.rigs.zenoh_host import publishing_host
 
 OPENSSL = shutil.which("openssl")
 pytestmark = pytest.mark.skipif(OPENSSL is None, reason="no openssl to make certificates")

@@ -11,7 +11,7 @@ from typing import TextIO
 import can
 import can.interfaces.virtual
 
-from bench.rigs.waiting import wait_until
+from tests.support.rigs.waiting import wait_until
 
 
 def listening(channel: str) -> bool:

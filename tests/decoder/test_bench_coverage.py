@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-import bench.decoders as benchmark
+import skin.benchmarks.decoders as benchmark
 from skin.commands.bench.report import print_decoders, uncovered
 from tests.decoder.conftest import crosstalk_matrix, make_data
 

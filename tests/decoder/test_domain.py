@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from decoder.analytic import AnalyticDecoder
-from decoder.domain import TAXEL_BAND_FACTOR, Band, Box, Ellipsoid, TaxelBand, per_taxel
+from decoder.box import Box
+from decoder.domain import TAXEL_BAND_FACTOR, Band, Ellipsoid, TaxelBand, per_taxel
 from decoder.hybrid import HybridDecoder, soft_threshold
 from decoder.reasons import Reason, reason_name
 from decoder.registry import create_decoder
@@ -243,7 +244,7 @@ def test_box_and_ellipsoid_by_hand() -> None:
 
 
 def test_cross_bars_compare_unseen_cells_and_skip_exact_oracles() -> None:
-    from bench.decoders import cross_bars
+    from skin.benchmarks.decoders import cross_bars
 
     def cell(decoder: str, train: str, test: str, err: float, oracle: float) -> dict[str, Any]:
         return {"decoder": decoder, "mode": "z", "train": train, "test": test,

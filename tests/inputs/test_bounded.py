@@ -1,7 +1,8 @@
 """Bounded memory and time, seen from outside: ``skin`` in a process whose address space
 is capped (as ``ulimit -v`` caps it) refuses what would not fit with the figure, in one
 line, instead of being killed or swapping; and what used to loop for ever ends: each
-command is a child (bench.rigs.children) with a deadline, killed and failed if it runs on."""
+command is a child (tests.support.rigs.children) with a deadline, killed and failed if it
+runs on."""
 
 from __future__ import annotations
 
@@ -16,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.rigs import children
 from tests.inputs.test_recordings import _blf, _can_objects
+from tests.support.rigs import children
 
 CAP = 3 << 30
 """The address space of the process (numpy and its BLAS alone reserve most of a GiB)."""

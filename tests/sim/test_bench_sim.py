@@ -1,14 +1,14 @@
 """Speed benchmarks (pytest-benchmark); run with -n 0 --benchmark-enable to measure.
 
-Figures: bench.sim.run_benchmark, printed by `skin bench sim`.
+Figures: skin.benchmarks.sim.run_benchmark, printed by `skin bench sim`.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from bench.sim import bench_scene, run_benchmark
 from sim import Simulator
+from skin.benchmarks.sim import bench_scene, run_benchmark
 
 STEPS = 2_000
 

@@ -21,7 +21,6 @@ import canopen
 import numpy as np
 import pytest
 
-from bench.rigs.waiting import wait_until
 from canbus import codes
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
@@ -41,6 +40,7 @@ from skin.commands.view.layout import Layout
 from skin.commands.view.recorded import moment_view
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
+from tests.support.rigs.waiting import wait_until
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "host.toml"
 CUSTOM = set(range(0x1E0, 0x1E7))

@@ -14,7 +14,6 @@ import canopen
 import numpy as np
 import pytest
 
-from bench.rigs.recording import scene
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.host import HostManager
@@ -27,6 +26,7 @@ from skin.cli import main
 from skin.constants import DEFAULT_CONSTANTS
 from skin.dataset import Dataset, read_dataset, write_dataset
 from skin.errors import ConfigError
+from tests.support.rigs.recording import scene
 
 FAST = ["--decoders", "analytic", "deconv"]
 

@@ -5,7 +5,7 @@ the model (the ``calibration`` scene: 1.5x the crosstalk, readings 3 % high):
 configuring and running the patch (twice) -> ``skin dataset from-recording`` ->
 ``skin calibrate`` -> ``skin decode`` of the second recording, the listen-only host offline,
 with the calibrated model: its floored error is at most 1.2x the oracle's, while the
-uncalibrated analytic decoder is at least 5x worse. (bench/rigs/calibration.py)
+uncalibrated analytic decoder is at least 5x worse. (tests/support/rigs/calibration.py)
 """
 
 from __future__ import annotations
@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.rigs.calibration import loop, record
 from canbus.offline.dataset import dataset_from_recording
 from decoder.registry import load_decoder
 from decoder.tare import nominal_r0, normalise
 from skin.constants import DEFAULT_CONSTANTS
 from skin.reference import read_reference
+from tests.support.rigs.calibration import loop, record
 
 SAMPLES = 350  # answered SYNCs per recording: the run lasts until the patch answered them
 

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.rigs.children import run
 from skin.cli import main
+from tests.support.rigs.children import run
 
 RECORDING = Path(__file__).parents[1] / "files" / "recordings" / "good.log"
 # The command in a child: an optional file size limit, then skin's own main.

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.rigs.waiting import holds_for, wait_until
 from skin.cli import main
 from skin.commands.common.signals import Stopped, stop_signals_interrupt, until_stopped
+from tests.support.rigs.waiting import holds_for, wait_until
 
 
 def _signal_self(sig: signal.Signals) -> None:

@@ -10,7 +10,7 @@ patches' bus, which receives every force PDO anyway, as the demo's latency clock
 
 Both views count exactly the samples the host published, complete and incomplete, and
 neither sees a partial one, however busy the machine. What drawing costs the host (late
-frames with and without the view) is a figure of ``python -m bench.view``, not a test.
+frames with and without the view) is a figure of ``python -m tests.support.view``, not a test.
 """
 
 from __future__ import annotations
@@ -23,7 +23,6 @@ import canopen
 import numpy as np
 from rich.console import Console
 
-from bench.rigs.waiting import wait_until
 from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.host import HostManager, PatchHealth
@@ -34,6 +33,7 @@ from skin.commands.demo import demo_scene
 from skin.commands.view.layout import layout_from_positions
 from skin.commands.view.live import LiveStats, LiveThread, draw_live
 from skin.commands.view.term import SkinView
+from tests.support.rigs.waiting import wait_until
 
 PATCHES = 8
 SAMPLES = 100  # per patch: a second at 100 Hz

@@ -19,7 +19,6 @@ import pytest
 from matplotlib import colormaps
 from PIL import Image
 
-from bench.rigs.view import HostRun, record_host_run, until
 from canbus.master.forceframes import forces_to_mN
 from canbus.tools.recording import Recording
 from sim import Simulator
@@ -35,6 +34,7 @@ from skin.commands.view.sources import (
     recorded_samples,
     recording_times,
 )
+from tests.support.rigs.view import HostRun, record_host_run, until
 
 CYCLES = 80
 

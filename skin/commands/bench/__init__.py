@@ -52,7 +52,7 @@ def add_subparser(subparsers: Any) -> None:
                         help="write the figures as JSON")
     parser.add_argument("--random", type=argtypes.count("pairs", 0, 1000), default=0,
                         metavar="N", help="cross: N more scene pairs drawn at random "
-                                          "(bench.pairs)")
+                                          "(skin.benchmarks.pairs)")
     parser.add_argument("--png", type=argtypes.output_file, metavar="FILE.png",
                         help="paper: draw the paper's Figures 8, 9 and 10 as ours")
     parser.add_argument("--no-contact", action="store_true",
@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _sim(args: argparse.Namespace) -> dict[str, Any]:
-    from bench.sim import run_benchmark
+    from skin.benchmarks.sim import run_benchmark
 
     figures = run_benchmark(quick=args.quick)
     for key, value in figures.items():
@@ -135,7 +135,7 @@ def _sim(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _dataplane(args: argparse.Namespace) -> dict[str, Any]:
-    from bench.dataplane import run_dataplane_benchmark
+    from skin.benchmarks.dataplane import run_dataplane_benchmark
 
     cycles, repeats = (100, 2) if args.quick else (300, 5)
     figures = run_dataplane_benchmark(cycles=cycles, repeats=repeats,
@@ -173,7 +173,7 @@ def _robot(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _cross(args: argparse.Namespace) -> dict[str, Any]:
-    from bench.runs import mlp_params, run_cross
+    from skin.benchmarks.runs import mlp_params, run_cross
     from skin.commands.bench.cross import print_cross
 
     result = run_cross(args.quick, mlp_params(args.goal_units), args.random)
@@ -182,14 +182,14 @@ def _cross(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _paper(args: argparse.Namespace) -> dict[str, Any]:
-    from bench.paper_view import run_command
+    from skin.commands.bench.paper_view import run_command
 
     result: dict[str, Any] = run_command(args.quick, args.goal_units, args.json, args.png)
     return result
 
 
 def _decoders(args: argparse.Namespace) -> dict[str, Any]:
-    from bench.runs import SCENES, TABLE1_SCENES, run_decoders
+    from skin.benchmarks.runs import SCENES, TABLE1_SCENES, run_decoders
     from skin.commands.bench.report import Stages, check_plot, plot, print_decoders
 
     if args.plot:

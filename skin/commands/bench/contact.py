@@ -1,5 +1,6 @@
 """``skin bench contact``: the contact summary against the simulator's truth on ``indenter``,
-``slide``, ``grasp`` and ``stick-slip``, and its cost in the data plane (``bench.contact``)."""
+``slide``, ``grasp`` and ``stick-slip``, and its cost in the data plane
+(``skin.benchmarks.contact``)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from skin.commands.common import argtypes
 
 
 def run_contact(args: argparse.Namespace) -> dict[str, Any]:
-    from bench.contact import SCENES, run_contact_benchmark
+    from skin.benchmarks.contact import SCENES, run_contact_benchmark
     from skin.commands.bench.report import Stages
     from skin.contact import ContactParams
     from skin.errors import ConfigError

@@ -1,15 +1,14 @@
 """``skin bench cross``: every decoder trained on one scene and tested on the others.
 
-z-only: ``paper``, ``paper-noisy`` and ``indenter`` read through pillar z (their loads are
-pure presses, which is what a z-only reading can decode). 3-axis: those three and
-``slide`` and ``grasp`` (which shear the taxels, so they are read in 3-axis mode only).
-Each cell: the share of taxels the decoder flags EXTRAPOLATED, its floored AveRelErr on
-the taxels it does not flag, and the oracle's on the same taxels. Then the promise pair by
-pair (:mod:`bench.cross`): on those scenes and on the scene pairs of :mod:`bench.pairs`
-(and ``--random N`` drawn ones), the share flagged at home and away and the unflagged error
-against 2x the larger of deconv's on the pair and the decoder's own at home. The run is
-:func:`bench.runs.run_cross`; this module prints it.
-"""
+z-only: ``paper``, ``paper-noisy`` and ``indenter`` read through pillar z (their loads are pure
+presses, which is what a z-only reading can decode). 3-axis: those three and ``slide`` and
+``grasp`` (which shear the taxels, so they are read in 3-axis mode only). Each cell: the share
+of taxels the decoder flags EXTRAPOLATED, its floored AveRelErr on the taxels it does not flag,
+and the oracle's on the same taxels. Then the promise pair by pair
+(:mod:`skin.benchmarks.cross`): on those scenes and on the scene pairs of
+:mod:`skin.benchmarks.pairs` (and ``--random N`` drawn ones), the share flagged at home and away
+and the unflagged error against 2x the larger of deconv's on the pair and the decoder's own at
+home. The run is :func:`skin.benchmarks.runs.run_cross`; this module prints it."""
 
 from __future__ import annotations
 
@@ -21,7 +20,7 @@ def _pct(value: float | None) -> str:
 
 
 def print_cross(result: dict[str, Any]) -> None:
-    from bench.runs import XYZ_SCENES, Z_SCENES
+    from skin.benchmarks.runs import XYZ_SCENES, Z_SCENES
     from skin.commands.common.tables import show
 
     oracle = {(o["mode"], o["test"]): o for o in result["oracle"]}
@@ -51,6 +50,6 @@ def print_cross(result: dict[str, Any]) -> None:
     for b in missed:
         print(f"  not met: hybrid {b['mode']} {b['train']} -> {b['test']}: "
               f"{_pct(b['hybrid'])} % against {_pct(b['deconv'])} %, ratio {_pct(b['ratio'])}")
-    from bench.cross_view import print_promise
+    from skin.commands.bench.cross_view import print_promise
 
     print_promise(result)

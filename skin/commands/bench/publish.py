@@ -1,5 +1,5 @@
 """``skin bench publish``: hosts publishing on Zenoh and one reader, on loopback
-(:mod:`bench.publish`); the command line and the printed figures."""
+(:mod:`skin.benchmarks.publish`); the command line and the printed figures."""
 
 from __future__ import annotations
 
@@ -23,13 +23,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_publish(args: argparse.Namespace,
                 write_json: Callable[[str, dict[str, Any]], None]) -> int:
-    from bench.publish import (
+    from canbus.master.zenoh_settings import require_zenoh
+    from skin.benchmarks.publish import (
         DEFAULT_HOSTS,
         DEFAULT_PATCHES,
         DEFAULT_SECONDS,
         run_publish_benchmark,
     )
-    from canbus.zenoh.config import require_zenoh
     from skin.errors import ConfigError
 
     require_zenoh("skin bench publish")

@@ -1,5 +1,5 @@
 """``skin bench realtime``: the host beside CPU-bound processes, with and without
-``--realtime`` (:mod:`bench.realtime`); the command line and the printed figures."""
+``--realtime`` (:mod:`skin.benchmarks.realtime`); the command line and the printed figures."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_realtime(args: argparse.Namespace) -> dict[str, Any]:
-    from bench.realtime import (
+    from skin.benchmarks.realtime import (
         DEFAULT_HOGS,
         DEFAULT_PATCHES,
         DEFAULT_SECONDS,

@@ -1,5 +1,5 @@
 """``skin bench robot``: contacts on the example robot's links against the probe scene's
-truth (``bench.robot``, docs/robot.md)."""
+truth (``skin.benchmarks.robot``, docs/robot.md)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import Any
 
 
 def run_robot(args: argparse.Namespace) -> dict[str, Any]:
-    from bench.robot import run_robot_benchmark
+    from skin.benchmarks.robot import run_robot_benchmark
     from skin.commands.bench.report import Stages
 
     stages = Stages(2)

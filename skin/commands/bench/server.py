@@ -29,9 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_server(args: argparse.Namespace) -> dict[str, Any]:
-    from bench.server import default_port, run_server_benchmark
     from canbus.device.source import SimulatorSource
     from sim import Simulator
+    from skin.benchmarks.server import default_port, run_server_benchmark
     from skin.commands.sim.run import AHEAD_S, scene_on_patches
     from skin.errors import ConfigError
 

@@ -1,6 +1,6 @@
 """What ``skin calibrate`` writes besides the model: the report as JSON and as the model
 file's ``meta.calibration``, the host-config snippet, and the rest values sent to the
-patch by SDO (``--write-node``). Imports of canbus/decoder stay inside the functions.
+patch by SDO (``--write-node``). Imports of canbus and decoder stay inside the functions.
 """
 
 from __future__ import annotations

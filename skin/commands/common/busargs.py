@@ -17,7 +17,7 @@ without ``-c`` (udp_multicast: python-can's IPv4 default group)."""
 
 
 def add_rcvbuf_argument(parser: argparse.ArgumentParser) -> None:
-    from canbus.tools.recorder import DEFAULT_RCVBUF
+    from canbus.rxbuffer import DEFAULT_RCVBUF
 
     parser.add_argument("--rcvbuf", type=argtypes.rcvbuf, default=DEFAULT_RCVBUF, metavar="BYTES",
                         help="socket receive buffer to ask for on socket buses (udp_multicast, "

@@ -192,7 +192,7 @@ def open_command_bus(args: argparse.Namespace, *, command: str,
     described = choose_bus(args, command=command, config=config)
     if resilient:
         from canbus.busio import ResilientBus
-        from canbus.tools.recorder import enlarge_receive_buffer
+        from canbus.rxbuffer import enlarge_receive_buffer
 
         bus: Any = ResilientBus(partial(open_bus, args),
                                 name=f"{args.interface}:{getattr(args, 'channel', None)}",

@@ -91,7 +91,7 @@ def open_resilient(bus: BusConfig, rcvbuf: int, *, name: str) -> ResilientBus:
 
     from canbus.busio import ResilientBus
     from canbus.master.busconfig import open_bus
-    from canbus.tools.recorder import enlarge_receive_buffer
+    from canbus.rxbuffer import enlarge_receive_buffer
     from skin.commands.common.logs import held_back
 
     with held_back("can"):

@@ -2,7 +2,7 @@
 
 Every library module (canbus, decoder, sim, skin) logs through
 ``logging.getLogger(__name__)`` and leaves configuration to the application. The command
-sends every record to stderr as ``2025-01-01 12:00:00.123 WARNING canbus.x: text``.
+sends every record to stderr as ``2025-01-01 12:00:00.123 WARNING canbus.tools.recorder: text``.
 
 Levels: by default the library (canbus, decoder, sim, python-can, canopen) shows
 warnings and errors, and the commands' own loggers (``skin.commands.*``) also their INFO

@@ -145,9 +145,10 @@ def _child(spec: dict[str, Any]) -> int:
     from canbus.busio import ResilientBus
     from canbus.master.busconfig import BusConfig, open_bus
     from canbus.receiveloop import ReceiveLoop
+    from canbus.rxbuffer import enlarge_receive_buffer
     from canbus.tools import sample_wire
     from canbus.tools.mcap_messages import Placement
-    from canbus.tools.recorder import Recorder, enlarge_receive_buffer
+    from canbus.tools.recorder import Recorder
 
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)

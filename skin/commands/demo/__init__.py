@@ -37,11 +37,11 @@ from skin.commands.common.logs import warn
 if TYPE_CHECKING:
     import can
 
-    from bench.rigs.demo import Record
     from canbus.busload import Plan
     from canbus.master.host import HostManager
     from canbus.master.hostconfig import HostConfig
     from sim import Scene
+    from skin.commands.demo.rig import Record
     from skin.commands.demo.summary import DemoBus
 
 DEFAULT_PATCHES = 4
@@ -131,10 +131,10 @@ def _demo(args: argparse.Namespace) -> int:
 def _run_demo(args: argparse.Namespace, cpus: set[int] | None) -> int:
     import numpy as np
 
-    from bench.rigs.demo import Record
     from canbus.receiveloop import disconnect
     from sim import Simulator
     from skin.commands.demo import summary as demo_summary
+    from skin.commands.demo.rig import Record
 
     scene = demo_scene(args.scene, args.patches)
     config = _host_config(args, scene)
@@ -198,10 +198,10 @@ def _open_bus(args: argparse.Namespace, name: str, group: tuple[int, ...], live:
 
     import canopen
 
-    from bench.rigs.demo import BusClock, Replay
     from canbus.busio import ResilientBus
     from canbus.device.patch_server import PatchServer
     from canbus.receiveloop import connect
+    from skin.commands.demo.rig import BusClock, Replay
     from skin.commands.demo.summary import DemoBus
 
     channel = f"demo-{os.getpid()}-{name}"

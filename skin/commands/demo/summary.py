@@ -12,10 +12,10 @@ if TYPE_CHECKING:
     import can
     import canopen
 
-    from bench.rigs.demo import BusClock, Record
     from canbus.busload import Plan
     from canbus.device.patch_server import PatchServer
     from sim import Scene
+    from skin.commands.demo.rig import BusClock, Record
 
 
 @dataclass
@@ -38,7 +38,7 @@ def summary(args: argparse.Namespace, scene: Scene, plan: Plan, opened: list[Dem
              cpus: set[int] | None) -> dict[str, Any]:
     import numpy as np
 
-    from bench.rigs.demo import percentiles
+    from skin.commands.demo.rig import percentiles
 
     cycle = np.concatenate([live.cycle_latencies_ms(b.clock, list(b.patches)) for b in opened])
     sample = np.concatenate([live.sample_latencies_ms(b.clock, list(b.patches))

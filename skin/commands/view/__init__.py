@@ -29,7 +29,6 @@ if TYPE_CHECKING:
     from canbus.master.hostconfig import HostConfig
     from skin.commands.view.sources import BusDecode, BusForces, Playback, RecordingTimes
 
-SNAPSHOT_SECONDS = 1.0
 _TICK_S = 0.05
 
 
@@ -159,6 +158,7 @@ def _view(args: argparse.Namespace) -> int:
 def _bus(args: argparse.Namespace, config: HostConfig | None, layout: Layout) -> int:
     from skin.commands.common.busopen import open_command_bus
     from skin.commands.common.tool_config import asking
+    from skin.commands.view.live import SNAPSHOT_SECONDS
     from skin.commands.view.sources import BusDecode, BusForces, force_specs
 
     seconds = args.seconds

@@ -28,6 +28,8 @@ if TYPE_CHECKING:
     from skin.commands.view.term import SkinView
 
 DEFAULT_REFRESH_HZ = 4.0
+SNAPSHOT_SECONDS = 1.0
+"""How long ``--snapshot`` watches a live source before its one frame."""
 DRAW_SHARE = 0.2
 SWITCH_S = 0.0005
 _TICK_S = 0.05

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from canbus.zenoh.config import ZenohSettings
+    from canbus.master.zenoh_settings import ZenohSettings
     from canbus.zenoh.reader import Subscription
     from canbus.zenoh.schema import Sample
     from skin.commands.view.term import SkinView
@@ -52,7 +52,7 @@ def check_zenoh_arguments(args: argparse.Namespace) -> None:
 def reader_settings(args: argparse.Namespace) -> ZenohSettings:
     import tomllib
 
-    from canbus.zenoh.config import ZenohSettings, require_zenoh, zenoh_settings_from_table
+    from canbus.master.zenoh_settings import ZenohSettings, require_zenoh, zenoh_settings_from_table
     from skin.errors import ConfigError
 
     require_zenoh("--zenoh")
@@ -69,7 +69,7 @@ def reader_settings(args: argparse.Namespace) -> ZenohSettings:
             raise ConfigError("--zenoh-config", f"{path}: has no [zenoh] table")
         settings = zenoh_settings_from_table(data["zenoh"], base=path.parent)
     if args.zenoh:
-        from canbus.zenoh.config import check_endpoints, with_overrides
+        from canbus.master.zenoh_settings import check_endpoints, with_overrides
 
         settings = with_overrides(settings, connect=check_endpoints(args.zenoh, "--zenoh"))
     return settings
@@ -159,7 +159,7 @@ class ZenohForces:
 
 def run_zenoh(args: argparse.Namespace, layout: Any, live: Any) -> int:
     """The live view of the skin on Zenoh, through the view's own ``live`` loop."""
-    from skin.commands.view import SNAPSHOT_SECONDS
+    from skin.commands.view.live import SNAPSHOT_SECONDS
 
     settings = reader_settings(args)
     seconds = args.seconds

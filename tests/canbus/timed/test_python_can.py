@@ -12,9 +12,9 @@ import can
 import can.cli
 import pytest
 
-from bench.rigs.waiting import wait_until
 from canbus.framebits import frame_bits
 from canbus.timed import TimedBus, TimedBusConfigError, TimedBusError, open_channels
+from tests.support.rigs.waiting import wait_until
 
 OpenBus = Callable[..., TimedBus]
 

@@ -18,10 +18,10 @@ from typing import Any
 import can
 import pytest
 
-from bench.rigs.waiting import wait_until
 from canbus.framebits import frame_bits
 from canbus.timed import TimedBus
 from tests.canbus.timed.stamps import STAMP, check_starts
+from tests.support.rigs.waiting import wait_until
 
 OpenBus = Callable[..., TimedBus]
 ZEROS_8_BITS = 127  # an 8-byte all-zero frame with id 0 (hand-counted in test_framebits.py)

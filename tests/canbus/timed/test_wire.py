@@ -13,10 +13,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.rigs.waiting import wait_until
 from canbus.timed import TimedBus
 from canbus.timed.stats import LoadWindow
 from tests.canbus.timed.stamps import check_starts
+from tests.support.rigs.waiting import wait_until
 
 OpenBus = Callable[..., TimedBus]
 US = 1e-6
