@@ -327,3 +327,18 @@ def test_command_functions_are_short(module: str) -> None:
             if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef) and node.end_lineno
             and node.end_lineno - node.lineno + 1 > 60]
     assert not long, f"{module}: {long}"
+
+
+def test_no_test_module_imports_another() -> None:
+    """What tests share is a helper module (``tests/support``, or a folder's own helpers), not
+    another test module: a test module is collected for its tests, not imported for its
+    helpers."""
+    wrong = []
+    for path in sorted((ROOT / "tests").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom | ast.Import):
+                names = [node.module or ""] if isinstance(node, ast.ImportFrom) else \
+                    [a.name for a in node.names]
+                wrong += [f"{path.relative_to(ROOT)}: {n}" for n in names
+                          if n.startswith("tests.") and n.rpartition(".")[2].startswith("test_")]
+    assert not wrong, "\n".join(wrong)

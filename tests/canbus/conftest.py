@@ -9,6 +9,7 @@ import can.interfaces.virtual
 import pytest
 
 from tests.support.rigs.dataplane import Host
+from tests.support.rigs.host import Rig
 
 
 @pytest.fixture(autouse=True)
@@ -37,3 +38,10 @@ def _no_open_timed_channels() -> Iterator[None]:
     wire_threads = [t.name for t in threading.enumerate() if t.name.startswith("timed wire")]
     assert not left, f"test left timed channels open: {sorted(map(str, left))}"
     assert not wire_threads, f"timed wire threads still running: {wire_threads}"
+
+
+@pytest.fixture
+def rig(request: pytest.FixtureRequest) -> Iterator[Rig]:
+    r = Rig(f"host-{request.node.name}")
+    yield r
+    r.close()

@@ -12,7 +12,7 @@ import pytest
 
 from canbus.busio import BusGoneError, ResilientBus
 from canbus.receiveloop import PAUSE_MAX_S, ReceiveLoop
-from tests.canbus.test_host import eventually
+from tests.support.rigs.host import eventually
 
 FRAME = can.Message(arbitration_id=0x181, data=b"\x01\x02", is_extended_id=False)
 

@@ -23,7 +23,7 @@ from canbus.device.object_store import ObjectStore
 from canbus.device.patch_server import PatchServer
 from canbus.master.forcenode import ForceNode
 from canbus.od import load_od
-from tests.canbus.test_lss import Rest
+from tests.support.rigs.host import Rest
 
 
 class Rig:

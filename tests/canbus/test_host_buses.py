@@ -20,7 +20,7 @@ from canbus.master.dataplane import ForceFrame
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, PatchConfig
 from canbus.od import load_od
-from tests.canbus.test_host import eventually, expected, press, source
+from tests.support.rigs.host import eventually, expected, press, source
 from tests.support.rigs.waiting import holds_for
 
 FD = can.CanProtocol.CAN_FD

@@ -22,7 +22,7 @@ from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, PatchConfig
 from canbus.receiveloop import ReceiveLoop, connect
 from tests.canbus.faults import FaultyBus
-from tests.canbus.test_host import eventually, press, source
+from tests.support.rigs.host import eventually, press, source
 
 PATCHES = (1, 2, 3)
 RECOVERY_CYCLES = 300  # 3 s of SYNC at 100 Hz

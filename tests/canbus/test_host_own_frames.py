@@ -22,7 +22,7 @@ from canbus.master.forcenode import ForceNode
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, PatchConfig
 from canbus.rxfilter import receive_filter
-from tests.canbus.test_host import eventually, source
+from tests.support.rigs.host import eventually, source
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
                                 reason="udp_multicast on loopback, a Linux socket filter")

@@ -20,7 +20,7 @@ from canbus.master.hostconfig import PatchConfig
 from canbus.patch_constants import scale_of
 from decoder.reasons import Reason
 from tests.canbus.faults import rss_bytes
-from tests.canbus.test_host import Rig, config, eventually, press, source
+from tests.support.rigs.host import Rig, config, eventually, press, source
 
 RECOVERY_CYCLES = 300  # 3 s of SYNC at 100 Hz
 WAIT_S = 20.0

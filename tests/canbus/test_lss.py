@@ -13,7 +13,6 @@ from pathlib import Path
 
 import can
 import canopen
-import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -28,24 +27,11 @@ from canbus.master.lss_scan import Fastscan, lss_scan, unconfigured
 from canbus.od import load_od
 from canbus.tools.lss_names import describe_lss
 from skin.cli import main
-from skin.constants import DEFAULT_CONSTANTS
+from tests.support.rigs.host import Rest
 
 CYCLE_S = 0.05
 SERIALS = [0x0000_1003, 0x0000_1001, 0x0042_0007]
 VENDOR, PRODUCT, REVISION = 0, 1, 0x0001_0000
-
-
-class Rest:
-    """Every patch at rest."""
-
-    pillars = 3
-
-    def __init__(self, n: int) -> None:
-        self.node_ids = tuple(range(1, n + 1))
-        self._sample = np.tile(DEFAULT_CONSTANTS.nominal_resistance_ohm, (n, 9, 1))
-
-    def read(self) -> np.ndarray:
-        return self._sample
 
 
 def _network(channel: str) -> canopen.Network:

@@ -22,7 +22,7 @@ from canbus.device.patch_server import PatchServer
 from canbus.master.forcenode import ForceNode
 from canbus.od import load_od
 from skin.cli import main
-from tests.canbus.test_lss import Rest
+from tests.support.rigs.host import Rest
 
 SAVE, LOAD = b"save", b"load"
 ID = Identity(0, 1, 0x0001_0000, 0x1234)

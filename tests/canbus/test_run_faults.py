@@ -22,8 +22,8 @@ import pytest
 from canbus.device.patch_server import PatchServer
 from skin.cli import main
 from tests.canbus.faults import GONE, gone_bus_registered
-from tests.canbus.test_host import press, source
 from tests.support.rigs import children
+from tests.support.rigs.host import press, source
 from tests.support.rigs.waiting import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.inputs.test_recordings import _blf, _can_objects
+from tests.inputs.blf_files import blf_file, can_objects
 from tests.support.rigs import children
 
 CAP = 3 << 30
@@ -84,10 +84,10 @@ def test_an_array_header_that_declares_terabytes(tmp_path: Path, dataset: Path) 
 
 
 def test_a_blf_object_of_size_zero_ends(tmp_path: Path) -> None:
-    inner = bytearray(_can_objects(2))
+    inner = bytearray(can_objects(2))
     struct.pack_into("<L", inner, 8, 0)
     path = tmp_path / "zero.blf"
-    path.write_bytes(_blf(bytes(inner)))
+    path.write_bytes(blf_file(bytes(inner)))
     _one_line(_skin("replay", path, "--fast", "-i", "virtual"), str(path), "frame 1",
               "declares 0 bytes")
 

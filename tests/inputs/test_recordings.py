@@ -4,17 +4,16 @@ BLF container that inflates without bound is refused."""
 
 from __future__ import annotations
 
-import io
 import struct
 import zlib
 from pathlib import Path
 
-import can
 import pytest
 from can.io import blf
 from hypothesis import given
 from hypothesis import strategies as st
 
+from tests.inputs.blf_files import blf_file, can_objects
 from tests.inputs.conftest import examples
 from tests.inputs.hostile import answered, fingerprint, mutate_bytes, refused, run
 
@@ -41,42 +40,16 @@ def test_a_recording_damaged_in_its_bytes(tmp_path_factory: pytest.TempPathFacto
     _replay(path)
 
 
-def _blf(inner: bytes, declared: int | None = None, method: int = blf.ZLIB_DEFLATE) -> bytes:
-    """A .blf file of one container holding ``inner`` (declaring ``declared`` bytes)."""
-    good = (RECORDINGS / "good.blf").read_bytes()
-    packed = zlib.compress(inner) if method == blf.ZLIB_DEFLATE else inner
-    body = blf.LOG_CONTAINER_STRUCT.pack(method, len(inner) if declared is None else
-                                         declared) + packed
-    size = blf.OBJ_HEADER_BASE_STRUCT.size + len(body)
-    obj = blf.OBJ_HEADER_BASE_STRUCT.pack(b"LOBJ", 16, 1, size, blf.LOG_CONTAINER) + body
-    out = bytearray(good[:144] + obj + bytes(size % 4))
-    header = list(blf.FILE_HEADER_STRUCT.unpack_from(out, 0))
-    header[10] = len(out)
-    out[:blf.FILE_HEADER_STRUCT.size] = blf.FILE_HEADER_STRUCT.pack(*header)
-    return bytes(out)
-
-
-def _can_objects(count: int) -> bytes:
-    buffer = io.BytesIO()
-    writer = can.BLFWriter(buffer, compression_level=0)  # type: ignore[arg-type]
-    for k in range(count):
-        writer.on_message_received(can.Message(timestamp=1.0 + k, arbitration_id=0x181,
-                                               data=bytes(8)))
-    writer._flush()
-    data = buffer.getvalue()[144:]
-    return data[blf.OBJ_HEADER_BASE_STRUCT.size + blf.LOG_CONTAINER_STRUCT.size:]
-
-
 @examples(40)
 @given(data=st.data())
 def test_a_blf_object_of_any_declared_size(tmp_path_factory: pytest.TempPathFactory,
                                            data: st.DataObject) -> None:
-    inner = bytearray(_can_objects(3))
+    inner = bytearray(can_objects(3))
     at = data.draw(st.sampled_from((0, 48, 96)))  # an object's header in the container
     struct.pack_into("<L", inner, at + 8, data.draw(st.sampled_from(
         (0, 1, 15, 16, 31, 2**31 - 1, 2**32 - 1, 40, 48, 47))))
     path = tmp_path_factory.mktemp("blf") / "r.blf"
-    path.write_bytes(_blf(bytes(inner)))
+    path.write_bytes(blf_file(bytes(inner)))
     _replay(path)
 
 
@@ -87,7 +60,7 @@ def test_a_blf_decompression_bomb_is_refused(tmp_path: Path, declared: int,
     packed = b"".join(zeros.compress(bytes(1 << 24)) for _ in range(inflated >> 24))
     packed += zeros.flush()
     path = tmp_path / "bomb.blf"
-    data = bytearray(_blf(b"", declared))
+    data = bytearray(blf_file(b"", declared))
     body_at = 144 + blf.OBJ_HEADER_BASE_STRUCT.size + blf.LOG_CONTAINER_STRUCT.size
     data = data[:body_at] + packed
     size = len(data) - 144
