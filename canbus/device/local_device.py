@@ -31,10 +31,11 @@ from canbus.device import comm_objects
 from canbus.device.error_history import ErrorHistory
 from canbus.device.heartbeat import HeartbeatProducer
 from canbus.device.nmt_slave import OPERATIONAL, RESET_COMMUNICATION, RESET_NODE, NmtSlave
-from canbus.device.nv_store import Identity, NvStore
+from canbus.device.nv_store import NvStore
 from canbus.device.object_store import ObjectStore
 from canbus.device.store_restore import StoreRestore
 from canbus.device.tpdo import TpdoTable
+from canbus.identity import Identity
 from canbus.od import load_od
 from canbus.txmessage import fd_capable
 

@@ -32,7 +32,8 @@ from typing import Protocol
 
 import canopen
 
-from canbus.device.nv_store import BIT_TIMINGS, Identity, NvStore
+from canbus.device.nv_store import BIT_TIMINGS, NvStore
+from canbus.identity import Identity
 
 logger = logging.getLogger(__name__)
 

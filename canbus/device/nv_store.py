@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from canbus.identity import Identity
 from skin.atomic import atomic_write
 from skin.errors import ConfigError
 
@@ -38,24 +39,10 @@ BIT_TIMINGS = range(0, 10)
 """CiA 305 table 0: 0 = 1000, 1 = 800, 2 = 500, 3 = 250, 4 = 125, 6 = 50, 7 = 20, 8 = 10
 kbit/s, 9 = automatic (5 is reserved)."""
 _KEY = re.compile(r"^([0-9A-F]{4}):([0-9A-F]{2})$")
-_IDENTITY = ("vendor", "product", "revision", "serial")
 
 
 class NvStoreError(ConfigError):
     """A state file that is not this device's store: corrupt, foreign or of another format."""
-
-
-@dataclass(frozen=True)
-class Identity:
-    """0x1018 sub 1..4: what LSS addresses a device by."""
-
-    vendor: int
-    product: int
-    revision: int
-    serial: int
-
-    def as_dict(self) -> dict[str, int]:
-        return {name: getattr(self, name) for name in _IDENTITY}
 
 
 @dataclass
@@ -150,7 +137,7 @@ class NvStore:
     def _check_identity(self, found: Any) -> None:
         if not isinstance(found, dict):
             raise self._fail("identity", "missing or not a table")
-        for name in _IDENTITY:
+        for name in self.identity.as_dict():
             value = found.get(name)
             if not isinstance(value, int) or isinstance(value, bool):
                 raise self._fail(f"identity.{name}", f"{value!r} is not an integer")

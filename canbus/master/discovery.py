@@ -25,31 +25,14 @@ from canopen.sdo.client import SdoClient
 from canopen.sdo.constants import RESPONSE_ABORTED
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
+from canbus.identity import Identity
+
 logger = logging.getLogger(__name__)
 
-PATCH_PRODUCT = 1
-FORCE_PRODUCT = 2
 BOOTUP = 0x00
 SDO_FRAME = 8  # bytes of every SDO frame (CiA 301)
 RESPONSES_KEPT = 256  # SDO or LSS answers queued at most (a block transfer has <= 127)
 _HEARTBEAT = 0x700
-
-
-@dataclass(frozen=True)
-class Identity:
-    """Object 0x1018: vendor-ID, product code, revision number, serial number."""
-
-    vendor: int
-    product: int
-    revision: int
-    serial: int
-
-    @property
-    def kind(self) -> str:
-        """``"patch"``, ``"forces"`` or ``"unknown"``."""
-        if self.vendor != 0:
-            return "unknown"
-        return {PATCH_PRODUCT: "patch", FORCE_PRODUCT: "forces"}.get(self.product, "unknown")
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,8 @@ from canopen.lss import LssError, LssMaster
 from canopen.sdo.exceptions import SdoError
 
 from canbus.device.local_device import eds_identity
-from canbus.device.nv_store import Identity, NvStore
+from canbus.device.nv_store import NvStore
+from canbus.identity import Identity
 from canbus.master.discovery import scan
 from skin.errors import BusError
 
