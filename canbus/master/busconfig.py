@@ -23,7 +23,7 @@ from typing import Any
 
 import can
 
-from canbus.busopen import configured_interface, open_can_bus, python_can_config
+from canbus.busopen import configured_bus, configured_interface, open_can_bus
 from skin.errors import BusError, ConfigError
 from skin.inputs import fields
 
@@ -50,7 +50,7 @@ class BusConfig:
         interface, channel = self.interface, self.channel
         if interface is not None:
             return f"{interface}:{'?' if channel is None else channel}"
-        configured = python_can_config()
+        configured = configured_bus()
         interface = configured.get("interface")
         if channel is None:
             channel = configured.get("channel")

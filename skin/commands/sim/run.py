@@ -79,11 +79,11 @@ def bus_namespaces(args: argparse.Namespace, buses: int) -> list[argparse.Namesp
     elif buses == 1:
         return [args]
     elif args.interface == "udp_multicast":
-        from skin.commands.common.busopen import python_can_config
+        from skin.commands.common.busopen import python_can_settings
 
         given = (getattr(args, "bus_kwargs", None) or {}).get("port")
         base = int(given if given is not None else
-                   python_can_config().get("port", UDP_DEFAULT_PORT))
+                   python_can_settings().get("port", UDP_DEFAULT_PORT))
         out = []
         for k in range(buses):
             each = copy.copy(args)
