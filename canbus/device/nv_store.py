@@ -29,6 +29,7 @@ from typing import Any
 from canbus.identity import Identity
 from skin.atomic import atomic_write
 from skin.errors import ConfigError
+from skin.inputs import fields
 
 FORMAT, VERSION = "canskin-nv-store", 1
 MAX_BYTES = 1 << 20
@@ -166,9 +167,10 @@ class NvStore:
         if not isinstance(found, dict):
             raise self._fail("lss", "not a table")
         node_id, bit_timing = found.get("node_id"), found.get("bit_timing")
-        if not isinstance(node_id, int) or isinstance(node_id, bool) or \
-                not (1 <= node_id <= 127 or node_id == 0xFF):
-            raise self._fail("lss.node_id", f"{node_id!r} is not a node-ID (1..127, 255)")
+        try:
+            node_id = fields.node_id(node_id, "lss.node_id", unconfigured=True)
+        except ConfigError as err:
+            raise self._fail("lss.node_id", err.problem) from err
         if bit_timing is not None and (not isinstance(bit_timing, int) or
                                        isinstance(bit_timing, bool) or
                                        bit_timing not in BIT_TIMINGS or bit_timing == 5):

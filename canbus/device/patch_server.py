@@ -39,7 +39,6 @@ import numpy as np
 
 from canbus import codes
 from canbus.busload import spread
-from canbus.device.local_device import UNCONFIGURED
 from canbus.device.lss_slave import LSS_MASTER
 from canbus.device.nmt_slave import OPERATIONAL
 from canbus.device.nv_store import NvStore
@@ -65,6 +64,7 @@ from canbus.identity import Identity
 from canbus.txmessage import TxMessage
 from canbus.worker import Worker
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
+from skin.inputs.fields import UNCONFIGURED
 
 logger = logging.getLogger(__name__)
 

@@ -26,6 +26,7 @@ from canopen.sdo.constants import RESPONSE_ABORTED
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from canbus.identity import Identity
+from skin.inputs import fields
 
 logger = logging.getLogger(__name__)
 
@@ -164,7 +165,7 @@ class BootListener:
     def __init__(self, network: canopen.Network, on_boot: Callable[[int], None]) -> None:
         self.network = network
         self.on_boot = on_boot
-        self._ids = range(_HEARTBEAT + 1, _HEARTBEAT + 128)
+        self._ids = [_HEARTBEAT + node for node in fields.NODE_IDS]
 
     def start(self) -> None:
         for cob_id in self._ids:
