@@ -34,6 +34,7 @@ from canbus.identity import Identity
 from canbus.master.discovery import scan
 from skin.errors import BusError
 from skin.inputs import fields
+from skin.inputs.fields import UNCONFIGURED
 
 if TYPE_CHECKING:
     from canbus.master.hostconfig import HostConfig
@@ -41,8 +42,7 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-UNCONFIGURED = 0xFF
-MAX_AUTO = 127
+MAX_AUTO = len(fields.NODE_IDS)
 RETRIES = 3
 
 
