@@ -42,9 +42,12 @@ def open_can_bus(kwargs: Mapping[str, Any], what: str) -> can.BusABC:
         raise BusError(f"cannot open {what}: {problem}") from err
 
 
-def python_can_config() -> dict[str, Any]:
-    """What python-can's own configuration (files, ``CAN_INTERFACE``, ``CAN_CHANNEL``)
-    names; empty when it names no interface (``can.util.load_config`` raises then)."""
+def configured_bus() -> dict[str, Any]:
+    """The bus python-can's own configuration (files, ``CAN_INTERFACE``, ``CAN_CHANNEL``)
+    names, checked and completed by ``can.util.load_config``: the keyword arguments of
+    ``can.Bus``; empty when it names no interface (``load_config`` raises then). What the
+    configuration sets, interface or not, as it sets it:
+    ``skin.commands.common.busopen.python_can_settings``."""
     try:
         return dict(can.util.load_config())
     except Exception:  # python-can raises CanInterfaceNotImplementedError for "none"
@@ -53,5 +56,5 @@ def python_can_config() -> dict[str, Any]:
 
 def configured_interface() -> str | None:
     """The interface python-can's own configuration names, or None."""
-    interface = python_can_config().get("interface")
+    interface = configured_bus().get("interface")
     return interface if isinstance(interface, str) else None

@@ -13,6 +13,7 @@ import canopen
 from canbus.busopen import reason
 from canbus.edsfile import check_loadable
 from skin.errors import ConfigError
+from skin.inputs import fields
 
 SHIPPED = ("skin-patch", "skin-forces")
 """EDS files inside the ``eds`` package, found by name after any install."""
@@ -45,8 +46,7 @@ def load_od(name_or_path: str | os.PathLike[str], node_id: int) -> canopen.Objec
     anything canopen would fail on, or silently drop, is a ConfigError naming the file,
     the section and the key; whatever canopen still raises is turned into one too.
     """
-    if not 1 <= node_id <= 127:
-        raise ConfigError("node_id", f"must be in 1..127, got {node_id}")
+    fields.node_id(node_id, "node_id")
     with eds_file(name_or_path) as path:
         if os.fspath(name_or_path).removesuffix(".eds") not in SHIPPED:
             check_loadable(path)

@@ -42,6 +42,7 @@ from collections.abc import Iterable
 import can
 
 from canbus.perbus import PerBus
+from skin.inputs import fields
 
 logger = logging.getLogger(__name__)
 
@@ -62,11 +63,7 @@ def echoes_own_frames(bus: can.BusABC) -> bool:
 
 
 def _cob_ids(cob_ids: Iterable[int]) -> frozenset[int]:
-    ids = frozenset(int(c) for c in cob_ids)
-    bad = [c for c in ids if not 0 <= c <= 0x7FF]
-    if bad:
-        raise ValueError(f"not an 11-bit COB-ID: {bad[0]:#x}")
-    return ids
+    return frozenset(fields.cob_id(int(c), "COB-ID") for c in cob_ids)
 
 
 class ReceiveFilter:

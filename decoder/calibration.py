@@ -330,7 +330,7 @@ def check_calibration_meta(own: Any, where: str) -> dict[str, Any]:
         if own.get("mode") not in ("z", "xyz"):
             raise ConfigError(f"{field}.mode", f"must be z or xyz, got {own.get('mode')!r}")
         if own.get("node_id") is not None:
-            fields.integer(own["node_id"], f"{field}.node_id", 1, 127)
+            fields.node_id(own["node_id"], f"{field}.node_id")
         tare = fields.table(own.get("tare", {}), f"{field}.tare")
         fields.number(tare.get("rest_N", 0.01), f"{field}.tare.rest_N", 0.0, 1e4)
         rest = tare.get("rest_ohm")

@@ -25,39 +25,31 @@ class Params(Protocol):
 P = TypeVar("P", bound=Params)
 
 
-def _coerce(value: object, annotation: str, field: str,
+_KINDS = {"float": float, "int": int, "str": str, "bool": bool}
+
+
+def _coerce(value: object, name: str, annotation: str, field: str,
             limits: tuple[float, float] | None) -> object:
     optional = annotation.endswith("| None")
     base = annotation.removesuffix("| None").strip()
-    low, high = limits if limits is not None else (None, None)
     if value is None and optional:
         return None
-    if base == "float":
-        return fields.number(value, field, low, high)
-    if base == "int":
-        return fields.integer(value, field, None if low is None else int(low),
-                              None if high is None else int(high))
-    if base == "str":
-        return fields.text(value, field)
-    if base == "bool":
-        return fields.boolean(value, field)
-    raise ConfigError(field, f"must be {base}, got {fields.shown(value)}")
-
-
-def check_keys(table: Mapping[str, object], known: set[str] | list[str], where: str) -> None:
-    """Raise ConfigError naming the first unknown key of ``table``."""
-    for key in table:
-        if key not in known:
-            listed = ", ".join(sorted(known)) or "none"
-            raise ConfigError(f"{where}.{key}", f"unknown key; known: {listed}")
+    if name == "node_id" and base == "int":
+        return fields.node_id(value, field)
+    kind = _KINDS.get(base)
+    if kind is None:
+        raise ConfigError(field, f"must be {base}, got {fields.shown(value)}")
+    low, high = limits if limits is not None else (None, None)
+    return fields.typed(value, kind, field, low, high)
 
 
 def build(cls: type[P], table: Mapping[str, Any], where: str) -> P:
-    """Build the parameter dataclass ``cls`` from ``table``; defaults fill the rest."""
+    """Build the parameter dataclass ``cls`` from ``table``; defaults fill the rest. A
+    field named ``node_id`` is a CANopen node-ID (:func:`skin.inputs.fields.node_id`)."""
     names = {f.name: str(f.type) for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-    check_keys(table, set(names), where)
+    fields.known_keys(table, names, where)
     ranges: dict[str, tuple[float, float]] = getattr(cls, "RANGES", {})
-    kwargs = {key: _coerce(value, names[key], f"{where}.{key}", ranges.get(key))
+    kwargs = {key: _coerce(value, key, names[key], f"{where}.{key}", ranges.get(key))
               for key, value in table.items()}
     params = cls(**kwargs)
     params.check(where)

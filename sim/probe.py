@@ -80,21 +80,18 @@ def load_probe_scene(path: str | Path) -> ProbeScene:
 
 
 def _probe_from_dict(data: Mapping[str, Any], source: str) -> ProbeScene:
-    for key in data:
-        if key not in ("probe", "presses", "effects"):
-            raise ConfigError(key, "unknown key; known: effects, presses, probe")
+    fields.known_keys(data, ("probe", "presses", "effects"), "")
     probe = data.get("probe", {})
     if not isinstance(probe, Mapping):
         raise ConfigError("probe", "must be a table ([probe])")
+    fields.known_keys(probe, ("name", *_NUMBERS), "probe")
     values: dict[str, Any] = {}
     for key, value in probe.items():
         if key == "name":
             values[key] = fields.text(value, "probe.name", 256)
-        elif key in _NUMBERS:
+        else:
             low, high = _NUMBERS[key]
             values[key] = fields.number(value, f"probe.{key}", high=high, above=low)
-        else:
-            raise ConfigError(f"probe.{key}", f"unknown key; known: name, {', '.join(_NUMBERS)}")
     tables = data.get("presses")
     if not isinstance(tables, list) or not tables or not all(isinstance(t, dict)
                                                             for t in tables):
@@ -102,9 +99,7 @@ def _probe_from_dict(data: Mapping[str, Any], source: str) -> ProbeScene:
     presses = []
     for i, table in enumerate(tables):
         where = f"presses[{i}]"
-        for key in table:
-            if key not in ("link", "point_m"):
-                raise ConfigError(f"{where}.{key}", "unknown key; known: link, point_m")
+        fields.known_keys(table, ("link", "point_m"), where)
         link = table.get("link")
         if not isinstance(link, str) or not link:
             raise ConfigError(f"{where}.link", f"must name a link, got {fields.shown(link)}")

@@ -24,7 +24,7 @@ from sim.effects import EFFECT_PARAMS, EFFECTS
 from sim.effects.crosstalk import CrosstalkParams, crosstalk_matrix
 from sim.effects.faults import FaultsParams
 from sim.loads import LOAD_PARAMS
-from sim.params import build, check_keys, one_of, positive
+from sim.params import build, one_of, positive
 from skin.errors import ConfigError
 from skin.inputs import fields
 from skin.inputs.tomlfile import parse_toml, read_toml
@@ -122,8 +122,8 @@ def _table_list(data: Mapping[str, Any], key: str) -> list[dict[str, Any]]:
 
 
 def _patch(table: dict[str, Any], where: str) -> PatchSpec:
-    check_keys(table, {"node_id", "position_m"}, where)
-    node = fields.integer(table.get("node_id"), f"{where}.node_id", 1, 127)
+    fields.known_keys(table, ("node_id", "position_m"), where)
+    node = fields.node_id(table.get("node_id"), f"{where}.node_id")
     pos = table.get("position_m", [0.0, 0.0])
     if not (isinstance(pos, list) and len(pos) == 2):
         raise ConfigError(f"{where}.position_m", f"must be [x, y] in metres, got "
@@ -143,7 +143,7 @@ def _load(table: dict[str, Any], where: str, nodes: tuple[int, ...]) -> LoadSpec
     if not isinstance(patches, list) or not patches:
         raise ConfigError(f"{where}.patches", "must be a non-empty list of node ids")
     for i, node in enumerate(patches):
-        fields.integer(node, f"{where}.patches[{i}]", 1, 127)
+        fields.node_id(node, f"{where}.patches[{i}]")
         if node not in nodes:
             raise ConfigError(f"{where}.patches[{i}]", f"no patch with node_id {node!r}")
     if len(set(patches)) != len(patches):
@@ -180,7 +180,7 @@ def scene_from_dict(data: Mapping[str, Any]) -> Scene:
     """Validate a parsed TOML document (or Scene.to_dict()) into a Scene."""
     if not isinstance(data, Mapping):
         raise ConfigError("scene file", f"must be a table, got {fields.shown(data)}")
-    check_keys(data, {"scene", "patches", "loads", "effects"}, "scene file")
+    fields.known_keys(data, ("scene", "patches", "loads", "effects"), "")
     header_table = data.get("scene")
     if not isinstance(header_table, dict):
         raise ConfigError("scene", "missing [scene] table")
@@ -229,8 +229,7 @@ def on_patches(scene: Scene, patches: int, spacing_m: float = 0.05) -> Scene:
     """``scene``'s loads and effects on ``patches`` patches at node-IDs 1..N, on a square
     grid ``spacing_m`` apart, every load on every patch (faults kept on the patches that
     remain): how one scene stands for a skin of any size."""
-    if not 1 <= patches <= 127:
-        raise ConfigError("patches", f"must be in 1..127 (CANopen node-IDs), got {patches}")
+    fields.integer(patches, "patches", 1, len(fields.NODE_IDS))  # each its own node-ID
     if patches == len(scene.patches) and scene.node_ids == tuple(range(1, patches + 1)):
         return scene
     data = scene.to_dict()

@@ -107,15 +107,12 @@ class SensorConstants:
         """The constants of a parsed table (a model file's, a dataset's, a config's); a
         ConfigError names ``where.<constant>``."""
         from skin.errors import ConfigError
+        from skin.inputs.fields import known_keys
 
         if not isinstance(data, Mapping):
             raise ConfigError(where, f"must be a table of sensor constants, got "
                               f"{type(data).__name__}")
-        known = set(cls.__dataclass_fields__)
-        for key in data:
-            if key not in known:
-                raise ConfigError(f"{where}.{key}", "unknown sensor constant; known: "
-                                  f"{', '.join(sorted(known))}")
+        known_keys(data, cls.__dataclass_fields__, where, what="sensor constant")
         try:
             return cls(**data)
         except ConfigError as err:

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from skin.atomic import atomic_write
 from skin.errors import ConfigError, DatasetError
+from skin.inputs import fields
 from skin.inputs.npz import read_npz
 
 F64 = NDArray[np.float64]
@@ -132,7 +133,7 @@ def _meta_nodes(meta: dict[str, Any], where: str) -> None:
     if nodes is None:
         return
     if not isinstance(nodes, list) or not all(
-            isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 127 for n in nodes):
+            fields.is_node_id(n) for n in nodes):
         raise DatasetError(f"{where}: meta's node-IDs must be integers in 1..127, got "
                            f"{str(nodes)[:60]}")
 

@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 
 from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH
 from skin.errors import ReferenceFileError
+from skin.inputs import fields
 from skin.inputs.budget import memory_budget, size_text
 from skin.inputs.npz import read_npz
 from skin.inputs.outputs import create_beside, discard, put_in_place, write_error
@@ -233,7 +234,8 @@ def _samples(source: str, columns: dict[str, Any], lines: NDArray[np.int64],
         raise ReferenceFileError(source, 1, "needs a taxel column, or x_m and y_m")
     n = len(lines)
     node = _column(source, columns, lines, "node_id", int)
-    _in_range(source, lines, "node_id", node, 1, 127, "a node-ID in 1..127")
+    _in_range(source, lines, "node_id", node, fields.NODE_IDS[0], fields.NODE_IDS[-1],
+              fields.NODE_ID)
     time_s = _column(source, columns, lines, "time_s", float) if has_time else np.full(n, np.nan)
     sync = _column(source, columns, lines, "sync", int) if has_sync else np.zeros(n, np.int64)
     if has_sync:

@@ -31,18 +31,20 @@ from canbus.device import comm_objects
 from canbus.device.error_history import ErrorHistory
 from canbus.device.heartbeat import HeartbeatProducer
 from canbus.device.nmt_slave import OPERATIONAL, RESET_COMMUNICATION, RESET_NODE, NmtSlave
-from canbus.device.nv_store import Identity, NvStore
+from canbus.device.nv_store import NvStore
 from canbus.device.object_store import ObjectStore
 from canbus.device.store_restore import StoreRestore
 from canbus.device.tpdo import TpdoTable
+from canbus.identity import Identity
 from canbus.od import load_od
 from canbus.txmessage import fd_capable
+from skin.inputs import fields
+from skin.inputs.fields import UNCONFIGURED
 
 if TYPE_CHECKING:
     from canbus.device.lss_slave import LssSlave
 
 TPDO_COUNT = 7
-UNCONFIGURED = 0xFF
 ERROR_HISTORY_DEPTH = 8
 COMMUNICATION_ERROR = 0x8100
 """EMCY error code "communication, generic", kept in 0x1003 at a communication error."""
@@ -65,8 +67,7 @@ class LocalDevice:
 
     def __init__(self, node_id: int, eds: str, tpdo_count: int = TPDO_COUNT, *,
                  serial: int = 0, nv: NvStore | None = None) -> None:
-        if not (1 <= node_id <= 127 or node_id == UNCONFIGURED):
-            raise ValueError(f"node-ID must be 1..127 or 0xFF (unconfigured), got {node_id}")
+        fields.node_id(node_id, "node_id", unconfigured=True)
         self.eds = eds
         self.tpdo_count = tpdo_count
         self.identity = Identity(*eds_identity(eds), serial=serial)

@@ -32,7 +32,9 @@ from typing import Protocol
 
 import canopen
 
-from canbus.device.nv_store import BIT_TIMINGS, Identity, NvStore
+from canbus.device.nv_store import BIT_TIMINGS, NvStore
+from canbus.identity import Identity
+from skin.inputs.fields import UNCONFIGURED, is_node_id
 
 logger = logging.getLogger(__name__)
 
@@ -47,7 +49,6 @@ FASTSCAN, FASTSCAN_CONFIRM = 0x51, 0x80
 INQUIRE = range(0x5A, 0x5F)
 INQUIRE_NODE_ID = 0x5E
 ERROR_NONE, ERROR_INADMISSIBLE, ERROR_STORAGE = 0, 1, 2
-UNCONFIGURED = 0xFF
 
 
 class LssDevice(Protocol):
@@ -215,7 +216,7 @@ class LssSlave:
         self._answer(IDENTIFY_ANSWER)
 
     def _configure_node_id(self, node_id: int) -> None:
-        if 1 <= node_id <= 127 or node_id == UNCONFIGURED:
+        if is_node_id(node_id) or node_id == UNCONFIGURED:
             self.pending_node_id = node_id
             self._answer(CONFIGURE_NODE_ID, bytes([ERROR_NONE]))
         else:

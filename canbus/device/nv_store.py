@@ -26,8 +26,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from canbus.identity import Identity
 from skin.atomic import atomic_write
 from skin.errors import ConfigError
+from skin.inputs import fields
 
 FORMAT, VERSION = "canskin-nv-store", 1
 MAX_BYTES = 1 << 20
@@ -38,24 +40,10 @@ BIT_TIMINGS = range(0, 10)
 """CiA 305 table 0: 0 = 1000, 1 = 800, 2 = 500, 3 = 250, 4 = 125, 6 = 50, 7 = 20, 8 = 10
 kbit/s, 9 = automatic (5 is reserved)."""
 _KEY = re.compile(r"^([0-9A-F]{4}):([0-9A-F]{2})$")
-_IDENTITY = ("vendor", "product", "revision", "serial")
 
 
 class NvStoreError(ConfigError):
     """A state file that is not this device's store: corrupt, foreign or of another format."""
-
-
-@dataclass(frozen=True)
-class Identity:
-    """0x1018 sub 1..4: what LSS addresses a device by."""
-
-    vendor: int
-    product: int
-    revision: int
-    serial: int
-
-    def as_dict(self) -> dict[str, int]:
-        return {name: getattr(self, name) for name in _IDENTITY}
 
 
 @dataclass
@@ -150,7 +138,7 @@ class NvStore:
     def _check_identity(self, found: Any) -> None:
         if not isinstance(found, dict):
             raise self._fail("identity", "missing or not a table")
-        for name in _IDENTITY:
+        for name in self.identity.as_dict():
             value = found.get(name)
             if not isinstance(value, int) or isinstance(value, bool):
                 raise self._fail(f"identity.{name}", f"{value!r} is not an integer")
@@ -179,9 +167,10 @@ class NvStore:
         if not isinstance(found, dict):
             raise self._fail("lss", "not a table")
         node_id, bit_timing = found.get("node_id"), found.get("bit_timing")
-        if not isinstance(node_id, int) or isinstance(node_id, bool) or \
-                not (1 <= node_id <= 127 or node_id == 0xFF):
-            raise self._fail("lss.node_id", f"{node_id!r} is not a node-ID (1..127, 255)")
+        try:
+            node_id = fields.node_id(node_id, "lss.node_id", unconfigured=True)
+        except ConfigError as err:
+            raise self._fail("lss.node_id", err.problem) from err
         if bit_timing is not None and (not isinstance(bit_timing, int) or
                                        isinstance(bit_timing, bool) or
                                        bit_timing not in BIT_TIMINGS or bit_timing == 5):

@@ -39,10 +39,9 @@ import numpy as np
 
 from canbus import codes
 from canbus.busload import spread
-from canbus.device.local_device import UNCONFIGURED
 from canbus.device.lss_slave import LSS_MASTER
 from canbus.device.nmt_slave import OPERATIONAL
-from canbus.device.nv_store import Identity, NvStore
+from canbus.device.nv_store import NvStore
 from canbus.device.patch_node import (
     AnswerPlan,
     PatchNode,
@@ -61,9 +60,11 @@ from canbus.device.server_bus import (
     release_own_frames,
 )
 from canbus.device.source import ResistanceSource
+from canbus.identity import Identity
 from canbus.txmessage import TxMessage
 from canbus.worker import Worker
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
+from skin.inputs.fields import UNCONFIGURED
 
 logger = logging.getLogger(__name__)
 

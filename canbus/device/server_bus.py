@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 import canopen
 
 from canbus.device.local_device import eds_identity
-from canbus.device.nv_store import Identity
 from canbus.device.patch_node import PatchNode
+from canbus.identity import Identity
 from canbus.rxfilter import OwnFrameGate, ReceiveFilter, receive_filter
 
 SYNC_COB_ID = 0x080

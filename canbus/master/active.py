@@ -34,11 +34,11 @@ import can
 from canopen.sdo.exceptions import SdoError
 
 from canbus.echoes import echo_ledger
+from canbus.identity import Identity
 from canbus.master.buslink import BusLink
 from canbus.master.cobids import force_cob_ids, node_cob_ids
 from canbus.master.discovery import (
     HaltableSdoClient,
-    Identity,
     UnknownNode,
     read_identity,
     scan,

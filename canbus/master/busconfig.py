@@ -23,7 +23,7 @@ from typing import Any
 
 import can
 
-from canbus.busopen import configured_interface, open_can_bus, python_can_config
+from canbus.busopen import configured_bus, configured_interface, open_can_bus
 from skin.errors import BusError, ConfigError
 from skin.inputs import fields
 
@@ -50,7 +50,7 @@ class BusConfig:
         interface, channel = self.interface, self.channel
         if interface is not None:
             return f"{interface}:{'?' if channel is None else channel}"
-        configured = python_can_config()
+        configured = configured_bus()
         interface = configured.get("interface")
         if channel is None:
             channel = configured.get("channel")
@@ -96,16 +96,14 @@ def buses_from_dict(data: Mapping[str, Any]) -> tuple[BusConfig, ...]:
 
 
 def _bus(table: Mapping[str, Any], where: str, name: str | None) -> BusConfig:
-    for key in table:
-        if key not in _KEYS:
-            raise ConfigError(f"{where}.{key}", f"unknown key; known: {', '.join(sorted(_KEYS))}")
+    fields.known_keys(table, _KEYS, where)
     kwargs: dict[str, Any] = {}
-    if name is None:
-        kwargs["name"] = _of(table["name"], str, f"{where}.name")
-    for key, kind in (("interface", str), ("bitrate", int), ("data_bitrate", int),
-                      ("fd", bool)):
+    for key in ("name", "interface"):
+        if key in table and (key != "name" or name is None):
+            kwargs[key] = fields.text(table[key], f"{where}.{key}", 256)
+    for key, kind in (("bitrate", int), ("data_bitrate", int), ("fd", bool)):
         if key in table:
-            kwargs[key] = _of(table[key], kind, f"{where}.{key}")
+            kwargs[key] = fields.typed(table[key], kind, f"{where}.{key}")
     if "channel" in table:
         channel = table["channel"]
         if not isinstance(channel, str | int) or isinstance(channel, bool):
@@ -129,14 +127,6 @@ def _bus(table: Mapping[str, Any], where: str, name: str | None) -> BusConfig:
     bus = BusConfig(**kwargs)
     check_bus(bus, where)
     return bus
-
-
-def _of(value: Any, kind: type, where: str) -> Any:
-    if kind is bool:
-        return fields.boolean(value, where)
-    if kind is int:
-        return fields.integer(value, where)
-    return fields.text(value, where, 256)
 
 
 def check_bus(bus: BusConfig, where: str) -> None:

@@ -29,6 +29,7 @@ from canbus.master.contact import PatchContact
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
 from skin.contact import ContactParams, PatchGeometry
 from skin.errors import ConfigError
+from skin.inputs import fields
 from skin.placement import PatchPlacement
 
 PARAM_KEYS = tuple(f.name for f in dataclasses.fields(ContactParams))
@@ -41,24 +42,14 @@ def contact_from_table(table: Any, where: str, base: ContactParams | None
     if not isinstance(table, Mapping):
         raise ConfigError(where, "must be a table of contact thresholds")
     keys = (*PARAM_KEYS, "enabled") if where == "contact" else PARAM_KEYS
-    for key in table:
-        if key not in keys:
-            raise ConfigError(f"{where}.{key}", f"unknown key; known: {', '.join(sorted(keys))}")
-    enabled = table.get("enabled", True)
-    if not isinstance(enabled, bool):
-        raise ConfigError(f"{where}.enabled", f"must be true or false, got {enabled!r}")
+    fields.known_keys(table, keys, where)
+    enabled = fields.boolean(table.get("enabled", True), f"{where}.enabled")
     if not enabled or base is None:
         if where != "contact" and base is None:
             raise ConfigError(where, "the contact summary is off ([contact] enabled = false)")
         return None
-    values = {}
-    for key in PARAM_KEYS:
-        if key in table:
-            value = table[key]
-            if isinstance(value, bool) or not isinstance(value, int | float) \
-                    or not math.isfinite(value):
-                raise ConfigError(f"{where}.{key}", f"must be a finite number, got {value!r}")
-            values[key] = float(value)
+    values = {key: fields.number(table[key], f"{where}.{key}") for key in PARAM_KEYS
+              if key in table}
     try:
         return dataclasses.replace(base, **values)
     except ConfigError as err:

@@ -25,31 +25,15 @@ from canopen.sdo.client import SdoClient
 from canopen.sdo.constants import RESPONSE_ABORTED
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
+from canbus.identity import Identity
+from skin.inputs import fields
+
 logger = logging.getLogger(__name__)
 
-PATCH_PRODUCT = 1
-FORCE_PRODUCT = 2
 BOOTUP = 0x00
 SDO_FRAME = 8  # bytes of every SDO frame (CiA 301)
 RESPONSES_KEPT = 256  # SDO or LSS answers queued at most (a block transfer has <= 127)
 _HEARTBEAT = 0x700
-
-
-@dataclass(frozen=True)
-class Identity:
-    """Object 0x1018: vendor-ID, product code, revision number, serial number."""
-
-    vendor: int
-    product: int
-    revision: int
-    serial: int
-
-    @property
-    def kind(self) -> str:
-        """``"patch"``, ``"forces"`` or ``"unknown"``."""
-        if self.vendor != 0:
-            return "unknown"
-        return {PATCH_PRODUCT: "patch", FORCE_PRODUCT: "forces"}.get(self.product, "unknown")
 
 
 @dataclass(frozen=True)
@@ -181,7 +165,7 @@ class BootListener:
     def __init__(self, network: canopen.Network, on_boot: Callable[[int], None]) -> None:
         self.network = network
         self.on_boot = on_boot
-        self._ids = range(_HEARTBEAT + 1, _HEARTBEAT + 128)
+        self._ids = [_HEARTBEAT + node for node in fields.NODE_IDS]
 
     def start(self) -> None:
         for cob_id in self._ids:

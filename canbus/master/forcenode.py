@@ -59,7 +59,8 @@ from canbus.pdo_codec import (
     read_layouts,
 )
 from skin.contact_state import ContactBatch
-from skin.errors import BusError, ConfigError, SkinError
+from skin.errors import BusError, SkinError
+from skin.inputs import fields
 
 SOURCE, TARE = 0x2001, 0x2007
 CONTACT, CONTACT_PARAMS = contact_record.CONTACT, contact_record.CONTACT_PARAMS
@@ -120,10 +121,8 @@ class ForceNode(LocalDevice):
 
     def __init__(self, node_id: int, source_patch: int, *, heartbeat_ms: int = 1000,
                  contact: PatchContact | bool | None = True, nv: NvStore | None = None) -> None:
-        if not 1 <= source_patch <= 127:
-            raise ConfigError("source_patch", f"must be a node-ID in 1..127, got {source_patch}")
-        if not 0 <= heartbeat_ms <= 0xFFFF:
-            raise ConfigError("heartbeat_ms", f"must be in 0..65535, got {heartbeat_ms}")
+        fields.node_id(source_patch, "source_patch")
+        fields.integer(heartbeat_ms, "heartbeat_ms", 0, 0xFFFF)
         self.source_patch = source_patch
         self.heartbeat_ms = heartbeat_ms
         self.on_tare: Callable[[], None] | None = None

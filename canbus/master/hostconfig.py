@@ -158,31 +158,32 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
     """Validate a parsed TOML document into a :class:`HostConfig`."""
     if not isinstance(data, Mapping):
         raise ConfigError("config", f"must be a table, got {fields.shown(data)}")
-    _known(data, ("host", "drift", "contact", "patches", "bus", "buses", "zenoh", "robot"),
-           "config")
+    fields.known_keys(data, ("host", "drift", "contact", "patches", "bus", "buses", "zenoh",
+                             "robot"), "")
     host = data.get("host", {})
     if not isinstance(host, dict):
         raise ConfigError("host", "must be a table ([host])")
-    _known(host, _HOST_FIELDS, "host")
+    fields.known_keys(host, _HOST_FIELDS, "host")
     kwargs: dict[str, Any] = {}
     for key, value in host.items():
         kind = _HOST_FIELDS[key]
         if key == "other_nodes":
-            fields.array(value, "host.other_nodes", 127)
-            kwargs[key] = tuple(_int_list(value, "host.other_nodes"))
+            values = fields.array(value, "host.other_nodes", len(fields.NODE_IDS))
+            kwargs[key] = tuple(fields.node_id(v, f"host.other_nodes[{k}]")
+                                for k, v in enumerate(values))
         elif key in HOST_RANGES:
             low, high = HOST_RANGES[key]
             kwargs[key] = fields.integer(value, f"host.{key}", int(low), int(high)) \
                 if kind is int else fields.number(value, f"host.{key}", high=high, above=low)
         else:
-            kwargs[key] = _typed(value, kind, f"host.{key}")
+            kwargs[key] = fields.typed(value, kind, f"host.{key}")
     if kwargs.get("state_dir"):  # relative to the config file, as model paths are
         kwargs["state_dir"] = str(base / kwargs["state_dir"])
     drift = data.get("drift")
     if drift is not None:
         if not isinstance(drift, dict):
             raise ConfigError("drift", "must be a table ([drift])")
-        _known(drift, ("time_constant_s", "contact_N"), "drift")
+        fields.known_keys(drift, DRIFT_RANGES, "drift")
         kwargs["drift"] = DriftConfig(**{k: fields.number(v, f"drift.{k}", high=DRIFT_RANGES[k],
                                                           above=0.0)
                                          for k, v in drift.items()})
@@ -191,7 +192,7 @@ def host_config_from_dict(data: Mapping[str, Any], *, base: Path = Path("."),
     tables = data.get("patches")
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
         raise ConfigError("patches", "missing: list the patches as [[patches]] tables")
-    if len(tables) > 127:
+    if len(tables) > len(fields.NODE_IDS):
         raise ConfigError("patches", f"{len(tables)} patches; a bus has node-IDs 1..127")
     buses = buses_from_dict(data)
     robot = robot_from_table(data.get("robot"), base)
@@ -238,21 +239,22 @@ CONSTANT_KEYS = ("resistance_lsb_ohm", "youngs_modulus_pa", "resistivity_ohm_m",
 def _patch(table: dict[str, Any], where: str, base: Path,
            buses: tuple[BusConfig, ...], contact: ContactParams | None,
            robot: Robot | None = None) -> PatchConfig:
-    _known(table, _PATCH_FIELDS, where)
+    fields.known_keys(table, _PATCH_FIELDS, where)
     if "node_id" not in table:
         raise ConfigError(f"{where}.node_id", "missing")
-    kwargs: dict[str, Any] = {"node_id": _typed(table["node_id"], int, f"{where}.node_id")}
+    kwargs: dict[str, Any] = {"node_id": fields.node_id(table["node_id"], f"{where}.node_id")}
     for key in ("decoder", "mode", "answer_order", "bus", "force_bus"):
         if key in table:
-            kwargs[key] = _typed(table[key], str, f"{where}.{key}")
+            kwargs[key] = fields.text(table[key], f"{where}.{key}")
     if "force_node" in table:
-        kwargs["force_node"] = _typed(table["force_node"], int, f"{where}.force_node")
+        kwargs["force_node"] = fields.node_id(table["force_node"], f"{where}.force_node")
     if "serial" in table:
-        kwargs["serial"] = _typed(table["serial"], int, f"{where}.serial")
+        kwargs["serial"] = fields.serial_number(table["serial"], f"{where}.serial")
     if "force_cob_ids" in table:
-        fields.array(table["force_cob_ids"], f"{where}.force_cob_ids", FORCE_TPDO_COUNT)
-        kwargs["force_cob_ids"] = tuple(_int_list(table["force_cob_ids"],
-                                                  f"{where}.force_cob_ids"))
+        values = fields.array(table["force_cob_ids"], f"{where}.force_cob_ids",
+                              FORCE_TPDO_COUNT)
+        kwargs["force_cob_ids"] = tuple(fields.cob_id(v, f"{where}.force_cob_ids[{k}]")
+                                        for k, v in enumerate(values))
     if "model" in table:
         model = Path(fields.path(table["model"], f"{where}.model"))
         kwargs["model"] = model if model.is_absolute() else base / model
@@ -268,7 +270,7 @@ def _patch(table: dict[str, Any], where: str, base: Path,
                                      for k, v in enumerate(values))
     if "orientation_deg" in table:
         kwargs["orientation_deg"] = check_orientation(
-            _typed(table["orientation_deg"], float, f"{where}.orientation_deg"),
+            fields.number(table["orientation_deg"], f"{where}.orientation_deg"),
             f"{where}.orientation_deg")
     kwargs["placement"] = placement_from_table(table, where, robot)
     if "contact" in table:
@@ -284,29 +286,25 @@ def _patch(table: dict[str, Any], where: str, base: Path,
 def _constants(table: Any, where: str) -> SensorConstants:
     if not isinstance(table, dict):
         raise ConfigError(where, "must be a table of sensor constants")
-    _known(table, CONSTANT_KEYS, where)
-    values = {key: _typed(value, float, f"{where}.{key}") for key, value in table.items()}
+    fields.known_keys(table, CONSTANT_KEYS, where)
+    values = {key: fields.number(value, f"{where}.{key}") for key, value in table.items()}
     return SensorConstants.from_dict(values, where)
 
 
 def _check_patch(patch: PatchConfig, where: str, buses: tuple[BusConfig, ...]) -> PatchConfig:
-    _node_id(patch.node_id, f"{where}.node_id")
-    _node_id(patch.force_node, f"{where}.force_node")
-    if patch.mode not in MODES:
-        raise ConfigError(f"{where}.mode", f"must be one of {', '.join(MODES)}, got {patch.mode!r}")
-    if patch.answer_order not in ANSWER_ORDERS:
-        raise ConfigError(f"{where}.answer_order", f"must be one of {', '.join(ANSWER_ORDERS)}, "
-                          f"got {patch.answer_order!r}")
-    if patch.serial is not None and not 0 <= patch.serial <= 0xFFFF_FFFF:
-        raise ConfigError(f"{where}.serial", f"must be a serial number in 0..0xFFFFFFFF, got "
-                          f"{patch.serial!r}")
+    fields.node_id(patch.node_id, f"{where}.node_id")
+    fields.node_id(patch.force_node, f"{where}.force_node")
+    fields.choice(patch.mode, MODES, f"{where}.mode")
+    fields.choice(patch.answer_order, ANSWER_ORDERS, f"{where}.answer_order")
+    if patch.serial is not None:
+        fields.serial_number(patch.serial, f"{where}.serial")
     if patch.force_cob_ids is not None:
         if len(patch.force_cob_ids) not in (TPDO_COUNT, FORCE_TPDO_COUNT):
             raise ConfigError(f"{where}.force_cob_ids", f"must list {TPDO_COUNT} COB-IDs "
                               f"(TPDO 1..{TPDO_COUNT}; TPDO 8, the contact, then keeps its "
                               f"own) or {FORCE_TPDO_COUNT}, got {len(patch.force_cob_ids)}")
         for k, cob_id in enumerate(patch.force_cob_ids):
-            if not 0 < cob_id <= 0x7FF or restricted(cob_id):
+            if restricted(fields.cob_id(cob_id, f"{where}.force_cob_ids[{k}]")):
                 raise ConfigError(f"{where}.force_cob_ids[{k}]",
                                   f"0x{cob_id:X} is not an 11-bit COB-ID a PDO may use")
     if patch.r0_ohm is not None:
@@ -372,9 +370,7 @@ def _check_host(config: HostConfig) -> None:
         value = getattr(config, name)
         if not (math.isfinite(value) and value > 0):
             raise ConfigError(f"host.{name}", f"must be > 0, got {value!r}")
-    if config.sync not in SYNC_MODES:
-        raise ConfigError("host.sync", f"must be one of {', '.join(SYNC_MODES)}, got "
-                          f"{config.sync!r}")
+    fields.choice(config.sync, SYNC_MODES, "host.sync")
     if config.lss not in LSS_MODES:
         raise ConfigError("host.lss", f"must be \"auto\" or absent, got {config.lss!r}")
     serials: dict[int, int] = {}
@@ -391,38 +387,9 @@ def _check_host(config: HostConfig) -> None:
         if not low <= value <= (0xFFFF if name.endswith("heartbeat_ms") else 10**9):
             raise ConfigError(f"host.{name}", f"out of range: {value!r}")
     for i, node in enumerate(config.other_nodes):
-        _node_id(node, f"host.other_nodes[{i}]")
+        fields.node_id(node, f"host.other_nodes[{i}]")
     if config.drift is not None:
         for name in ("time_constant_s", "contact_N"):
             value = getattr(config.drift, name)
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"drift.{name}", f"must be > 0, got {value!r}")
-
-
-def _node_id(value: int, where: str) -> None:
-    if not 1 <= value <= 127:
-        raise ConfigError(where, f"must be a node-ID in 1..127, got {value!r}")
-
-
-def _known(table: Mapping[str, Any], known: Mapping[str, Any] | tuple[str, ...],
-           where: str) -> None:
-    for key in table:
-        if key not in known:
-            raise ConfigError(f"{where}.{key}" if where != "config" else key,
-                              f"unknown key; known: {', '.join(sorted(known))}")
-
-
-def _typed(value: Any, kind: type, where: str) -> Any:
-    if kind is float:
-        return fields.number(value, where)
-    if kind is bool:
-        return fields.boolean(value, where)
-    if kind is int:
-        return fields.integer(value, where)
-    return fields.text(value, where)
-
-
-def _int_list(value: Any, where: str) -> list[int]:
-    if not isinstance(value, list):
-        raise ConfigError(where, f"must be a list of integers, got {type(value).__name__}")
-    return [_typed(v, int, f"{where}[{k}]") for k, v in enumerate(value)]

@@ -29,9 +29,12 @@ from canopen.lss import LssError, LssMaster
 from canopen.sdo.exceptions import SdoError
 
 from canbus.device.local_device import eds_identity
-from canbus.device.nv_store import Identity, NvStore
+from canbus.device.nv_store import NvStore
+from canbus.identity import Identity
 from canbus.master.discovery import scan
 from skin.errors import BusError
+from skin.inputs import fields
+from skin.inputs.fields import UNCONFIGURED
 
 if TYPE_CHECKING:
     from canbus.master.hostconfig import HostConfig
@@ -39,8 +42,7 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-UNCONFIGURED = 0xFF
-MAX_AUTO = 127
+MAX_AUTO = len(fields.NODE_IDS)
 RETRIES = 3
 
 
@@ -88,8 +90,7 @@ def assign(network: canopen.Network, serial: int, node_id: int, *, store: bool =
            revision: int | None = None) -> Assignment:
     """Give the patch with ``serial`` node-ID ``node_id``; BusError when it does not answer
     or refuses (the message says which step)."""
-    if not 1 <= node_id <= 127:
-        raise BusError(f"node-ID must be 1..127, got {node_id}")
+    fields.node_id(node_id, "node_id")
     vendor, product, eds_revision = eds_identity("skin-patch")
     lss = network.lss
     try:
@@ -176,7 +177,7 @@ def assign_at_start(config: HostConfig, records: dict[int, PatchRecord]) -> list
                 {p.node_id for p in config.patches if p.serial is not None}
             unnamed = [p.node_id for p in patches if p.serial is None and
                        p.node_id not in taken]
-            spare = [n for n in range(1, 128) if n not in taken and
+            spare = [n for n in fields.NODE_IDS if n not in taken and
                      n not in {p.node_id for p in config.patches}]
             done += assign_auto(link.network, [*unnamed, *spare], store=config.lss_store)
     return done

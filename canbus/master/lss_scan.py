@@ -42,7 +42,8 @@ from canbus.device.lss_slave import (
     SWITCH_GLOBAL,
     WAITING,
 )
-from canbus.master.discovery import Identity, read_identity, scan, sdo_client
+from canbus.identity import Identity
+from canbus.master.discovery import read_identity, scan, sdo_client
 
 DEFAULT_TIMEOUT_S = 0.1
 SETTLE_S = 0.02

@@ -105,9 +105,7 @@ def robot_from_table(table: Any, base: Path) -> Robot | None:
         return None
     if not isinstance(table, Mapping):
         raise ConfigError("robot", "must be a table ([robot])")
-    for key in table:
-        if key != "urdf":
-            raise ConfigError(f"robot.{key}", "unknown key; known: urdf")
+    fields.known_keys(table, ("urdf",), "robot")
     return read_urdf(table["urdf"], base) if "urdf" in table else None
 
 
@@ -122,9 +120,7 @@ def _pose(value: Any, where: str) -> Pose:
     if not isinstance(value, Mapping):
         raise ConfigError(where, f"must be a table {{ xyz_m = [x, y, z], rpy_deg = [roll, "
                           f"pitch, yaw] }}, got {fields.shown(value)}")
-    for key in value:
-        if key not in ("xyz_m", "rpy_deg"):
-            raise ConfigError(f"{where}.{key}", "unknown key; known: rpy_deg, xyz_m")
+    fields.known_keys(value, ("xyz_m", "rpy_deg"), where)
     xyz = _vector(value.get("xyz_m", [0.0, 0.0, 0.0]), f"{where}.xyz_m", LIMIT_M)
     rpy = _vector(value.get("rpy_deg", [0.0, 0.0, 0.0]), f"{where}.rpy_deg", LIMIT_DEG)
     return Pose.from_xyz_rpy(xyz, rpy)

@@ -29,7 +29,8 @@ from dataclasses import dataclass
 
 from canopen.sdo.exceptions import SdoAbortedError
 
-from canbus.master.discovery import Identity, read_identity
+from canbus.identity import Identity
+from canbus.master.discovery import read_identity
 from canbus.master.patch_setup import (
     PatchSetup,
     check_reported,

@@ -11,7 +11,6 @@ Zenoh; :meth:`ZenohSettings.zenoh_config` imports it.
 from __future__ import annotations
 
 import json
-import math
 import re
 import socket
 from collections.abc import Mapping
@@ -20,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from skin.errors import ConfigError, SkinError
+from skin.inputs import fields
 
 DEFAULT_PREFIX = "canskin"
 
@@ -164,43 +164,32 @@ def zenoh_settings_from_table(table: Any, *, base: Path = Path("."), where: str 
     """Check a parsed ``[zenoh]`` table; ``buses``: the bus names, which become key chunks."""
     if not isinstance(table, dict):
         raise ConfigError(where, "must be a table ([zenoh])")
-    for key in table:
-        if key not in _FIELDS:
-            raise ConfigError(f"{where}.{key}", f"unknown key; known: {', '.join(sorted(_FIELDS))}")
+    fields.known_keys(table, _FIELDS, where)
     kwargs: dict[str, Any] = {}
     for key in ("enabled", "scouting", "express"):
         if key in table:
-            kwargs[key] = _bool(table[key], f"{where}.{key}")
+            kwargs[key] = fields.boolean(table[key], f"{where}.{key}")
     if "mode" in table:
-        mode = _str(table["mode"], f"{where}.mode")
-        if mode not in MODES:
-            raise ConfigError(f"{where}.mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
-        kwargs["mode"] = mode
+        kwargs["mode"] = fields.choice(table["mode"], MODES, f"{where}.mode")
     for key in ("listen", "connect"):
         if key in table:
             kwargs[key] = check_endpoints(table[key], f"{where}.{key}")
     if "prefix" in table:
-        prefix = _str(table["prefix"], f"{where}.prefix")
+        prefix = fields.text(table["prefix"], f"{where}.prefix")
         if (problem := prefix_problem(prefix)) is not None:
             raise ConfigError(f"{where}.prefix", problem)
         kwargs["prefix"] = prefix
     if "host" in table:
-        host = _str(table["host"], f"{where}.host")
+        host = fields.text(table["host"], f"{where}.host")
         if (problem := key_chunk_problem(host)) is not None:
             raise ConfigError(f"{where}.host", problem)
         kwargs["host"] = host
     if "queue_size" in table:
-        size = table["queue_size"]
-        if not isinstance(size, int) or isinstance(size, bool) or not 1 <= size <= 10**7:
-            raise ConfigError(f"{where}.queue_size", f"must be an integer in 1..10000000, got "
-                              f"{size!r}")
-        kwargs["queue_size"] = size
+        kwargs["queue_size"] = fields.integer(table["queue_size"], f"{where}.queue_size", 1,
+                                              10**7)
     if "stats_period_s" in table:
-        period = table["stats_period_s"]
-        if isinstance(period, bool) or not isinstance(period, int | float) or \
-                not (math.isfinite(period) and period > 0):
-            raise ConfigError(f"{where}.stats_period_s", f"must be > 0 s, got {period!r}")
-        kwargs["stats_period_s"] = float(period)
+        kwargs["stats_period_s"] = fields.number(table["stats_period_s"],
+                                                 f"{where}.stats_period_s", above=0.0, unit="s")
     if "tls" in table:
         kwargs["tls"] = _tls(table["tls"], f"{where}.tls", base)
     if "config_file" in table:
@@ -223,18 +212,6 @@ def with_overrides(settings: ZenohSettings, **changes: Any) -> ZenohSettings:
     return replace(settings, **{k: v for k, v in changes.items() if v is not None})
 
 
-def _bool(value: Any, where: str) -> bool:
-    if not isinstance(value, bool):
-        raise ConfigError(where, f"must be true or false, got {value!r}")
-    return value
-
-
-def _str(value: Any, where: str) -> str:
-    if not isinstance(value, str):
-        raise ConfigError(where, f"must be a string, got {type(value).__name__} {value!r}")
-    return value
-
-
 def check_endpoints(value: Any, where: str) -> tuple[str, ...]:
     if isinstance(value, str):
         value = [value]
@@ -243,7 +220,7 @@ def check_endpoints(value: Any, where: str) -> tuple[str, ...]:
                           f"got {type(value).__name__}")
     out = []
     for k, item in enumerate(value):
-        endpoint = _str(item, f"{where}[{k}]")
+        endpoint = fields.text(item, f"{where}[{k}]")
         if not _ENDPOINT.fullmatch(endpoint):
             raise ConfigError(f"{where}[{k}]", f"{endpoint!r} is not an endpoint "
                               "(PROTOCOL/ADDRESS, e.g. tcp/127.0.0.1:7447, tls/host:7447)")
@@ -252,7 +229,7 @@ def check_endpoints(value: Any, where: str) -> tuple[str, ...]:
 
 
 def _file(value: Any, where: str, base: Path) -> Path:
-    path = Path(_str(value, where))
+    path = Path(fields.text(value, where))
     path = path if path.is_absolute() else base / path
     if not path.is_file():
         raise ConfigError(where, f"no such file {str(path)!r}")
@@ -262,15 +239,13 @@ def _file(value: Any, where: str, base: Path) -> Path:
 def _tls(table: Any, where: str, base: Path) -> dict[str, str | bool]:
     if not isinstance(table, dict):
         raise ConfigError(where, "must be a table ([zenoh.tls])")
+    fields.known_keys(table, TLS_KEYS + TLS_FLAGS, where)
     out: dict[str, str | bool] = {}
     for key, value in table.items():
         if key in TLS_KEYS:
             out[key] = str(_file(value, f"{where}.{key}", base))
-        elif key in TLS_FLAGS:
-            out[key] = _bool(value, f"{where}.{key}")
         else:
-            raise ConfigError(f"{where}.{key}", "unknown key; known: "
-                              f"{', '.join(sorted(TLS_KEYS + TLS_FLAGS))}")
+            out[key] = fields.boolean(value, f"{where}.{key}")
     for cert, key in (("listen_certificate", "listen_private_key"),
                       ("connect_certificate", "connect_private_key")):
         if (cert in out) != (key in out):

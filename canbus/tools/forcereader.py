@@ -56,6 +56,7 @@ from canbus.tools.pdo_names import EdsChoice
 from canbus.tools.pdo_samples import PdoSampleReader
 from canbus.tools.sample_tracker import PatchStatus, SampleTracker
 from decoder.reasons import Reason
+from skin.inputs import fields
 
 FORCES, SOURCE, STATUS, VALID, SYNC_COUNTER = 0x2000, 0x2001, 0x2004, 0x2005, 0x2006
 NO_VALUE = -0x8000
@@ -233,7 +234,7 @@ class ForceReader(PdoSampleReader):
 
     def on_observed(self, node_id: int, index: int, subindex: int, raw: bytes) -> None:
         if (index, subindex) == (SOURCE, 0) and raw and node_id not in self._pinned \
-                and 1 <= raw[0] <= 127:
+                and fields.is_node_id(raw[0]):
             self.patches[node_id] = raw[0]
 
     def snapshot(self, now: float | None = None) -> ReaderSnapshot:

@@ -17,6 +17,7 @@ import canopen
 from canbus.od import load_od
 from canbus.tools.pdo_names import SHIPPED_BY_PRODUCT, EdsChoice, NodeView, shipped_default
 from skin.errors import ConfigError
+from skin.inputs import fields
 
 
 class Dictionary:
@@ -44,7 +45,7 @@ class Dictionary:
             return self._views[node_id]
         view = None
         eds = self.assignments.get(node_id, shipped_default(node_id))
-        if 1 <= node_id <= 127 and eds is not None:  # None: a node without an EDS here
+        if fields.is_node_id(node_id) and eds is not None:  # None: a node without an EDS here
             view = self._new_view(node_id, eds)
         self._views[node_id] = view
         self.version += 1
@@ -97,7 +98,7 @@ def parse_assignment(text: str) -> dict[int, str]:
         low, high = int(first, 0), int(last or first, 0)
     except ValueError as err:
         raise ConfigError("--eds", f"{nodes!r} is not a node-ID or range") from err
-    if not 1 <= low <= high <= 127:
+    if not (fields.is_node_id(low) and fields.is_node_id(high) and low <= high):
         raise ConfigError("--eds", f"node-IDs must be in 1..127, got {nodes!r}")
     load_od(eds, low)  # fail now, with the file's own error, not in the receive thread
     return dict.fromkeys(range(low, high + 1), eds)

@@ -31,6 +31,7 @@ import canopen
 import numpy as np
 
 from canbus import contact_record
+from canbus.identity import FORCE_PRODUCT, PATCH_PRODUCT
 from canbus.mappings import force_fd_entries, patch_fd_entries
 from canbus.patch_constants import LSB_SCALE, scale_of
 from canbus.pdo_codec import (
@@ -57,8 +58,7 @@ from canbus.tools.pdo_values import (
 )
 from skin.errors import ConfigError
 
-PATCH_PRODUCT, FORCES_PRODUCT = 1, 2
-SHIPPED_BY_PRODUCT = {PATCH_PRODUCT: "skin-patch", FORCES_PRODUCT: "skin-forces"}
+SHIPPED_BY_PRODUCT = {PATCH_PRODUCT: "skin-patch", FORCE_PRODUCT: "skin-forces"}
 RPDO_COMM, RPDO_MAP, TPDO_COMM, TPDO_MAP = 0x1400, 0x1600, 0x1800, 0x1A00
 _PDO_LAST = 0x1BFF  # RPDO/TPDO communication and mapping parameters: 0x1400..0x1BFF
 _PILLARS, _AXES = "zxy", "xyz"
@@ -101,7 +101,7 @@ class NodeView:
         self._shift = node_id - (node_id if od_node_id is None else od_node_id)
         info = od.device_information
         self.product = int(info.product_number or 0)
-        self.name = {PATCH_PRODUCT: "patch", FORCES_PRODUCT: "forces"}.get(self.product, "node")
+        self.name = {PATCH_PRODUCT: "patch", FORCE_PRODUCT: "forces"}.get(self.product, "node")
         self.seen: dict[tuple[int, int], int] = {}
         self.heartbeat_ms: int | None = self._default(0x1017, 0)
         lsb = self._variable(0x2001, 0)
@@ -177,7 +177,7 @@ class NodeView:
         """Take canskin's CAN FD mapping (``canbus.mappings``): the node's whole answer or
         sample in TPDO 1, every other TPDO invalid, as if a master's SDO writes had been seen.
         False (nothing changed) for a node that is not a canskin patch or force node."""
-        if self.product == FORCES_PRODUCT:
+        if self.product == FORCE_PRODUCT:
             entries = force_fd_entries()
         elif self.product == PATCH_PRODUCT:
             entries = patch_fd_entries(mode)
@@ -276,16 +276,16 @@ class NodeView:
             taxel, pillar = divmod(subindex - 1, 3)
             name, lsb = f"R{taxel}{_PILLARS[pillar]}", self.lsb_ohm
             return lambda value: resistance_value(name, int(value), lsb)
-        if product == FORCES_PRODUCT and index == 0x2000 and subindex:
+        if product == FORCE_PRODUCT and index == 0x2000 and subindex:
             taxel, axis = divmod(subindex - 1, 3)
             return functools.partial(force_value, f"F{taxel}{_AXES[axis]}")
         if product == PATCH_PRODUCT and index == 0x2004 and subindex:
             return lambda value: status_value(f"S{subindex - 1}", int(value))
-        if product == FORCES_PRODUCT and index == 0x2004 and subindex:
+        if product == FORCE_PRODUCT and index == 0x2004 and subindex:
             return lambda value: reason_value(f"S{subindex - 1}", int(value))
-        if product == FORCES_PRODUCT and index == 0x2005:
+        if product == FORCE_PRODUCT and index == 0x2005:
             return valid_taxels_value
-        if product == FORCES_PRODUCT and index == contact_record.CONTACT and \
+        if product == FORCE_PRODUCT and index == contact_record.CONTACT and \
                 1 <= subindex <= contact_record.SUBS:
             return functools.partial(contact_value, subindex)
         if index == 0x1001:

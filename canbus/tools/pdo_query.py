@@ -23,9 +23,10 @@ import can
 import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
+from canbus.identity import FORCE_PRODUCT
 from canbus.pdo_codec import COB_ID_INVALID
 from canbus.tools.attribution import Attribution
-from canbus.tools.pdo_names import FORCES_PRODUCT, TPDO_COMM, TPDO_MAP, NodeView
+from canbus.tools.pdo_names import TPDO_COMM, TPDO_MAP, NodeView
 
 logger = logging.getLogger(__name__)
 
@@ -96,7 +97,7 @@ class PdoAsker:
         remote.sdo.RESPONSE_TIMEOUT = self.timeout_s
         try:
             self._ask_pdos(remote, view)
-            if view.product == FORCES_PRODUCT:
+            if view.product == FORCE_PRODUCT:
                 remote.sdo.upload(SOURCE_PATCH, 0)
             outcome = "answered"
         except SdoAbortedError as err:

@@ -21,10 +21,11 @@ import can
 from canopen.emcy import EmcyError
 from canopen.sdo.exceptions import SdoAbortedError
 
+from canbus.identity import PATCH_PRODUCT
 from canbus.tools.attribution import Attribution
 from canbus.tools.lss_names import describe_lss
 from canbus.tools.pdo_dictionary import Dictionary
-from canbus.tools.pdo_names import PATCH_PRODUCT, NodeView
+from canbus.tools.pdo_names import NodeView
 from canbus.tools.pdo_values import describe_taxel_fault
 
 

@@ -46,6 +46,7 @@ import numpy as np
 from canbus.master.dataplane import ForceFrame
 from canbus.master.zenoh_settings import DEFAULT_PREFIX, key_chunk_problem
 from skin.errors import SkinError
+from skin.inputs import fields
 
 SCHEMA_VERSION = 1
 EVENT_VERSION = 1
@@ -92,8 +93,8 @@ def forces_selector(prefix: str = DEFAULT_PREFIX, *, host: str | None = None,
     for name, value in (("host", host), ("bus", bus)):
         if value is not None and (problem := key_chunk_problem(value)) is not None:
             raise SchemaError(f"{name}: {problem}")
-    if patch is not None and not 1 <= patch <= 127:
-        raise SchemaError(f"patch: must be a node-ID in 1..127, got {patch}")
+    if patch is not None and not fields.is_node_id(patch):
+        raise SchemaError(f"patch: must be {fields.NODE_ID}, got {patch}")
     return forces_key(prefix, host or "*", bus or "*", "*" if patch is None else patch)
 
 

@@ -15,9 +15,10 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.params import build, check_keys, non_negative, one_of
+from sim.params import build, non_negative, one_of
 from skin.constants import PILLARS, SensorConstants
 from skin.errors import ConfigError
+from skin.inputs import fields
 
 F64 = NDArray[np.float64]
 FAULT_KINDS = ("open", "short", "stuck", "saturated")
@@ -32,7 +33,7 @@ class FaultSpec:
     from_s: float = 0.0
 
     RANGES: ClassVar[dict[str, tuple[float, float]]] = {
-        "node_id": (1, 127), "taxel": (0, 8), "from_s": (0.0, 1e9)}
+        "taxel": (0, 8), "from_s": (0.0, 1e9)}  # node_id: a node-ID (sim.params.build)
 
     def check(self, where: str) -> None:
         if not 0 <= self.taxel <= 8:
@@ -51,7 +52,7 @@ class FaultsParams:
 
     @classmethod
     def from_table(cls, table: Mapping[str, object], where: str) -> FaultsParams:
-        check_keys(table, {"pillars"}, where)
+        fields.known_keys(table, ("pillars",), where)
         items = table.get("pillars", [])
         if not isinstance(items, list | tuple):
             raise ConfigError(f"{where}.pillars", "must be a list of tables")

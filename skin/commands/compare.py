@@ -55,7 +55,7 @@ def add_subparser(subparsers: Any) -> None:
     parser.add_argument("--join", choices=("sync", "time"), default=None,
                         help="by SYNC counter (default when both have one) or by time")
     parser.add_argument("--clock-offset-ms", default=None, metavar="MS",
-                        type=argtypes.number("milliseconds", low=-1e13, high=1e13, unit="ms"),
+                        type=argtypes.number("milliseconds", low=-10**13, high=10**13, unit="ms"),
                         help="reference time + offset = the decode's time (default: estimated)")
     parser.add_argument("--mode", choices=("auto", "z", "xyz"), default="auto",
                         help="compare Fz only (z) or all three (xyz); auto: z for a patch "

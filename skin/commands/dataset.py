@@ -111,12 +111,12 @@ def add_subparser(subparsers: Any) -> None:
                       help="join by SYNC counter or by time (default: sync when the "
                            "reference and the SYNCs carry counters)")
     make.add_argument("--tolerance-ms",
-                      type=argtypes.number("milliseconds", above=0.0, high=1e9, unit="ms"),
+                      type=argtypes.number("milliseconds", above=0.0, high=10**9, unit="ms"),
                       metavar="MS",
                       help="how far apart a joined pair may be on one clock (default: "
                            "40 %% of the SYNC period by time, 60 SYNC periods by counter)")
     make.add_argument("--clock-offset-ms",
-                      type=argtypes.number("milliseconds", low=-1e13, high=1e13, unit="ms"),
+                      type=argtypes.number("milliseconds", low=-10**13, high=10**13, unit="ms"),
                       metavar="MS",
                       help="reference time + this = recording time (default: estimated)")
     make.add_argument("--sync-window-ms",

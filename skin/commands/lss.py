@@ -66,16 +66,8 @@ def _assign(args: argparse.Namespace) -> int:
     return 0
 
 
-def _serial(text: str) -> int:
-    value = int(text, 0)
-    if not 0 <= value <= 0xFFFF_FFFF:
-        raise argparse.ArgumentTypeError(f"serial number must be in 0..0xFFFFFFFF, got {text}")
-    return value
-
-
 def add_subparser(subparsers: Any) -> None:
     from skin.commands.common import argtypes
-    from skin.commands.common.busargs import node_id
 
     step_s = argtypes.number("timeout", above=0.0, high=60.0, unit="s")
     scan_s = argtypes.number("scan time", above=0.0, high=600.0, unit="s")
@@ -97,9 +89,9 @@ def add_subparser(subparsers: Any) -> None:
     argtypes.add_bus_arguments(scan)
     scan.set_defaults(func=_scan)
     assign = group.add_parser("assign", help="give the patch with a serial number a node-ID")
-    assign.add_argument("serial", type=_serial, metavar="SERIAL",
+    assign.add_argument("serial", type=argtypes.serial, metavar="SERIAL",
                         help="its serial number (0x1018 sub 4; decimal or 0x hex)")
-    assign.add_argument("node_id", type=node_id, metavar="NODE_ID", help="1..127")
+    assign.add_argument("node_id", type=argtypes.node_id, metavar="NODE_ID", help="1..127")
     assign.add_argument("--store", action="store_true",
                         help="LSS store configuration: the patch keeps the node-ID across "
                              "power cycles")

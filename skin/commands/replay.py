@@ -100,7 +100,7 @@ def add_subparser(subparsers: Any) -> None:
                         help="as fast as the bus takes frames, or --rate (default: original "
                              "timing)")
     parser.add_argument("--rate",
-                        type=argtypes.number("rate", above=0.0, high=1e7, unit="frames/s"),
+                        type=argtypes.number("rate", above=0.0, high=10**7, unit="frames/s"),
                         default=None, metavar="FPS",
                         help="with --fast: at most FPS frames/s (default: unpaced, except "
                              f"{_defaults_text()})")

@@ -61,7 +61,8 @@ def test_defaults_fill_a_minimal_config(tmp_path: Path) -> None:
     ("[[patches]]\nnode_id = 1\ndecoder = 'deconv'\n", "patches[0].model: decoder 'deconv' "
      "must be fitted"),
     ("[[patches]]\nnode_id = 1\nmodel = 'm.msgpack'\n", "patches[0].model: no such file"),
-    ("[[patches]]\nnode_id = '1'\n", "patches[0].node_id: must be an integer, got a string '1'"),
+    ("[[patches]]\nnode_id = '1'\n",
+     "patches[0].node_id: must be a node-ID in 1..127, got a string '1'"),
     ("[[patches]]\nnode_id = 1\nforce_node = 200\n", "patches[0].force_node: must be a node-ID"),
     ("[[patches]]\nnode_id = 1\nforce_cob_ids = [0x1E0]\n",
      "patches[0].force_cob_ids: must list 7 COB-IDs"),
@@ -100,7 +101,7 @@ def test_defaults_fill_a_minimal_config(tmp_path: Path) -> None:
     ("[[patches]]\nnode_id = 1\nr0_ohm = [1000.0, nan, 1414.2]\n",
      "patches[0].r0_ohm[1]: must be a finite number"),
     ("[host]\nother_nodes = [1, 'x']\n[[patches]]\nnode_id = 2\n",
-     "host.other_nodes[1]: must be an integer, got a string 'x'"),
+     "host.other_nodes[1]: must be a node-ID in 1..127, got a string 'x'"),
     ("[drift]\ntime_constant_s = -1\n[[patches]]\nnode_id = 1\n",
      "drift.time_constant_s: must be > 0 and <= 1e+06, got -1"),
     ("[hosts]\n[[patches]]\nnode_id = 1\n", "hosts: unknown key"),

@@ -18,10 +18,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from canbus.device.lss_slave import CONFIGURATION, WAITING, LssSlave
-from canbus.device.nv_store import Identity, NvStore
+from canbus.device.nv_store import NvStore
 from canbus.device.patch_node import PatchNode
 from canbus.device.patch_server import PatchServer
-from canbus.master.discovery import Identity as FoundIdentity
+from canbus.identity import Identity
 from canbus.master.lss_assign import assign
 from canbus.master.lss_scan import Fastscan, lss_scan, unconfigured
 from canbus.od import load_od
@@ -283,7 +283,7 @@ def test_the_fastscan_walk_lists_every_waiting_identity(found: list[tuple[int, .
         patches.append(patch)
     network = MemoryNetwork(patches)
     listed = unconfigured(network, timeout_s=0.0005, thorough=True)  # type: ignore[arg-type]
-    assert listed == [FoundIdentity(*i) for i in sorted(found)]
+    assert listed == [Identity(*i) for i in sorted(found)]
     assert all(p.lss is not None and p.lss.state == WAITING for p in patches)
 
 
@@ -326,7 +326,7 @@ def test_late_answers_invent_no_node(stagger_s: float, echo_s: float | None) -> 
     finally:
         for timer in network.timers:
             timer.cancel()
-    assert listed == [FoundIdentity(VENDOR, PRODUCT, REVISION, s) for s in serials]
+    assert listed == [Identity(VENDOR, PRODUCT, REVISION, s) for s in serials]
     assert all(p.lss is not None and p.lss.state == WAITING for p in patches)
 
 
@@ -358,7 +358,7 @@ def test_any_lss_sequence_keeps_the_slave_sound(frames: list[bytes]) -> None:
     lss.on_request(0x7E5, bytearray(b"\x04\x00" + bytes(6)), 0.0)
     if patch.node_id == 0xFF and lss.pending_node_id == 0xFF:  # else it takes a node-ID
         assert unconfigured(network, timeout_s=0.0005, thorough=True) == \
-            [FoundIdentity(VENDOR, PRODUCT, REVISION, 0x1001)]  # type: ignore[arg-type]
+            [Identity(VENDOR, PRODUCT, REVISION, 0x1001)]
 
 
 @pytest.mark.parametrize(("data", "text"), [
@@ -410,6 +410,6 @@ def test_only_a_node_telling_its_own_identity_back_confirms_it() -> None:
     scan_ = Fastscan(StaleNetwork(patches), timeout_s=0.01)  # type: ignore[arg-type]
     with scan_.listening():
         for serial in (0x5100_0009, 0x5100_0000, *serials):
-            found = scan_.present(FoundIdentity(VENDOR, PRODUCT, REVISION, serial))
+            found = scan_.present(Identity(VENDOR, PRODUCT, REVISION, serial))
             assert found == (serial in serials), hex(serial)
     assert all(p.lss is not None and p.lss.state == WAITING for p in patches)

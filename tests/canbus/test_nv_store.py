@@ -16,9 +16,10 @@ from canopen.sdo.exceptions import SdoAbortedError
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from canbus.device.nv_store import Identity, NvStore, NvStoreError
+from canbus.device.nv_store import NvStore, NvStoreError
 from canbus.device.patch_node import PatchNode
 from canbus.device.patch_server import PatchServer
+from canbus.identity import Identity
 from canbus.master.forcenode import ForceNode
 from canbus.od import load_od
 from skin.cli import main

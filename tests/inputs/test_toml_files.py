@@ -74,7 +74,7 @@ PAPER = (ROOT / "sim" / "scenes" / "paper.toml").read_bytes()
      "patches[0].position_m[0]"),
     (PAPER.replace(b"coupling = 0.05", b"coupling = 1e300"), "effects.elastic_crosstalk.coupling"),
     (PAPER.replace(b"fz_max_N = 5.0", b"fz_max_N = 5.0\npatches = [true]"),
-     "loads[0].patches[0]: must be an integer in 1..127, got a boolean"),
+     "loads[0].patches[0]: must be a node-ID in 1..127, got a boolean"),
 ])
 def test_the_issues_scene_examples(tmp_path: Path, content: bytes, field: str) -> None:
     assert content != PAPER

@@ -96,7 +96,7 @@ def test_crosstalk_matrix_identity_without_effect() -> None:
         (("scene", "colour"), "red", "scene.colour"),
         (("patches", 1, "node_id"), 128, "patches[1].node_id"),
         (("patches", 1, "position_m"), [0.0], "patches[1].position_m"),
-        (("extra",), {}, "scene file.extra"),
+        (("extra",), {}, "extra"),
         (("effects", "faults"), {"pillars": [{"node_id": 9, "taxel": 0}]},
          "effects.faults.pillars[0].node_id"),
         (("effects", "faults"), {"pillars": [{"node_id": 1, "taxel": 9}]},

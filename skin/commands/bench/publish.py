@@ -39,7 +39,7 @@ def run_publish(args: argparse.Namespace,
         (3.0 if args.quick else DEFAULT_SECONDS)
     if not 1 <= hosts <= 16:
         raise ConfigError("--hosts", f"must be in 1..16, got {hosts}")
-    if not hosts <= patches <= 127:
+    if patches < hosts:  # --patches is a node-ID count already (argtypes.patches)
         raise ConfigError("--patches", f"must be in {hosts}..127 (one patch or more per "
                           f"host), got {patches}")
     if not seconds > 0:

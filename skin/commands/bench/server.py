@@ -36,8 +36,6 @@ def run_server(args: argparse.Namespace) -> dict[str, Any]:
     from skin.errors import ConfigError
 
     patches = args.patches if args.patches is not None else DEFAULT_PATCHES
-    if not 1 <= patches <= 127:
-        raise ConfigError("--patches", f"must be in 1..127, got {patches}")
     seconds = args.seconds if args.seconds is not None else (1.0 if args.quick else 3.0)
     rounds = args.rounds if args.rounds is not None else (1 if args.quick else 3)
     if not seconds > 0:

@@ -63,7 +63,7 @@ def add_subparser(subparsers: Any) -> None:
                         help="write the command's figures as JSON")
     parser.add_argument("--config-snippet", type=argtypes.output_file, metavar="F.toml",
                         help="write the host config's [[patches]] table for this patch")
-    parser.add_argument("--tolerance", type=argtypes.number("tolerance", above=0.0, high=1e6),
+    parser.add_argument("--tolerance", type=argtypes.number("tolerance", above=0.0, high=10**6),
                         default=DEFAULT_TOLERANCE, metavar="X",
                         help="--check: the model fits while its floored error is at most X "
                              "times its own held-out figure plus 0.1 points (default 1.25)")

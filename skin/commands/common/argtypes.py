@@ -7,16 +7,22 @@ by argparse, before the command does any work, in one line (``skin demo: error: 
 
 The python-can bus flags get theirs through :func:`add_bus_arguments` (its ``--bitrate``
 and ``--data-bitrate``, and a ``--filter`` that says which filter it cannot read).
+The checks are :mod:`skin.inputs.fields`', the ones every value of a file goes through
+(:func:`checked` hands the problem they name to argparse): ``--node 200`` and ``node_id =
+200`` are refused alike.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
+from skin.errors import ConfigError
+from skin.inputs import fields
 from skin.inputs.budget import parse_size, size_text
+
+T = TypeVar("T")
 
 YEAR_S = 365 * 24 * 3600
 MAX_SEED = 2**63 - 1
@@ -27,56 +33,57 @@ def _named(name: str, check: Callable[[str], Any]) -> Callable[[str], Any]:
     return check
 
 
-def _num(value: float) -> str:
-    if isinstance(value, int) or (value.is_integer() and abs(value) < 1e16):
-        return str(int(value))
-    return f"{value:g}"
-
-
-def _describe(low: float | None, high: float | None, above: float | None,
-              unit: str) -> str:
-    unit = f" {unit}" if unit else ""
-    if above is not None:
-        top = f" and <= {_num(high)}{unit}" if high is not None else ""
-        return f"> {_num(above)}{unit}{top}"
-    if low is not None and high is not None:
-        return f"in {_num(low)}..{_num(high)}{unit}"
-    return f">= {_num(low)}{unit}" if low is not None else f"<= {_num(high or 0)}{unit}"
+def checked(text: str, check: Callable[..., T], value: Any, *args: Any, **kwargs: Any) -> T:
+    """``check(value, *args, **kwargs)``, one of :mod:`skin.inputs.fields`' checks of
+    ``value`` read from ``text``; what it refuses is argparse's error, naming ``text``."""
+    try:
+        return check(value, *args, **kwargs)
+    except fields.FieldError as err:
+        raise argparse.ArgumentTypeError(f"must be {err.want}, got {text!r}") from None
+    except ConfigError as err:
+        raise argparse.ArgumentTypeError(err.problem) from None
 
 
 def number(name: str, *, low: float | None = None, high: float | None = None,
            above: float | None = None, unit: str = "") -> Callable[[str], float]:
     """A finite float in ``low..high`` (or strictly more than ``above``, up to ``high``)."""
-    want = _describe(low, high, above, unit)
 
     def check(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-        if not math.isfinite(value):
-            raise argparse.ArgumentTypeError(f"must be a finite number {want}, got {text!r}")
-        if (above is not None and not value > above) or (low is not None and value < low) \
-                or (high is not None and value > high):
-            raise argparse.ArgumentTypeError(f"must be {want}, got {text!r}")
-        return value
+        return checked(text, fields.number, value, name, low, high, above=above, unit=unit)
 
     return _named(name, check)
 
 
 def count(name: str, low: int, high: int, unit: str = "") -> Callable[[str], int]:
     """A whole number in ``low..high`` (decimal; ``0x`` hex too)."""
-    want = _describe(low, high, None, unit)
 
     def check(text: str) -> int:
         value = _whole(text.strip())
         if value is None:
-            raise argparse.ArgumentTypeError(f"must be a whole number {want}, got {text!r}")
-        if not low <= value <= high:
-            raise argparse.ArgumentTypeError(f"must be {want}, got {text!r}")
-        return value
+            raise argparse.ArgumentTypeError(f"must be a whole number "
+                                             f"{fields.bounds(low, high, unit=unit)}, got "
+                                             f"{text!r}")
+        return checked(text, fields.integer, value, name, low, high, unit=unit)
 
     return _named(name, check)
+
+
+def whole(name: str, check: Callable[[Any, str], int], want: str) -> Callable[[str], int]:
+    """A whole number (decimal; ``0x`` hex too) that ``check`` takes, a check of
+    :mod:`skin.inputs.fields` (:func:`~skin.inputs.fields.node_id`: ``want`` is
+    :data:`~skin.inputs.fields.NODE_ID`)."""
+
+    def parse(text: str) -> int:
+        value = _whole(text.strip())
+        if value is None:
+            raise argparse.ArgumentTypeError(f"must be {want}, got {text!r}")
+        return checked(text, check, value, name)
+
+    return _named(name, parse)
 
 
 def _whole(text: str) -> int | None:
@@ -131,12 +138,16 @@ can_filter.__name__ = "filter"
 
 seconds = number("seconds", above=0.0, high=YEAR_S, unit="s")
 """A duration (``--seconds``, time-outs): more than 0, at most a year."""
-rate_hz = number("rate", low=1e-3, high=1e6, unit="Hz")
+rate_hz = number("rate", low=1e-3, high=1_000_000, unit="Hz")
 seed = count("seed", 0, MAX_SEED)
 bitrate = count("bitrate", 1_000, 20_000_000, "bit/s")
-node_id = count("node-ID", 1, 127)
-patches = count("patches", 1, 127)
-buses = count("buses", 1, 127)
+node_id = whole("node-ID", fields.node_id, fields.NODE_ID)
+"""A CANopen node-ID, 1..127."""
+serial = whole("serial number", fields.serial_number, fields.SERIAL_NUMBER)
+"""A serial number of object 0x1018 sub 4, 0..0xFFFFFFFF."""
+patches = count("patches", 1, len(fields.NODE_IDS))
+"""Patches, each at a node-ID of its own."""
+buses = count("buses", 1, len(fields.NODE_IDS))
 heartbeat_ms = count("milliseconds", 0, 0xFFFF, "ms")
 port = count("port", 1, 65535)
 fraction = number("fraction", low=0.0, high=0.999999)

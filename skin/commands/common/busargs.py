@@ -3,10 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    pass
 
 from skin.commands.common import argtypes
 
@@ -24,6 +20,3 @@ def add_rcvbuf_argument(parser: argparse.ArgumentParser) -> None:
                              "socketcan); 0 keeps the system's (default "
                              f"{DEFAULT_RCVBUF >> 20} MiB)")
 
-
-node_id = argtypes.node_id
-"""An argparse type: a CANopen node-ID, 1..127 (decimal or 0x hex)."""

@@ -90,9 +90,10 @@ IN_PROCESS = ("virtual", "timed")
 """Interfaces whose bus lives inside one process."""
 
 
-def python_can_config() -> dict[str, Any]:
-    """python-can's configuration, merged as ``can.util.load_config`` merges it (``can.rc``,
-    the environment, the files), without its check that an interface is named."""
+def python_can_settings() -> dict[str, Any]:
+    """What python-can's configuration sets, merged as ``can.util.load_config`` merges it
+    (``can.rc``, the environment, the files), without its check that an interface is named
+    (``canbus.busopen.configured_bus`` is the bus it names, checked)."""
     import can
 
     merged: dict[str, Any] = {}
@@ -117,7 +118,7 @@ def choose_bus(args: argparse.Namespace, *, command: str,
     where)``. :class:`~skin.errors.BusError` when nothing names an interface."""
     from skin.errors import BusError
 
-    configured = python_can_config()
+    configured = python_can_settings()
     if getattr(args, "interface", None):
         source = "-i"
     elif config is not None and len(config.buses) == 1 and config.buses[0].interface:
@@ -145,7 +146,7 @@ def default_channel_for(interface: str, configured: dict[str, Any] | None = None
     names one for that interface (or for none), else canskin's default (None: the driver's)."""
     from skin.commands.common.busargs import DEFAULT_CHANNELS
 
-    configured = python_can_config() if configured is None else configured
+    configured = python_can_settings() if configured is None else configured
     if configured.get("channel") is not None and \
             configured.get("interface") in (None, interface):
         return configured["channel"]

@@ -24,7 +24,9 @@ if TYPE_CHECKING:
 def add_identity_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--unconfigured", action="store_true",
                         help="every patch starts with node-ID 0xFF and waits for LSS (CiA 305)")
-    parser.add_argument("--serial-base", type=_serial, default=0, metavar="B",
+    from skin.commands.common import argtypes
+
+    parser.add_argument("--serial-base", type=argtypes.serial, default=0, metavar="B",
                         help="patch k has serial number B + k (0x1018 sub 4; default 0)")
     parser.add_argument("--state-dir", metavar="DIR",
                         help="keep each patch's non-volatile store (LSS store, 0x1010 save) "
@@ -48,9 +50,3 @@ def patch_identities(args: argparse.Namespace, scene: Scene) -> dict[str, Any]:
         out["nv"] = functools.partial(NvStore.in_dir, folder, "patch")
     return out
 
-
-def _serial(text: str) -> int:
-    value = int(text, 0)
-    if not 0 <= value <= 0xFFFF_FFFF:
-        raise argparse.ArgumentTypeError(f"must be in 0..0xFFFFFFFF, got {text}")
-    return value

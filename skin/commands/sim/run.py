@@ -57,14 +57,9 @@ def scene_on_patches(name: str, patches: int | None) -> Scene:
     """The scene, or its loads and effects on ``patches`` patches at node-IDs 1..N (a grid
     5 cm apart), every load on every patch."""
     from sim import load_scene, on_patches
-    from skin.errors import ConfigError
 
     scene = load_scene(name)
-    if patches is None:
-        return scene
-    if not 1 <= patches <= 127:
-        raise ConfigError("--patches", f"must be in 1..127 (CANopen node-IDs), got {patches}")
-    return on_patches(scene, patches, SPACING_M)
+    return scene if patches is None else on_patches(scene, patches, SPACING_M)
 
 
 def bus_namespaces(args: argparse.Namespace, buses: int) -> list[argparse.Namespace]:
@@ -79,11 +74,11 @@ def bus_namespaces(args: argparse.Namespace, buses: int) -> list[argparse.Namesp
     elif buses == 1:
         return [args]
     elif args.interface == "udp_multicast":
-        from skin.commands.common.busopen import python_can_config
+        from skin.commands.common.busopen import python_can_settings
 
         given = (getattr(args, "bus_kwargs", None) or {}).get("port")
         base = int(given if given is not None else
-                   python_can_config().get("port", UDP_DEFAULT_PORT))
+                   python_can_settings().get("port", UDP_DEFAULT_PORT))
         out = []
         for k in range(buses):
             each = copy.copy(args)

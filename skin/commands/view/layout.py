@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 from skin.constants import DEFAULT_CONSTANTS
 from skin.errors import ConfigError
+from skin.inputs import fields
 
 DEFAULT_PITCH_M = DEFAULT_CONSTANTS.taxel_pitch_m
 ROW_SPACING_M = 0.05
@@ -100,8 +101,8 @@ def parse_layout(texts: Iterable[str], pitch_m: float = DEFAULT_PITCH_M) -> Layo
             x, y = float(x_text), float(y_text)
         except ValueError:
             patch, x, y = 0, math.nan, math.nan
-        if not sep or not comma or not 1 <= patch <= 127 or not (abs(x) <= POSITION_LIMIT_M
-                                                                 and abs(y) <= POSITION_LIMIT_M):
+        if not sep or not comma or not fields.is_node_id(patch) or \
+                not (abs(x) <= POSITION_LIMIT_M and abs(y) <= POSITION_LIMIT_M):
             raise ConfigError("--layout", f"expected NODE=X,Y (node-ID 1..127, metres within "
                               f"±{POSITION_LIMIT_M:g}), got {text!r}")
         if patch in positions:

@@ -50,24 +50,21 @@ def check_zenoh_arguments(args: argparse.Namespace) -> None:
 
 
 def reader_settings(args: argparse.Namespace) -> ZenohSettings:
-    import tomllib
-
     from canbus.master.zenoh_settings import ZenohSettings, require_zenoh, zenoh_settings_from_table
     from skin.errors import ConfigError
+    from skin.inputs.tomlfile import read_toml
 
     require_zenoh("--zenoh")
     settings = ZenohSettings()
     if args.zenoh_config:
         path = Path(args.zenoh_config)
-        try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError as err:
-            raise ConfigError("--zenoh-config", f"no such file {str(path)!r}") from err
-        except tomllib.TOMLDecodeError as err:
-            raise ConfigError("--zenoh-config", f"{path}: not valid TOML: {err}") from err
+        data = read_toml(path, "--zenoh-config")
         if "zenoh" not in data:
             raise ConfigError("--zenoh-config", f"{path}: has no [zenoh] table")
-        settings = zenoh_settings_from_table(data["zenoh"], base=path.parent)
+        try:
+            settings = zenoh_settings_from_table(data["zenoh"], base=path.parent)
+        except ConfigError as err:
+            raise err.in_file(str(path)) from err
     if args.zenoh:
         from canbus.master.zenoh_settings import check_endpoints, with_overrides
 
