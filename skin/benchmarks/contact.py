@@ -45,7 +45,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canbus.master.contact import PatchContact
-from canbus.master.dataplane import ForceFrame
 from canbus.master.forcenode import CONTACT_TPDO, ForceNode
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM
 from decoder.oracle import oracle_decode
@@ -53,7 +52,7 @@ from decoder.protocol import Decoder
 from decoder.registry import create_decoder
 from sim import Scene, Simulator, load_scene
 from sim.contact_truth import TrueContact, true_contact
-from skin.benchmarks.dataplane import DataPlaneRig, build_stream, stream_of
+from skin.benchmarks.dataplane import DataPlaneRig, build_stream, published_frames, stream_of
 from skin.constants import DEFAULT_CONSTANTS
 from skin.contact import ContactParams, PatchGeometry, summarize
 from skin.contact_state import track
@@ -117,13 +116,7 @@ def through_dataplane(resistance_ohm: F64, scene: Scene, decoder: Decoder,
         return PatchContact(PatchGeometry(pitch, positions[index[node_id]]), params)
 
     stream = stream_of(resistance_ohm, scene.mode)
-    rig = DataPlaneRig(stream, decoder, contact=judge)
-    frames: list[ForceFrame] = []
-    rig.plane.subscribe(frames.extend)
-    try:
-        rig.run(stream)
-    finally:
-        rig.close()
+    frames = published_frames(stream, decoder, judge)
     out = []
     for k in range(len(scene.patches)):
         mine = sorted((f for f in frames if f.patch == k + 1), key=lambda f: f.cycle)

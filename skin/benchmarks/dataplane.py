@@ -164,6 +164,19 @@ class DataPlaneRig:
         self.sink.shutdown()
 
 
+def published_frames(stream: Stream, decoder: Decoder,
+                     contact: Callable[[int], PatchContact] | None = None) -> list[ForceFrame]:
+    """Every force frame the data plane publishes for ``stream``, in publishing order."""
+    rig = DataPlaneRig(stream, decoder, contact=contact)
+    frames: list[ForceFrame] = []
+    rig.plane.subscribe(frames.extend)
+    try:
+        rig.run(stream)
+    finally:
+        rig.close()
+    return frames
+
+
 class CanopenRig:
     """The same work the canopen way: PdoMap callbacks in, PdoMap transmit out; with
     ``contact``, each force node's contact PDO too (the same summaries)."""

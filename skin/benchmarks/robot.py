@@ -40,7 +40,7 @@ from canbus.master.robot import contacts_of
 from decoder.protocol import Decoder
 from sim.probe import ProbeRun, ProbeScene, load_probe_scene, run_probe
 from skin.benchmarks.contact import train_on
-from skin.benchmarks.dataplane import DataPlaneRig, stream_of
+from skin.benchmarks.dataplane import published_frames, stream_of
 from skin.constants import DEFAULT_CONSTANTS
 from skin.contact import ContactParams, PatchGeometry
 from skin.errors import ConfigError
@@ -92,13 +92,7 @@ def through_host(run: ProbeRun, decoder: Decoder, placements: Mapping[int, Patch
         return PatchContact(PatchGeometry(pitch), params, placements[node_id])
 
     stream = stream_of(run.resistance_ohm, "xyz")
-    rig = DataPlaneRig(stream, decoder, contact=judge)
-    frames: list[ForceFrame] = []
-    rig.plane.subscribe(frames.extend)
-    try:
-        rig.run(stream)
-    finally:
-        rig.close()
+    frames = published_frames(stream, decoder, judge)
     by_cycle: dict[int, list[ForceFrame]] = {}
     for frame in frames:
         by_cycle.setdefault(frame.cycle, []).append(frame)
