@@ -5,9 +5,7 @@ initiate with 0x06070012 (byte traces; hypothesis over announced sizes)."""
 
 from __future__ import annotations
 
-import queue
 import struct
-import time
 from collections.abc import Iterator
 
 import can
@@ -23,22 +21,17 @@ from canbus.device.object_store import ObjectStore
 from canbus.device.patch_server import PatchServer
 from canbus.master.forcenode import ForceNode
 from canbus.od import load_od
+from tests.support.rigs.devicebus import DeviceBus
 from tests.support.rigs.host import Rest
+from tests.support.rigs.waiting import wait_until
 
 
-class Rig:
+class Rig(DeviceBus):
+    """Patch 1 on the device side, seen from the master through the EDS."""
+
     def __init__(self, channel: str) -> None:
-        self.device = canopen.Network()
-        self.device.NOTIFIER_CYCLE = 0.05
-        self.device.connect(interface="virtual", channel=channel)
-        self.master = canopen.Network()
-        self.master.NOTIFIER_CYCLE = 0.05
-        self.master.connect(interface="virtual", channel=channel)
-        self.raw = can.Bus(interface="virtual", channel=channel)
-        self.frames: queue.Queue[can.Message] = queue.Queue()
-        self.notifier = can.Notifier(self.raw, [self.frames.put], timeout=0.05)
-        self.source = Rest(1)
-        self.server = PatchServer(self.device, self.source)
+        super().__init__(channel)
+        self.server = PatchServer(self.device, Rest(1))
         self.server.start()
         self.patch = self.server.nodes[0]
         self.node = self.master.add_node(canopen.RemoteNode(1, load_od("skin-patch", 1)))
@@ -46,37 +39,26 @@ class Rig:
 
     def sdo_exchange(self, request: bytes) -> bytes:
         """Send one SDO request frame; the server's response frame."""
-        while not self.frames.empty():
-            self.frames.get_nowait()
-        self.raw.send(can.Message(arbitration_id=0x601, data=request, is_extended_id=False))
-        end = time.monotonic() + 5.0
-        while (left := end - time.monotonic()) > 0:
-            msg = self.frames.get(timeout=left)
-            if msg.arbitration_id == 0x581:
-                return bytes(msg.data)
-        raise AssertionError("no SDO response")
+        self.drain()
+        self.spy.send(can.Message(arbitration_id=0x601, data=request, is_extended_id=False))
+        answer = self.collect_until(lambda got: bool(got) and got[-1].arbitration_id == 0x581,
+                                    what="an SDO response")[-1]
+        return bytes(answer.data)
 
-    def wait_frame(self, cob_id: int, timeout: float = 5.0) -> can.Message:
-        end = time.monotonic() + timeout
-        while (left := end - time.monotonic()) > 0:
-            msg = self.frames.get(timeout=left)
-            if msg.arbitration_id == cob_id:
-                return msg
-        raise AssertionError(f"no frame on 0x{cob_id:03X}")
+    def start(self) -> None:
+        """NMT start to the patch; returns once it is operational."""
+        self.node.nmt.send_command(0x01)
+        wait_until(lambda: self.patch.state == OPERATIONAL, what="the patch operational")
 
     def close(self) -> None:
         self.server.stop()
-        self.notifier.stop(timeout=1.0)
-        self.raw.shutdown()
-        self.master.disconnect()
-        self.device.disconnect()
+        super().close()
 
 
 @pytest.fixture
 def rig(request: pytest.FixtureRequest) -> Iterator[Rig]:
-    r = Rig(request.node.name)
-    yield r
-    r.close()
+    with Rig(request.node.name) as r:
+        yield r
 
 
 def _abort(index: int, sub: int, code: int) -> bytes:
@@ -154,11 +136,7 @@ def test_a_communication_error_follows_the_error_behaviour(rig: Rig, behaviour: 
     with pytest.raises(SdoAbortedError) as err:
         rig.node.sdo.download(0x1029, 1, b"\x03")
     assert err.value.code == 0x0609_0031  # HighLimit 2
-    rig.node.nmt.send_command(0x01)
-    rig.wait_frame(0x701)  # a heartbeat after the start
-    deadline = time.monotonic() + 5
-    while rig.patch.state != OPERATIONAL and time.monotonic() < deadline:
-        rig.wait_frame(0x701)
+    rig.start()
     rig.patch.communication_error()
     assert rig.patch.state == after
     assert rig.node.sdo.upload(0x1003, 1)[:2] == b"\x00\x81"  # 0x8100 communication
@@ -171,14 +149,10 @@ def test_the_sync_cob_id_is_writable_and_followed(rig: Rig) -> None:
             sdo.download(0x1005, 0, struct.pack("<I", bad))
         assert err.value.code == 0x0609_0030
     sdo.download(0x1005, 0, struct.pack("<I", 0x81))
-    rig.node.nmt.send_command(0x01)
-    rig.wait_frame(0x701)
-    deadline = time.monotonic() + 5
-    while rig.patch.state != OPERATIONAL and time.monotonic() < deadline:
-        rig.wait_frame(0x701)
-    rig.raw.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
-    rig.raw.send(can.Message(arbitration_id=0x081, data=b"", is_extended_id=False))
-    first = rig.wait_frame(0x181)
+    rig.start()
+    rig.spy.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
+    rig.spy.send(can.Message(arbitration_id=0x081, data=b"", is_extended_id=False))
+    first = rig.wait_for(lambda m: m.arbitration_id == 0x181, what="TPDO 1")
     assert rig.server.sync_count == 1  # the SYNC on 0x080 went unanswered
     assert len(first.data) == 8
 

@@ -1,12 +1,9 @@
 # mypy: disable-error-code="no-untyped-call"
 from __future__ import annotations
 
-import queue
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from functools import cache
 
-import can
 import canopen
 import numpy as np
 import pytest
@@ -19,9 +16,8 @@ from canbus.master.forceframes import COMPLETE, NO_VALUE, forces_to_mN
 from canbus.master.forcenode import ForceNode, force_node_cob_ids
 from canbus.od import load_od
 from skin.errors import BusError, ConfigError
+from tests.support.rigs.devicebus import DeviceBus
 from tests.support.rigs.waiting import wait_until
-
-CYCLE_S = 0.05
 
 
 @cache
@@ -107,59 +103,25 @@ def test_bad_arguments_are_config_errors() -> None:
         ForceNode(70, 6).start()
 
 
-class Bench:
-    """A force node on a device network, a canopen master, and a raw listener."""
+class Bench(DeviceBus):
+    """A force node on the device side, a canopen master's view of it, and the spy."""
 
     def __init__(self, channel: str) -> None:
-        self.device = canopen.Network()
-        self.device.NOTIFIER_CYCLE = CYCLE_S
-        self.device.connect(interface="virtual", channel=channel)
-        self.master = canopen.Network()
-        self.master.NOTIFIER_CYCLE = CYCLE_S
-        self.master.connect(interface="virtual", channel=channel)
-        self.raw = can.Bus(interface="virtual", channel=channel)
-        self.frames: queue.Queue[can.Message] = queue.Queue()
-        self.notifier = can.Notifier(self.raw, [self.frames.put], timeout=CYCLE_S)
+        super().__init__(channel)
         self.force = ForceNode(70, 6, heartbeat_ms=50)
         self.force.attach(self.device)
         self.remote = self.master.add_node(canopen.RemoteNode(70, load_od("skin-forces", 70)))
         self.remote.sdo.RESPONSE_TIMEOUT = 1.0
 
-    def collect(self, seconds: float) -> list[can.Message]:
-        end, got = time.monotonic() + seconds, []
-        while (left := end - time.monotonic()) > 0:
-            try:
-                got.append(self.frames.get(timeout=left))
-            except queue.Empty:
-                break
-        return got
-
-    def collect_until(self, enough: Callable[[list[can.Message]], bool]) -> list[can.Message]:
-        """Frames from now until ``enough(frames)``; fails after a deadline only a failing
-        run reaches."""
-        got: list[can.Message] = []
-        wait_until(lambda: enough(_drained(self.frames, got)), what="the frames on the bus")
-        return got
-
     def close(self) -> None:
         self.force.detach()
-        self.notifier.stop(timeout=1.0)
-        self.raw.shutdown()
-        self.master.disconnect()
-        self.device.disconnect()
-
-
-def _drained(frames: queue.Queue[can.Message], into: list[can.Message]) -> list[can.Message]:
-    while not frames.empty():
-        into.append(frames.get_nowait())
-    return into
+        super().close()
 
 
 @pytest.fixture
 def bench(request: pytest.FixtureRequest) -> Iterator[Bench]:
-    b = Bench(request.node.name)
-    yield b
-    b.close()
+    with Bench(request.node.name) as b:
+        yield b
 
 
 def test_sdo_reads_the_last_published_sample(bench: Bench) -> None:
@@ -195,7 +157,8 @@ def test_an_invalid_taxel_carries_no_value_in_all_three_components_on_the_bus(
     for cob, payload in bench.force.frames(force, valid, True):
         bench.device.send_message(cob, payload)
     tpdos = bench.force.cob_ids() - {0x746, 0xC6, 0x5C6}
-    got = bench.collect_until(lambda seen: tpdos <= {m.arbitration_id for m in seen})
+    got = bench.collect_until(lambda seen: tpdos <= {m.arbitration_id for m in seen},
+                              what="every TPDO of the sample")
     forces, bits = _decode([(m.arbitration_id, bytes(m.data)) for m in got
                             if m.arbitration_id in tpdos])
     by_taxel = np.array(forces).reshape(9, 3)

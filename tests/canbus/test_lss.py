@@ -4,10 +4,8 @@ fastscan walk of ``skin lss scan`` against any set of identities (hypothesis).""
 from __future__ import annotations
 
 import json
-import queue
 import struct
 import threading
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -27,81 +25,49 @@ from canbus.master.lss_scan import Fastscan, lss_scan, unconfigured
 from canbus.od import load_od
 from canbus.tools.lss_names import describe_lss
 from skin.cli import main
+from tests.support.rigs.devicebus import DeviceBus, network
 from tests.support.rigs.host import Rest
 
-CYCLE_S = 0.05
 SERIALS = [0x0000_1003, 0x0000_1001, 0x0042_0007]
 VENDOR, PRODUCT, REVISION = 0, 1, 0x0001_0000
 
 
-def _network(channel: str) -> canopen.Network:
-    net = canopen.Network()
-    net.NOTIFIER_CYCLE = CYCLE_S
-    return net.connect(interface="virtual", channel=channel)
-
-
-class Lab:
+class Lab(DeviceBus):
     """Unconfigured patches (``SERIALS``) served on a virtual bus, a master beside them and
-    every frame on the bus in :attr:`frames`."""
+    every frame the spy took in :attr:`seen`."""
 
     def __init__(self, channel: str, state_dir: Path | None = None,
                  unconfigured: bool = True) -> None:
-        self.device = _network(channel)
-        self.master = _network(channel)
-        self.raw = can.Bus(interface="virtual", channel=channel)
-        self.frames: queue.Queue[can.Message] = queue.Queue()
-        self.seen: list[can.Message] = []
+        super().__init__(channel)
         self.taken: list[can.Message] = []
-        self.notifier = can.Notifier(self.raw, [self.frames.put], timeout=CYCLE_S)
         nv = None if state_dir is None else \
             (lambda identity: NvStore.in_dir(state_dir, "patch", identity))
         self.server = PatchServer(self.device, Rest(len(SERIALS)), serials=SERIALS,
                                   unconfigured=unconfigured, nv=nv)
         self.server.start()
 
-    def wait_for(self, matches: Callable[[can.Message], bool], timeout: float = 5.0
-                 ) -> can.Message:
-        """The first frame (seen or to come) that ``matches``, within ``timeout``."""
-        for msg in self.seen:
-            if matches(msg):
-                return msg
-        end = time.monotonic() + timeout
-        while (left := end - time.monotonic()) > 0:
-            try:
-                msg = self.frames.get(timeout=left)
-            except queue.Empty:
-                break
-            self.seen.append(msg)
-            if matches(msg):
-                return msg
-        raise AssertionError("no such frame within the deadline")
-
     def request(self, *data: int) -> None:
         self.master.send_message(0x7E5, bytes(data).ljust(8, b"\0"))
 
     def answer(self, cs: int) -> bytes:
         msg = self.wait_for(lambda m: m.arbitration_id == 0x7E4 and m.data[0] == cs and
-                            m not in self.taken)
+                            m not in self.taken, what=f"an LSS answer 0x{cs:02X}")
         self.taken.append(msg)
         return bytes(msg.data)
 
+    def booted(self, node_id: int) -> None:
+        self.wait_for(lambda m: m.arbitration_id == 0x700 + node_id and bytes(m.data) == b"\x00",
+                      what=f"node {node_id}'s boot-up")
+
     def close(self) -> None:
         self.server.stop()
-        self.notifier.stop(timeout=1.0)
-        self.raw.shutdown()
-        self.master.disconnect()
-        self.device.disconnect()
+        super().close()
 
 
 @pytest.fixture
 def lab(request: pytest.FixtureRequest) -> Iterator[Lab]:
-    lab = Lab(request.node.name)
-    yield lab
-    lab.close()
-
-
-def _boot_of(node_id: int) -> Callable[[can.Message], bool]:
-    return lambda m: m.arbitration_id == 0x700 + node_id and bytes(m.data) == b"\x00"
+    with Lab(request.node.name) as lab:
+        yield lab
 
 
 def test_an_unconfigured_patch_sends_nothing_and_answers_lss(lab: Lab) -> None:
@@ -118,7 +84,7 @@ def test_fast_scan_finds_the_smallest_identity_and_the_host_assigns_it(lab: Lab)
     assert found and identity == [VENDOR, PRODUCT, REVISION, min(SERIALS)]
     lab.master.lss.configure_node_id(9)
     lab.master.lss.send_switch_state_global(lab.master.lss.WAITING_STATE)
-    lab.wait_for(_boot_of(9))
+    lab.booted(9)
     node = lab.master.add_node(canopen.RemoteNode(9, load_od("skin-patch", 9)))
     assert node.sdo[0x1018][4].raw == min(SERIALS)
     assert node.sdo[0x1008].raw == "canskin tactile patch"
@@ -155,7 +121,7 @@ def test_selective_switch_inquiries_and_configuration_byte_exact(lab: Lab,
     lab.request(0x11, 42)
     assert lab.answer(0x11) == b"\x11\x00" + bytes(6)
     lab.request(0x04, 0)  # back to waiting: an unconfigured patch boots with its node-ID
-    lab.wait_for(_boot_of(42))
+    lab.booted(42)
     assert node.node_id == 42 and node.lss.state == WAITING and node.lss.bit_timing == 2
     assert not any(m.arbitration_id == 0x700 + 42 for m in lab.seen[:-1])
 
@@ -179,10 +145,10 @@ def test_identify_remote_slave_answers_from_every_patch_in_the_ranges(lab: Lab) 
 def test_a_configured_patch_takes_a_new_node_id_at_reset_communication(lab: Lab) -> None:
     done = assign(lab.master, SERIALS[0], 5)
     assert done.previous is None
-    lab.wait_for(_boot_of(5))
+    lab.booted(5)
     done = assign(lab.master, SERIALS[0], 6, store=False)
     assert done.previous == 5  # assign reset it (NMT reset communication to node 5)
-    lab.wait_for(_boot_of(6))
+    lab.booted(6)
     node = next(n for n in lab.server.nodes if n.identity.serial == SERIALS[0])
     assert node.node_id == 6 and node.configured
 
@@ -192,7 +158,7 @@ def test_skin_lss_scan_lists_configured_and_waiting_patches(lab: Lab, tmp_path: 
                                                             capsys: pytest.CaptureFixture[str]
                                                             ) -> None:
     assign(lab.master, SERIALS[1], 3)
-    lab.wait_for(_boot_of(3))
+    lab.booted(3)
     out = tmp_path / "scan.json"
     assert main(["lss", "scan", "--json", str(out), "-i", "virtual",
                  "-c", request.node.name]) == 0
@@ -207,33 +173,24 @@ def test_skin_lss_scan_lists_configured_and_waiting_patches(lab: Lab, tmp_path: 
 
 def test_skin_lss_assign_stores_the_node_id(request: pytest.FixtureRequest, tmp_path: Path,
                                             capsys: pytest.CaptureFixture[str]) -> None:
-    lab = Lab(request.node.name, state_dir=tmp_path)
-    try:
+    with Lab(request.node.name, state_dir=tmp_path) as lab:
         assert main(["lss", "assign", hex(SERIALS[2]), "12", "--store", "-i", "virtual",
                      "-c", request.node.name]) == 0
         assert "-> node 12, stored" in capsys.readouterr().out
-        lab.wait_for(_boot_of(12))
-    finally:
-        lab.close()
+        lab.booted(12)
     stored = json.loads((tmp_path / f"patch-{SERIALS[2]:08x}.json").read_text())
     assert stored["lss"] == {"node_id": 12, "bit_timing": None}
     # after a power cycle it boots with it, the others still wait
-    again = Lab(request.node.name + "-again", state_dir=tmp_path)
-    try:
-        again.wait_for(_boot_of(12))
+    with Lab(request.node.name + "-again", state_dir=tmp_path) as again:
+        again.booted(12)
         assert [n.node_id for n in again.server.nodes if n.configured] == [12]
-    finally:
-        again.close()
 
 
 def test_skin_lss_assign_names_a_serial_nobody_has(request: pytest.FixtureRequest,
                                                    capsys: pytest.CaptureFixture[str]) -> None:
-    lab = Lab(request.node.name)
-    try:
+    with Lab(request.node.name):
         assert main(["lss", "assign", "0x77", "12", "-i", "virtual",
                      "-c", request.node.name]) != 0
-    finally:
-        lab.close()
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "0x00000077" in err
 
@@ -382,7 +339,7 @@ def test_the_sniffer_names_lss_services(data: str, text: str) -> None:
 
 
 def test_lss_scan_on_an_empty_bus_is_empty(request: pytest.FixtureRequest) -> None:
-    net = _network(request.node.name)
+    net = network(request.node.name)
     try:
         assert lss_scan(net, timeout_s=0.05, scan_s=0.05) == []
     finally:

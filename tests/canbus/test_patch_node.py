@@ -1,6 +1,5 @@
 from __future__ import annotations
 
-import queue
 import time
 from collections.abc import Callable, Iterator
 
@@ -17,6 +16,7 @@ from canbus.device.source import ArraySource
 from canbus.device.tpdo import TpdoTable
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
+from tests.support.rigs.devicebus import DeviceBus, network
 from tests.support.rigs.waiting import wait_until
 
 
@@ -26,22 +26,11 @@ def _resistances(samples: int = 4) -> np.ndarray:
     return resistance_from_force(force, DEFAULT_CONSTANTS)[..., :1]  # z-only patches
 
 
-CYCLE_S = 0.05  # notifier recv() timeout: stop()/disconnect() join within one cycle
+class Bench(DeviceBus):
+    """A patch server (patches 1 and 2) on the device side; node 1 seen from the master."""
 
-
-def _network(channel: str) -> canopen.Network:
-    net = canopen.Network()
-    net.NOTIFIER_CYCLE = CYCLE_S
-    return net.connect(interface="virtual", channel=channel)
-
-
-class Bench:
     def __init__(self, channel: str, event_rate_hz: float = 0.0) -> None:
-        self.device = _network(channel)
-        self.master = _network(channel)
-        self.raw = can.Bus(interface="virtual", channel=channel)
-        self.frames: queue.Queue[can.Message] = queue.Queue()
-        self.notifier = can.Notifier(self.raw, [self.frames.put], timeout=CYCLE_S)
+        super().__init__(channel)
         self.server = PatchServer(self.device, ArraySource(_resistances(), (1, 2)),
                                   event_rate_hz=event_rate_hz)
         self.server.start()
@@ -49,53 +38,26 @@ class Bench:
         self.node = self.master.add_node(canopen.RemoteNode(1, od))
         self.node.sdo.RESPONSE_TIMEOUT = 1.0
 
-    def collect(self, seconds: float) -> list[can.Message]:
-        """Every frame of the next ``seconds`` (for what must NOT come: a span to watch)."""
-        end, got = time.monotonic() + seconds, []
-        while (left := end - time.monotonic()) > 0:
-            try:
-                got.append(self.frames.get(timeout=left))
-            except queue.Empty:
-                break
-        return got
-
-    def collect_until(self, enough: Callable[[list[can.Message]], bool], what: str,
-                      timeout: float = 30.0) -> list[can.Message]:
-        """Frames from now until ``enough(frames)`` (AssertionError naming ``what`` after
-        ``timeout`` s): waits for the event, however busy the machine."""
-        end, got = time.monotonic() + timeout, []
-        while not enough(got):
-            try:
-                got.append(self.frames.get(timeout=max(0.0, end - time.monotonic())))
-            except queue.Empty:
-                raise AssertionError(f"{what}: not within {timeout} s; got {got}") from None
-        return got
-
     def state(self, node: int, state: str) -> None:
         wait_until(lambda: self.server.nodes[node - 1].state == state,
                    what=f"node {node} {state}")
 
     def close(self) -> None:
         self.server.stop()
-        self.notifier.stop(timeout=1.0)
-        self.raw.shutdown()
-        self.master.disconnect()
-        self.device.disconnect()
+        super().close()
 
 
 @pytest.fixture
 def bench(request: pytest.FixtureRequest) -> Iterator[Bench]:
-    b = Bench(request.node.name)
-    yield b
-    b.close()
+    with Bench(request.node.name) as b:
+        yield b
 
 
 @pytest.fixture
 def events(request: pytest.FixtureRequest) -> Iterator[Bench]:
     """A bench whose server serves event-driven TPDOs every 5 ms (and reads a sample)."""
-    b = Bench(request.node.name, event_rate_hz=200.0)
-    yield b
-    b.close()
+    with Bench(request.node.name, event_rate_hz=200.0) as b:
+        yield b
 
 
 def _count(cob_id: int, n: int) -> Callable[[list[can.Message]], bool]:
@@ -128,13 +90,13 @@ def test_sdo_abort_codes(bench: Bench) -> None:
 
 def test_malformed_frames_are_answered_or_ignored(bench: Bench) -> None:
     for data in (b"", b"\x40\x00\x10", bytes(9)):  # zero-length, short, over-long (FD)
-        bench.raw.send(can.Message(arbitration_id=0x601, data=data, is_fd=len(data) > 8))
-    bench.raw.send(can.Message(arbitration_id=0x601, data=b"\xe0" + bytes(7)))  # bad ccs
-    bench.raw.send(can.Message(arbitration_id=0x601, data=b"\x60" + bytes(7)))  # stray segment
-    bench.raw.send(can.Message(arbitration_id=0x000, data=b"\x01"))  # short NMT frame
-    bench.raw.send(can.Message(arbitration_id=0x7E5, data=bytes(8)))  # unknown COB-ID
+        bench.spy.send(can.Message(arbitration_id=0x601, data=data, is_fd=len(data) > 8))
+    bench.spy.send(can.Message(arbitration_id=0x601, data=b"\xe0" + bytes(7)))  # bad ccs
+    bench.spy.send(can.Message(arbitration_id=0x601, data=b"\x60" + bytes(7)))  # stray segment
+    bench.spy.send(can.Message(arbitration_id=0x000, data=b"\x01"))  # short NMT frame
+    bench.spy.send(can.Message(arbitration_id=0x7E5, data=bytes(8)))  # unknown COB-ID
     answers = [m for m in bench.collect_until(
-        lambda got: sum(m.arbitration_id == 0x581 for m in got) >= 2, "two aborts")
+        lambda got: sum(m.arbitration_id == 0x581 for m in got) >= 2, what="two aborts")
         if m.arbitration_id == 0x581]
     answers += [m for m in bench.collect(0.1) if m.arbitration_id == 0x581]  # and no more
     assert [bytes(m.data[:1]) + bytes(m.data[4:]) for m in answers] == [
@@ -147,7 +109,7 @@ def test_nmt_sync_stop_and_reset(bench: Bench) -> None:
     bench.node.nmt.send_command(0x01)
     bench.state(1, OPERATIONAL)
     bench.master.sync.transmit()
-    tpdos = [m for m in bench.collect_until(_tpdos(3), "node 1's answer")
+    tpdos = [m for m in bench.collect_until(_tpdos(3), what="node 1's answer")
              if 0x180 <= m.arbitration_id < 0x580]
     tpdos += [m for m in bench.collect(0.1) if 0x180 <= m.arbitration_id < 0x580]
     assert sorted(m.arbitration_id for m in tpdos) == [0x181, 0x281, 0x381]  # node 1 only
@@ -158,7 +120,7 @@ def test_nmt_sync_stop_and_reset(bench: Bench) -> None:
     assert not [m for m in bench.collect(0.2) if 0x180 <= m.arbitration_id < 0x580]
     bench.node.nmt.send_command(0x81)
     bench.collect_until(lambda got: any(m.arbitration_id == 0x701 and bytes(m.data) == b"\x00"
-                                        for m in got), "node 1's boot-up")
+                                        for m in got), what="node 1's boot-up")
     assert bench.server.nodes[0].state == PRE_OPERATIONAL
 
 
@@ -171,7 +133,7 @@ def test_heartbeat_period_and_sdo_change(bench: Bench) -> None:
         assert node.heartbeat.period_ms == period_ms
         assert node.heartbeat._task.period == period_ms / 1000.0
         bench.collect_until(lambda got: sum(m.arbitration_id == 0x701 and m.data == b"\x7f"
-                                            for m in got) >= 3, "three heartbeats")
+                                            for m in got) >= 3, what="three heartbeats")
     bench.node.sdo[0x1017].raw = 0  # 0 stops the heartbeat
     assert node.heartbeat._task is None
 
@@ -190,7 +152,7 @@ def test_remap_to_status_by_cia301_sequence(bench: Bench) -> None:
     bench.node.nmt.send_command(0x01)
     bench.state(1, OPERATIONAL)
     bench.master.sync.transmit()
-    first = [m for m in bench.collect_until(_count(0x181, 1), "TPDO 1") +
+    first = [m for m in bench.collect_until(_count(0x181, 1), what="TPDO 1") +
              bench.collect(0.1) if m.arbitration_id == 0x181]
     assert [bytes(m.data) for m in first] == [b"\x00\x00"]
 
@@ -206,7 +168,7 @@ def test_emcy_on_fault_and_recovery(bench: Bench, ohm: float, status: int) -> No
     assert bench.node.sdo[0x2004][5].raw == status
     r[4, 0] = 1000.0
     patch.update(r)
-    emcy = [bytes(m.data) for m in bench.collect_until(_count(0x81, 2), "two EMCYs")
+    emcy = [bytes(m.data) for m in bench.collect_until(_count(0x81, 2), what="two EMCYs")
             + bench.collect(0.1) if m.arbitration_id == 0x81]
     assert emcy == [b"\x00\x50\x81\x04" + bytes([status]) + b"\x00\x00\x00",
                     b"\x00\x00\x00\x04\x00\x00\x00\x00"]
@@ -224,7 +186,7 @@ def test_emcy_error_register_stays_set_until_the_last_fault_recovers(bench: Benc
     patch.update(r)
     r[7, 0] = 1000.0
     patch.update(r)
-    emcy = [bytes(m.data) for m in bench.collect_until(_count(0x81, 4), "four EMCYs")
+    emcy = [bytes(m.data) for m in bench.collect_until(_count(0x81, 4), what="four EMCYs")
             + bench.collect(0.1) if m.arbitration_id == 0x81]
     assert emcy == [b"\x00\x50\x81\x02\x02\x00\x00\x00", b"\x00\x50\x81\x07\x03\x00\x00\x00",
                     b"\x00\x00\x81\x02\x00\x00\x00\x00", b"\x00\x00\x00\x07\x00\x00\x00\x00"]
@@ -278,7 +240,7 @@ def test_event_driven_tpdos_flow_and_stop_silences_them(events: Bench, trans: in
     _event_driven(events.node, 1, trans, timer_ms=50)
     started = time.monotonic()
     events.node.nmt.send_command(0x01)
-    frames = events.collect_until(_count(0x181, 4), "four timed TPDOs")
+    frames = events.collect_until(_count(0x181, 4), what="four timed TPDOs")
     span = time.monotonic() - started
     # never faster than the timer, however the machine runs (the rate itself: above)
     assert len(_tpdo_times(frames, 0x181)) <= span / 0.050 + 1  # any machine: an upper bound
@@ -288,7 +250,7 @@ def test_event_driven_tpdos_flow_and_stop_silences_them(events: Bench, trans: in
     events.collect(0.06)  # what the sample thread was sending as the stop came
     assert not [m for m in events.collect(0.25) if 0x180 <= m.arbitration_id < 0x580]
     events.node.nmt.send_command(0x01)
-    events.collect_until(_count(0x181, 2), "TPDOs again after NMT start")
+    events.collect_until(_count(0x181, 2), what="TPDOs again after NMT start")
 
 
 def test_inhibit_time_spaces_tpdos_on_change(events: Bench) -> None:
@@ -296,7 +258,7 @@ def test_inhibit_time_spaces_tpdos_on_change(events: Bench) -> None:
     _event_driven(events.node, 2, 255, inhibit_100us=400)
     started = time.monotonic()
     events.node.nmt.send_command(0x01)
-    frames = events.collect_until(_count(0x281, 6), "six TPDOs on change")
+    frames = events.collect_until(_count(0x281, 6), what="six TPDOs on change")
     span = time.monotonic() - started
     assert len(_tpdo_times(frames, 0x281)) <= span / 0.040 + 1  # any machine: an upper bound
 
@@ -305,7 +267,7 @@ def test_event_driven_without_timer_or_change_sends_once(events: Bench) -> None:
     events.server.source = ArraySource(_resistances(1), (1, 2))  # a constant signal
     _event_driven(events.node, 3, 254)
     events.node.nmt.send_command(0x01)
-    events.collect_until(_count(0x381, 1), "the first TPDO")
+    events.collect_until(_count(0x381, 1), what="the first TPDO")
     ticks = events.server.samples
     wait_until(lambda: events.server.samples >= ticks + 20, what="20 more samples")
     assert not _tpdo_times(events.collect(0.05), 0x381).size  # no change: no more
@@ -319,7 +281,7 @@ def test_a_heartbeat_period_written_during_the_boot_leaves_one_heartbeat(
 
     from canbus.device.patch_node import PatchNode
 
-    net = _network(request.node.name)
+    net = network(request.node.name)
     node = PatchNode(1)
     tasks: list[canopen.network.PeriodicMessageTask] = []
     send_periodic = net.send_periodic
