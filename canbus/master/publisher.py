@@ -31,8 +31,8 @@ from canbus.master.channel import (
     SampleJob,
     Subscriber,
 )
-from canbus.master.contact import contact_rows, summarize_nodes
-from canbus.master.forceframes import batch_frames
+from canbus.master.contact import ContactSummarizer, contact_rows
+from canbus.master.forceframes import FrameBatcher
 from canbus.master.forcenode import ForceNode
 from canbus.txmessage import TxMessage
 from decoder.protocol import Decoder
@@ -51,6 +51,8 @@ class Publisher:
         self.stats = stats
         self._subscribers: tuple[Subscriber, ...] = ()  # replaced, never mutated
         self._subscribing = threading.Lock()
+        self._summarizer = ContactSummarizer()
+        self._batcher = FrameBatcher()
         self._raw: dict[int, NDArray[np.float64]] = {}
         self.steady_from_cycle: int | None = None
         """Samples of this cycle on are the steady state's (set by the data plane)."""
@@ -100,7 +102,7 @@ class Publisher:
             return
         force, valid, reason, _ = self._decode(jobs, errors=False)
         nodes = [job.slot.channel.force_node for job in jobs]
-        batch_frames(nodes, force, valid, np.zeros(len(jobs), bool), reason, 0)
+        self._batcher.frames(nodes, force, valid, np.zeros(len(jobs), bool), reason, 0)
         for node in nodes:
             node.clear_sample()  # an SDO read shows "no value" until the first sample
 
@@ -191,9 +193,9 @@ class Publisher:
             return
         complete = [job.complete for job in jobs]
         nodes = [job.slot.channel.force_node for job in jobs]
-        contact = summarize_nodes(nodes, force, valid)
-        frames = batch_frames(nodes, force, valid, np.array(complete), reason,
-                              [job.cycle[1] for job in jobs], contact)
+        contact = self._summarizer.nodes(nodes, force, valid)
+        frames = self._batcher.frames(nodes, force, valid, np.array(complete), reason,
+                                      [job.cycle[1] for job in jobs], contact)
         # Every frame onto the bus first: the frames for the API come after.
         published = [node.transmitting and self._transmit(f, bus_of(node, self.bus))
                      for node, f in zip(nodes, frames, strict=True)]
