@@ -78,7 +78,7 @@ from canbus.master.syncpassage import Sync, SyncPassage
 from skin.constants import TAXELS_PER_PATCH
 from skin.errors import ConfigError
 
-__all__ = ["DataPlane", "DataPlaneStats", "ForceFrame", "PatchChannel", "Subscriber"]
+__all__ = ("DataPlane", "DataPlaneStats", "ForceFrame", "PatchChannel", "Subscriber")
 
 logger = logging.getLogger(__name__)
 

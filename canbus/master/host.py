@@ -79,7 +79,7 @@ from canbus.od import load_od
 from canbus.rxfilter import echoes_own_frames
 from skin.errors import BusError
 
-__all__ = ["STATES", "ForceFrame", "HostManager", "PatchHealth", "PatchLoadedError"]
+__all__ = ("STATES", "ForceFrame", "HostManager", "PatchHealth", "PatchLoadedError")
 
 logger = logging.getLogger(__name__)
 
