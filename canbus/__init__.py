@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from canbus.master.forcenode import ForceNode
     from canbus.master.host import HostManager, PatchHealth
     from canbus.master.hostconfig import HostConfig, PatchConfig, load_host_config
+    from canbus.master.rawsample import RawSample
     from canbus.tools.recorder import Recorder
     from canbus.tools.recording import Recording
     from canbus.tools.replay import Replayer
@@ -34,14 +35,14 @@ _PUBLIC = {
     "PatchChannel": "canbus.master.dataplane", "ForceNode": "canbus.master.forcenode",
     "HostManager": "canbus.master.host", "PatchHealth": "canbus.master.host",
     "HostConfig": "canbus.master.hostconfig", "PatchConfig": "canbus.master.hostconfig",
-    "load_host_config": "canbus.master.hostconfig",
+    "load_host_config": "canbus.master.hostconfig", "RawSample": "canbus.master.rawsample",
     "Recorder": "canbus.tools.recorder", "Recording": "canbus.tools.recording",
     "Replayer": "canbus.tools.replay", "Sniffer": "canbus.tools.sniffer",
 }
 __all__ = [
     "DataPlane", "ForceFrame", "ForceNode", "HostConfig", "HostManager", "PatchChannel",
-    "PatchConfig", "PatchHealth", "PatchNode", "PatchServer", "Recorder", "Recording",
-    "Replayer", "Sniffer", "load_host_config", "plan",
+    "PatchConfig", "PatchHealth", "PatchNode", "PatchServer", "RawSample", "Recorder",
+    "Recording", "Replayer", "Sniffer", "load_host_config", "plan",
 ]
 
 

@@ -1,8 +1,9 @@
 """A patch's contact over time: in contact with hysteresis, onset and release, slipping.
 
-:func:`step` advances the state of ``n`` patches by one sample each (the host's batches);
+:func:`step` advances the state of ``n`` patches by one sample each; :func:`advance` does it
+for the host's batches, whose patches keep their states in their contact judges;
 :func:`track` runs one patch through a sequence of samples (the simulator's truth, the
-benchmark). Both look the next state and the sample's state byte up in one table, built
+benchmark). All look the next state and the sample's state byte up in one table, built
 from the rules below by :func:`_tables`, indexed by the state and what the sample says.
 The state of a patch is one small integer (bit 0 in contact, bit 1 slipping):
 
@@ -23,7 +24,8 @@ from __future__ import annotations
 
 import functools
 import itertools
-from typing import Any, NamedTuple
+from collections.abc import Iterable
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -64,6 +66,8 @@ def _tables() -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
 
 
 NEXT_STATE, STATE_BYTE = _tables()
+_NEXT, _BYTE = tuple(NEXT_STATE.tolist()), tuple(STATE_BYTE.tolist())
+"""The tables as Python ints: a lookup per row without numpy's cost per call."""
 TESTS = 12
 """What a sample says, as :func:`sample_tests` lays it out: ``(4, 3, n)`` flattened to ``(12, n)``,
 three tests on each of net Fz, the taxels in contact, the valid taxels and the ratio (the
@@ -123,6 +127,10 @@ class StateTests:
         self._said = np.empty(limits.shape, dtype=bool)
         self.said = self._said.reshape(TESTS, -1)
         """(12, n) what the last batch said (:func:`sample_tests`)."""
+        self.published_defined = self.said[DEFINED_TESTS.start:KNOWN_TEST + 1]
+        """(3, n) where the last batch's CoP y, CoP x and net Fz have a value (a taxel in
+        contact, twice; a valid taxel): the default contact PDO's figures, in the order of
+        :attr:`~skin.contact_sums.SumsKernel.published`."""
         self._index = np.empty(limits.shape[-1], dtype=np.intp)
 
     def run(self) -> list[int]:
@@ -130,6 +138,29 @@ class StateTests:
         np.greater_equal(self._figures, self._limits, out=self._said)
         index: list[int] = np.matmul(_WEIGHTS, self.said, out=self._index).tolist()
         return index
+
+
+class HeldState(Protocol):
+    """Whatever keeps a patch's state between batches (the host's contact judge)."""
+
+    state: int
+
+
+def advance(holders: Iterable[HeldState | None], index: Iterable[int]) -> State:
+    """Each row's state byte, from its table index without the state (:meth:`StateTests.run`,
+    :func:`conditions`) and the state of its holder, whose state moves on; None: a patch
+    never seen, whose state no one keeps. Rows go in order, so a holder on several rows
+    (samples of one patch queued together) takes them one after the other."""
+    nxt, table = _NEXT, _BYTE
+    out = []
+    for holder, i in zip(holders, index, strict=True):
+        if holder is None:
+            out.append(table[i])
+            continue
+        k = i + holder.state
+        out.append(table[k])
+        holder.state = nxt[k]
+    return np.array(out, dtype=np.uint8)
 
 
 class ContactBatch:
@@ -208,7 +239,7 @@ def track(instant: ContactInstant, params: ContactParams, state: int = 0
     the last one and every sample's :class:`ContactBatch` row."""
     limits = thresholds(params.onset_N, params.release_N, params.friction,
                         params.near_slip_ratio, len(instant))
-    nxt, table = NEXT_STATE.tolist(), STATE_BYTE.tolist()
+    nxt, table = _NEXT, _BYTE
     out = []
     for i in conditions(sample_tests(tested(instant), limits)).tolist():
         out.append(table[i + state])

@@ -1,11 +1,16 @@
 """The host's contact summaries: one :class:`PatchContact` per patch (its geometry, its
-thresholds, its state), and :func:`summarize_batch`, which summarises a publishing batch
+thresholds, its state), and :class:`ContactSummarizer`, which summarises a publishing batch
 of many patches at once (:mod:`skin.contact`, :mod:`skin.contact_state`).
 
 A patch's force node holds its :class:`PatchContact` (``ForceNode.contact``): the
-publisher summarises each batch right after decoding it, the force node publishes the
-summary in its contact objects (0x2008, :mod:`canbus.contact_record`) and the API's
-:class:`~canbus.master.channel.ForceFrame` carries it (``contact``).
+publisher's summarizer summarises each batch right after decoding it, the force node
+publishes the summary in its contact objects (0x2008, :mod:`canbus.contact_record`) and the
+API's :class:`~canbus.master.channel.ForceFrame` carries it (``contact``).
+
+A batch's judges, in their order, are its composition: the summarizer keeps what a
+composition needs (each row's parameters, the kernel's buffers) until a judge of it is
+replaced or takes other parameters, so that a batch like the last costs no set-up.
+:func:`summarize_batch` and :func:`summarize_nodes` summarise one batch with nothing kept.
 """
 
 from __future__ import annotations
@@ -26,13 +31,10 @@ from skin.contact import (
     summarize_rows,
 )
 from skin.contact_state import (
-    DEFINED_TESTS,
-    KNOWN_TEST,
-    NEXT_STATE,
-    STATE_BYTE,
     ContactBatch,
     ContactSummary,
     StateTests,
+    advance,
     conditions,
     sample_tests,
     tested,
@@ -41,14 +43,16 @@ from skin.contact_state import (
 from skin.contact_sums import SumsKernel
 from skin.placement import PatchPlacement
 
-_CACHED_LAYOUTS = 64
+COMPOSITIONS_KEPT = 64
+"""How many compositions a :class:`ContactSummarizer` keeps (then it starts anew)."""
 
 
 class PatchContact:
     """One patch's contact judge. ``state`` is its :mod:`skin.contact_state` state."""
 
     row: tuple[float, ...]
-    """Every per-patch number a batch needs; replaced (never changed) on an update."""
+    """Every per-patch number a batch needs; replaced (never changed) when the geometry or
+    the thresholds are: a summarizer compares it to tell its compositions still hold."""
 
     def __init__(self, geometry: PatchGeometry | None = None,
                  params: ContactParams | None = None,
@@ -85,7 +89,6 @@ class PatchContact:
         theta = math.radians(g.orientation_deg)
         self.row = (g.pitch_m, p.taxel_contact_N, p.onset_N, p.release_N, p.friction,
                     p.near_slip_ratio, *g.position_m, math.cos(theta), math.sin(theta))
-        judges_changed()
 
     def reset(self) -> None:
         """Forget the history: not in contact, not slipping (a patch that booted again)."""
@@ -117,15 +120,23 @@ class PublishedBatch(ContactBatch):
         return published
 
 
-class _Composition:
-    """The judges of one batch composition (row i: the judge of its i-th patch, None: no
-    judge) and what a batch of them needs: each row's parameters, the summary's and the
-    state tests' buffers (one batch at a time: ``lock``)."""
+Judges = tuple[PatchContact | None, ...]
+"""A batch composition: row i's judge (None: the row's node has none)."""
+Rows = tuple[tuple[float, ...] | None, ...]
 
-    def __init__(self, contacts: Sequence[PatchContact | None]) -> None:
-        self.contacts = list(contacts)
-        table = np.array([_DEFAULT_ROW if c is None else c.row for c in contacts],
-                         dtype=np.float64).reshape(-1, len(_DEFAULT_ROW))
+
+class _Composition:
+    """The judges of one batch composition and what a batch of them needs: each row's
+    parameters (``rows``: the judges' :attr:`PatchContact.row` it was made of; a row with
+    no judge is judged by default thresholds), the summary's and the state tests' buffers
+    (one batch at a time: ``lock``)."""
+
+    def __init__(self, contacts: Judges, rows: Rows) -> None:
+        self.contacts = contacts
+        self.rows = rows
+        default = PatchContact().row
+        table = np.array([default if row is None else row for row in rows],
+                         dtype=np.float64).reshape(-1, len(default))
         pitch, threshold, onset, release, friction, near = (
             np.ascontiguousarray(table[:, k]) for k in range(6))
         c, s = table[:, 8], table[:, 9]
@@ -136,40 +147,14 @@ class _Composition:
         self.limits = thresholds(onset, release, friction, near, len(table))
         self.kernel = SumsKernel(self.params)
         self.tests = StateTests(self.kernel.tested, self.limits)
-        self.has = self.tests.said[DEFINED_TESTS.start:KNOWN_TEST + 1]
         absent = np.array([c is None for c in contacts], dtype=bool)
         self.absent = absent if absent.any() else None
         self.judged = not absent.all()
         self.lock = threading.Lock()
 
 
-_GENERATION = [0]
-_by_judges: dict[tuple[int, ...], tuple[int, _Composition]] = {}
-_by_nodes: dict[tuple[int, ...], tuple[int, _Composition]] = {}
-
-
-def judges_changed() -> None:
-    """Read every batch composition anew: a judge was made, updated or replaced."""
-    _GENERATION[0] += 1
-
-
-_DEFAULT_ROW = PatchContact().row
-
-
-def _cached(cache: dict[tuple[int, ...], tuple[int, _Composition]], key: tuple[int, ...],
-            contacts: Sequence[PatchContact | None] | None = None,
-            holders: Sequence[Judged] = ()) -> _Composition:
-    """The composition cached under ``key`` (until a judge changes), else a new one of
-    ``contacts`` (or of the ``holders``' judges)."""
-    hit = cache.get(key)
-    generation = _GENERATION[0]
-    if hit is not None and hit[0] == generation:
-        return hit[1]
-    if len(cache) >= _CACHED_LAYOUTS:
-        cache.clear()
-    made = _Composition(contacts if contacts is not None else [h.contact for h in holders])
-    cache[key] = (generation, made)
-    return made
+def _rows(contacts: Judges) -> Rows:
+    return tuple([None if c is None else c.row for c in contacts])
 
 
 class Judged(Protocol):
@@ -178,16 +163,55 @@ class Judged(Protocol):
     contact: PatchContact | None
 
 
+class ContactSummarizer:
+    """Summarises the batches of one publisher (one caller at a time), keeping each batch
+    composition it met (module docstring) while its judges are the same objects with the
+    same parameters: a judge replaced (``ForceNode.contact``) makes another composition,
+    a judge's new geometry or thresholds (a new :attr:`PatchContact.row`) a new one of the
+    same judges."""
+
+    def __init__(self, kept: int = COMPOSITIONS_KEPT) -> None:
+        self.kept = kept
+        self._compositions: dict[Judges, _Composition] = {}
+
+    def nodes(self, nodes: Sequence[Judged], force_N: NDArray[np.float64],
+              valid: NDArray[np.bool_]) -> PublishedBatch | None:
+        """:meth:`batch` for the patches of force nodes ``nodes`` (row i: node i's) of a
+        decoder's forces as the publisher has them; None when no node has a contact judge.
+        A node without one is summarised by a judge of default thresholds that keeps no
+        state, and gets no summary (``absent``)."""
+        composition = self._composition(tuple([node.contact for node in nodes]))
+        if not composition.judged:
+            return None
+        return _judge(composition, force_N, valid, decoded=True, publishing=True)
+
+    def batch(self, contacts: Sequence[PatchContact], force_N: NDArray[np.float64],
+              valid: NDArray[np.bool_], *, decoded: bool = True) -> PublishedBatch:
+        """The contact of ``n`` samples, row i of patch ``contacts[i]`` (``(n, 9, 3)`` N and
+        ``(n, 9)``), in order; every patch's state is advanced. A patch may appear in
+        several rows (cycles queued together): its rows are judged one after the other.
+        ``decoded``: the forces are a decoder's as the publisher has them (finite, bounded,
+        0 where invalid); False for any values (checked, and every figure still finite)."""
+        composition = self._composition(tuple(contacts))
+        return _judge(composition, force_N, valid, decoded=decoded, publishing=False)
+
+    def _composition(self, contacts: Judges) -> _Composition:
+        """The kept composition of ``contacts`` if their rows are still the ones it was
+        made of, else a new one (kept in its place)."""
+        rows = _rows(contacts)
+        kept = self._compositions.get(contacts)
+        if kept is not None and kept.rows == rows:
+            return kept
+        if len(self._compositions) >= self.kept:
+            self._compositions.clear()
+        made = self._compositions[contacts] = _Composition(contacts, rows)
+        return made
+
+
 def summarize_nodes(nodes: Sequence[Judged], force_N: NDArray[np.float64],
                     valid: NDArray[np.bool_]) -> PublishedBatch | None:
-    """:func:`summarize_batch` for the patches of force nodes ``nodes`` (row i: node i's) of
-    a decoder's forces as the publisher has them; None when no node has a contact judge. A
-    node without one is summarised by a judge of default thresholds that keeps no state,
-    and gets no summary (``absent``)."""
-    composition = _cached(_by_nodes, tuple(map(id, nodes)), holders=nodes)
-    if not composition.judged:
-        return None
-    return _judge(composition, force_N, valid, decoded=True, publishing=True)
+    """:meth:`ContactSummarizer.nodes` of one batch, nothing kept."""
+    return ContactSummarizer(kept=1).nodes(nodes, force_N, valid)
 
 
 def contact_rows(batch: PublishedBatch | None, nodes: Sequence[Judged]
@@ -203,22 +227,17 @@ def contact_rows(batch: PublishedBatch | None, nodes: Sequence[Judged]
 
 def summarize_batch(contacts: Sequence[PatchContact], force_N: NDArray[np.float64],
                     valid: NDArray[np.bool_], *, decoded: bool = True) -> PublishedBatch:
-    """The contact of ``n`` samples, row i of patch ``contacts[i]`` (``(n, 9, 3)`` N and
-    ``(n, 9)``), in order; every patch's state is advanced. A patch may appear in several
-    rows (cycles queued together): its rows are judged one after the other. ``decoded``:
-    the forces are a decoder's as the publisher has them (finite, bounded, 0 where
-    invalid); False for any values (checked, and every figure still finite)."""
-    composition = _cached(_by_judges, tuple(map(id, contacts)), contacts)
-    return _judge(composition, force_N, valid, decoded=decoded, publishing=False)
+    """:meth:`ContactSummarizer.batch` of one batch, nothing kept."""
+    return ContactSummarizer(kept=1).batch(contacts, force_N, valid, decoded=decoded)
 
 
 def _judge(composition: _Composition, force_N: NDArray[np.float64],
            valid: NDArray[np.bool_], *, decoded: bool, publishing: bool) -> PublishedBatch:
-    """Summarise, then advance each judge's state by one table lookup per row (None: no
-    judge, the state of a patch never seen, kept by no one). ``publishing``: the batch goes
-    to ``batch_frames`` next, which takes the default PDO's figures as computed here."""
+    """Summarise, then advance each judge's state by one table lookup per row
+    (:func:`skin.contact_state.advance`). ``publishing``: the batch goes to the force
+    frames next, which take the default PDO's figures as computed here."""
     if not composition.lock.acquire(blocking=False):  # another thread's batch: its own
-        composition = _Composition(composition.contacts)
+        composition = _Composition(composition.contacts, composition.rows)
         composition.lock.acquire()
     try:
         published = None
@@ -226,24 +245,12 @@ def _judge(composition: _Composition, force_N: NDArray[np.float64],
             instant = composition.kernel.instant(force_N, valid, bounded=True)
             index = composition.tests.run()
             if publishing and composition.absent is None:
-                published = composition.kernel.published, composition.has
+                published = composition.kernel.published, composition.tests.published_defined
         else:
             instant = summarize_rows(np.array(force_N, dtype=np.float64),
                                      np.array(valid, dtype=bool), composition.params)
             index = conditions(sample_tests(tested(instant), composition.limits)).tolist()
     finally:
         composition.lock.release()
-    nxt, table = _NEXT, _BYTE
-    out = []
-    for contact, i in zip(composition.contacts, index, strict=True):
-        if contact is None:
-            out.append(table[i])
-            continue
-        k = i + contact.state
-        out.append(table[k])
-        contact.state = nxt[k]
-    return PublishedBatch(instant, np.array(out, dtype=np.uint8), composition.absent,
+    return PublishedBatch(instant, advance(composition.contacts, index), composition.absent,
                           published)
-
-
-_NEXT, _BYTE = NEXT_STATE.tolist(), STATE_BYTE.tolist()

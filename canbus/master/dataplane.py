@@ -73,11 +73,12 @@ from canbus.master.channel import (
 )
 from canbus.master.frame_kinds import SERVICE_COB_IDS, SYNC
 from canbus.master.publisher import Publisher
+from canbus.master.rawsample import RawSubscriber
 from canbus.master.syncpassage import Sync, SyncPassage
 from skin.constants import TAXELS_PER_PATCH
 from skin.errors import ConfigError
 
-__all__ = ["DataPlane", "DataPlaneStats", "ForceFrame", "PatchChannel", "Subscriber"]
+__all__ = ("DataPlane", "DataPlaneStats", "ForceFrame", "PatchChannel", "Subscriber")
 
 logger = logging.getLogger(__name__)
 
@@ -407,6 +408,14 @@ class DataPlane(can.Listener):
 
     def unsubscribe(self, callback: Subscriber) -> None:
         self._publisher.unsubscribe(callback)
+
+    def subscribe_raw(self, callback: RawSubscriber) -> None:
+        """Call ``callback(samples)`` with each published batch's resistances as the patches
+        sent them (:mod:`canbus.master.rawsample`)."""
+        self._publisher.subscribe_raw(callback)
+
+    def unsubscribe_raw(self, callback: RawSubscriber) -> None:
+        self._publisher.unsubscribe_raw(callback)
 
     def tare(self, node_id: int) -> None:
         """Re-zero patch ``node_id``'s baseline at its last complete sample.

@@ -12,6 +12,7 @@ error every 10 s at most.
 from __future__ import annotations
 
 import logging
+from types import MappingProxyType
 
 from canopen.emcy import EMCY_STRUCT, EmcyConsumer, EmcyError
 
@@ -24,8 +25,9 @@ EMCY_LOG_KEPT = 256
 """EMCYs kept in ``log`` and in ``active`` (each trimmed to this many once it holds twice
 as many)."""
 DEVICE_HARDWARE, ERROR_RESET = 0x5000, 0x0000
-EMCY_TEXT = {DEVICE_HARDWARE: "taxel fault (device hardware)", ERROR_RESET: "taxel recovered"}
-TAXEL_FAULTS = {1: "open", 2: "short", 3: "saturated"}  # 0x2004 two bits per pillar
+EMCY_TEXT = MappingProxyType({DEVICE_HARDWARE: "taxel fault (device hardware)",
+                              ERROR_RESET: "taxel recovered"})
+TAXEL_FAULTS = MappingProxyType({1: "open", 2: "short", 3: "saturated"})  # 0x2004, per pillar
 
 
 class BoundedEmcyConsumer(EmcyConsumer):

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from types import MappingProxyType
 
 from canbus.master.buslink import BusLink
 from canbus.master.discovery import UnknownNode
@@ -26,8 +27,9 @@ logger = logging.getLogger(__name__)
 NMT_COB_ID = 0x000
 NMT_START, NMT_STOP, NMT_PRE_OPERATIONAL = 0x01, 0x02, 0x80
 OPERATIONAL_STATE, STOPPED_STATE, PRE_OPERATIONAL_STATE = 0x05, 0x04, 0x7F
-NMT_COMMANDS = {NMT_START: OPERATIONAL_STATE, NMT_STOP: STOPPED_STATE,
-                NMT_PRE_OPERATIONAL: PRE_OPERATIONAL_STATE, 0x81: None, 0x82: None}
+NMT_COMMANDS = MappingProxyType({NMT_START: OPERATIONAL_STATE, NMT_STOP: STOPPED_STATE,
+                                 NMT_PRE_OPERATIONAL: PRE_OPERATIONAL_STATE, 0x81: None,
+                                 0x82: None})
 """The NMT state a command (from any master) puts a patch in; None: a reset, after which
 the patch boots (pre-operational)."""
 

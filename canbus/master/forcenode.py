@@ -25,7 +25,6 @@ while OPERATIONAL (:attr:`transmitting`).
 
 from __future__ import annotations
 
-import functools
 import logging
 from collections.abc import Callable
 from typing import Any
@@ -39,7 +38,7 @@ from canbus.device.local_device import LocalDevice
 from canbus.device.nmt_slave import OPERATIONAL, START
 from canbus.device.nv_store import NvStore
 from canbus.mappings import force_fd_entries
-from canbus.master.contact import PatchContact, judges_changed
+from canbus.master.contact import ContactSummarizer, PatchContact
 from canbus.master.forceframes import (
     ANSWERED,
     FORCES,
@@ -47,13 +46,14 @@ from canbus.master.forceframes import (
     STATUS,
     VALID,
     Frame,
-    batch_frames,
+    FrameBatcher,
 )
 from canbus.od import load_od
 from canbus.pdo_codec import (
     COB_ID_INVALID,
     TPDO_COMM,
     TPDO_MAP,
+    MappedEntry,
     PdoCodec,
     read_defaults,
     read_layouts,
@@ -74,7 +74,7 @@ DEVICE_STATE = 0x0800_0022
 INVALID_VALUE = 0x0609_0030
 logger = logging.getLogger(__name__)
 
-FD_MAPPING = force_fd_entries()
+FD_MAPPING: tuple[MappedEntry, ...] = force_fd_entries()
 """A whole sample in one CAN FD TPDO: 27 forces, 0x2005, 0x2006, and the contact's net Fz,
 CoP x, y and state (64 bytes; without a contact summary its state says ``unknown``)."""
 
@@ -97,7 +97,6 @@ def map_fd(node: ForceNode) -> None:
         store.set_data(TPDO_COMM, 1, (cob & ~COB_ID_INVALID).to_bytes(4, "little"))
 
 
-@functools.lru_cache(maxsize=128)
 def force_node_cob_ids(node_id: int) -> frozenset[int]:
     """Every COB-ID a force node at ``node_id`` transmits on by default (EDS values).
 
@@ -128,23 +127,17 @@ class ForceNode(LocalDevice):
         self.on_tare: Callable[[], None] | None = None
         """Called when a master writes 1 to 0x2007 (on the SDO server's thread); an
         exception refuses the write: :class:`SkinError` with abort 0x08000022."""
-        self.contact = (PatchContact() if contact is True else
-                        contact if isinstance(contact, PatchContact) else None)
+        self.contact: PatchContact | None = (
+            PatchContact() if contact is True else
+            contact if isinstance(contact, PatchContact) else None)
+        """The patch's contact judge (None: no contact summary)."""
+        self._summarizer = ContactSummarizer()
+        self._batcher = FrameBatcher()
         self._clear_application()
         super().__init__(node_id, "skin-forces", TPDO_COUNT, serial=node_id, nv=nv)
 
     def _on_store_built(self) -> None:
         self.store.validators.append(self._tare)
-
-    @property
-    def contact(self) -> PatchContact | None:
-        """The patch's contact judge (None: no contact summary)."""
-        return self._contact
-
-    @contact.setter
-    def contact(self, judge: PatchContact | None) -> None:
-        self._contact = judge
-        judges_changed()
 
     @property
     def codec(self) -> PdoCodec:
@@ -186,10 +179,9 @@ class ForceNode(LocalDevice):
         r = None if reason is None else np.asarray(reason, dtype=np.uint8).reshape(1, 9)
         contact = None
         if self.contact is not None:
-            from canbus.master.contact import summarize_batch
-
-            contact = summarize_batch([self.contact], f, v, decoded=False)
-        return batch_frames([self], f, v, np.array([complete]), r, answered, contact)[0]
+            contact = self._summarizer.batch([self.contact], f, v, decoded=False)
+        return self._batcher.frames([self], f, v, np.array([complete]), r, answered,
+                                    contact)[0]
 
     def adopt(self, forces_mN: NDArray[np.int16], status: NDArray[np.uint8],
                valid: int, answered: int, contact: ContactBatch | None = None,

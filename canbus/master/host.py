@@ -4,6 +4,7 @@
 
     with HostManager(bus, load_host_config("host.toml")) as host:
         host.on_forces(print)                      # callback(frame: ForceFrame)
+        host.on_raw_samples(print)                 # callback(samples: list[RawSample])
         for frame in host.frames(timeout=1.0):     # or iterate
             ...
         host.health()                              # {node_id: PatchHealth}
@@ -70,6 +71,7 @@ from canbus.master.lss_assign import Assignment, assign_at_start, force_node_sto
 from canbus.master.patchchannels import PatchChannels
 from canbus.master.patchstate import STATES, Facts, PatchStates, Transition
 from canbus.master.policy import HostParts, Policy
+from canbus.master.rawsample import RawSubscriber
 from canbus.master.records import PatchHealth, PatchRecord
 from canbus.master.sync_producer import SyncFollower, SyncProducer
 from canbus.master.taxel_log import TaxelLog
@@ -77,7 +79,7 @@ from canbus.od import load_od
 from canbus.rxfilter import echoes_own_frames
 from skin.errors import BusError
 
-__all__ = ["STATES", "ForceFrame", "HostManager", "PatchHealth", "PatchLoadedError"]
+__all__ = ("STATES", "ForceFrame", "HostManager", "PatchHealth", "PatchLoadedError")
 
 logger = logging.getLogger(__name__)
 
@@ -111,6 +113,7 @@ class HostManager:
         self.unknown_nodes: dict[int, UnknownNode] = {}
         self.decoders = DecoderCache()
         self.fanout = FrameFanout()
+        self._raw_subscribers: tuple[RawSubscriber, ...] = ()
         self.events = EventHooks()
         self.taxel_log = TaxelLog()
         self._lifecycle = threading.RLock()  # start and stop, one at a time
@@ -211,6 +214,8 @@ class HostManager:
                 link.dataplane.sync_echo = echoes_own_frames(link.bus) and \
                     self.config.sync_counter and not self.config.sync_following
                 link.dataplane.subscribe(self._on_frames)
+                for raw in self._raw_subscribers:
+                    link.dataplane.subscribe_raw(raw)
         for patch in self.patches.values():  # one sample per SYNC from the first
             self.channels.placeholder(patch, self.policy.planned(patch))
         self.states.announce()
@@ -321,6 +326,25 @@ class HostManager:
 
     def remove_callback(self, callback: FrameCallback) -> None:
         self.fanout.remove_callback(callback)
+
+    def on_raw_samples(self, callback: RawSubscriber) -> None:
+        """Call ``callback(samples)`` with each published batch's raw samples (each patch's
+        resistances as it sent them, before the host's scale and decoder:
+        :class:`~canbus.master.rawsample.RawSample`), on a data plane's thread; keep it
+        short, as :meth:`on_forces`'s. An exception is logged and counted in its bus's data
+        plane counters (:meth:`bus_stats`, ``callback_errors``)."""
+        with self._lifecycle:
+            self._raw_subscribers = (*self._raw_subscribers, callback)
+            for link in self.links.values():
+                if link.dataplane is not None:
+                    link.dataplane.subscribe_raw(callback)
+
+    def remove_raw_callback(self, callback: RawSubscriber) -> None:
+        with self._lifecycle:
+            self._raw_subscribers = tuple(c for c in self._raw_subscribers if c != callback)
+            for link in self.links.values():
+                if link.dataplane is not None:
+                    link.dataplane.unsubscribe_raw(callback)
 
     def on_event(self, callback: EventCallback) -> None:
         """Call ``callback(event)`` for every patch state change

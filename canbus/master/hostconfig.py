@@ -17,6 +17,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 from canbus.master.busconfig import BusConfig, buses_from_dict
@@ -212,21 +213,21 @@ def _checked(config: HostConfig) -> HostConfig:
     return replace(config, checked=True)
 
 
-_HOST_FIELDS: dict[str, type] = {
+_HOST_FIELDS: Mapping[str, type] = MappingProxyType({
     "sync_period_ms": float, "sync_window_ms": float, "sync_counter": bool,
     "heartbeat_ms": int, "force_heartbeat_ms": int, "sdo_timeout_ms": int, "scan": bool,
     "scan_ms": int, "other_nodes": list, "tare_threshold_N": float, "queue_size": int,
     "listen_only": bool, "sync": str, "lss": str, "lss_store": bool, "state_dir": str,
-}
+})
 LSS_MODES = ("", "auto")
-HOST_RANGES: dict[str, tuple[float, float]] = {
+HOST_RANGES: Mapping[str, tuple[float, float]] = MappingProxyType({
     "sync_period_ms": (0.0, 60_000.0), "sync_window_ms": (0.0, 60_000.0),
     "heartbeat_ms": (1, 0xFFFF), "force_heartbeat_ms": (0, 0xFFFF),
     "sdo_timeout_ms": (1, 600_000), "scan_ms": (0, 600_000), "tare_threshold_N": (0.0, 1e4),
     "queue_size": (1, 1_000_000),
-}
+})
 """The number fields of [host]: integers in low..high, floats above low and up to high."""
-DRIFT_RANGES = {"time_constant_s": 1e6, "contact_N": 1e4}
+DRIFT_RANGES = MappingProxyType({"time_constant_s": 1e6, "contact_N": 1e4})
 SYNC_MODES = ("produce", "external")
 _PATCH_FIELDS = ("node_id", "decoder", "model", "mode", "force_node", "force_cob_ids",
                  "constants", "r0_ohm", "answer_order", "position_m", "bus", "force_bus",

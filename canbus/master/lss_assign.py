@@ -42,7 +42,7 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-MAX_AUTO = len(fields.NODE_IDS)
+MAX_AUTO = fields.NODE_IDS.stop - 1
 RETRIES = 3
 
 

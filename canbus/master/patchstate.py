@@ -23,6 +23,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from typing import Protocol
 
 from canbus.master.patch_setup import PatchSetup
@@ -32,7 +33,7 @@ logger = logging.getLogger(__name__)
 STATES = ("absent", "configuring", "operational", "stopped", "lost", "failed")
 OPERATIONAL, STOPPED = 0x05, 0x04  # NMT state bytes of a heartbeat
 HISTORY_KEPT = 16  # state changes of a patch kept for health() and --json
-LEVELS = {"lost": logging.WARNING, "failed": logging.ERROR}
+LEVELS = MappingProxyType({"lost": logging.WARNING, "failed": logging.ERROR})
 
 
 class Liveness(Protocol):

@@ -11,6 +11,13 @@ publishing thread, after the batch's force TPDOs went onto the bus. Keep it shor
 next batch waits for it) and do not block: a slow consumer should queue and drop, as
 ``canbus.master.fanout`` does. An exception is logged and counted
 (``callback_errors``); the other subscribers still get the batch.
+
+Raw subscribers (:meth:`Publisher.subscribe_raw`) get each batch as it was before the
+host's scale and decoders: ``callback(samples)``, a list of
+:class:`~canbus.master.rawsample.RawSample` (the resistances as the patches sent them),
+one per sample of the batch (a sample whose decoder failed too), in the order they were
+published; on the publishing thread, after the force frames went to the subscribers,
+under the same rules.
 """
 
 from __future__ import annotations
@@ -31,9 +38,10 @@ from canbus.master.channel import (
     SampleJob,
     Subscriber,
 )
-from canbus.master.contact import contact_rows, summarize_nodes
-from canbus.master.forceframes import batch_frames
+from canbus.master.contact import ContactSummarizer, contact_rows
+from canbus.master.forceframes import FrameBatcher
 from canbus.master.forcenode import ForceNode
+from canbus.master.rawsample import RawSample, RawSubscriber, raw_samples
 from canbus.txmessage import TxMessage
 from decoder.protocol import Decoder
 from decoder.reasons import Reason
@@ -50,7 +58,10 @@ class Publisher:
         self.bus = bus
         self.stats = stats
         self._subscribers: tuple[Subscriber, ...] = ()  # replaced, never mutated
+        self._raw_subscribers: tuple[RawSubscriber, ...] = ()  # likewise
         self._subscribing = threading.Lock()
+        self._summarizer = ContactSummarizer()
+        self._batcher = FrameBatcher()
         self._raw: dict[int, NDArray[np.float64]] = {}
         self.steady_from_cycle: int | None = None
         """Samples of this cycle on are the steady state's (set by the data plane)."""
@@ -66,6 +77,16 @@ class Publisher:
     def unsubscribe(self, callback: Subscriber) -> None:
         with self._subscribing:
             self._subscribers = tuple(c for c in self._subscribers if c != callback)
+
+    def subscribe_raw(self, callback: RawSubscriber) -> None:
+        """Call ``callback(samples)`` with every published batch's raw samples (module
+        docstring)."""
+        with self._subscribing:
+            self._raw_subscribers = (*self._raw_subscribers, callback)
+
+    def unsubscribe_raw(self, callback: RawSubscriber) -> None:
+        with self._subscribing:
+            self._raw_subscribers = tuple(c for c in self._raw_subscribers if c != callback)
 
     def raw_sample(self, node_id: int) -> NDArray[np.float64] | None:
         """The last complete ``(9, P)`` resistances of a patch in ohm, before its scale."""
@@ -84,13 +105,16 @@ class Publisher:
     # -- publishing ---------------------------------------------------------------------
 
     def publish(self, jobs: list[SampleJob]) -> None:
-        """Decode the jobs, send their force TPDOs, hand the frames to the subscribers."""
-        force, valid, reason, decoded = self._decode(jobs, errors=True)
+        """Decode the jobs, send their force TPDOs, hand the frames to the subscribers and
+        the raw samples to the raw subscribers."""
+        force, valid, reason, decoded, samples = self._decode(jobs, errors=True)
         if decoded.all():
             self._send(jobs, force, valid, reason)
         else:
             kept = np.flatnonzero(decoded)
             self._send([jobs[i] for i in kept], force[kept], valid[kept], reason[kept])
+        if samples:
+            self._hand_raw(samples)
 
     def warm_up(self, jobs: list[SampleJob]) -> None:
         """Run the publishing path once on these samples (at rest), sending nothing and
@@ -98,16 +122,18 @@ class Publisher:
         first time; a decoder that fails here raises."""
         if not jobs:
             return
-        force, valid, reason, _ = self._decode(jobs, errors=False)
+        force, valid, reason, _, _ = self._decode(jobs, errors=False)
         nodes = [job.slot.channel.force_node for job in jobs]
-        batch_frames(nodes, force, valid, np.zeros(len(jobs), bool), reason, 0)
+        self._batcher.frames(nodes, force, valid, np.zeros(len(jobs), bool), reason, 0)
         for node in nodes:
             node.clear_sample()  # an SDO read shows "no value" until the first sample
 
     def _decode(self, jobs: list[SampleJob], *, errors: bool) -> tuple[
-            NDArray[np.float64], NDArray[np.bool_], NDArray[np.uint8], NDArray[np.bool_]]:
-        """Forces, validity, reasons and which rows decoded; ``errors``: a failing decoder
-        is logged and counted (else it raises)."""
+            NDArray[np.float64], NDArray[np.bool_], NDArray[np.uint8], NDArray[np.bool_],
+            list[RawSample]]:
+        """Forces, validity, reasons, which rows decoded and, for the raw subscribers, the
+        raw samples; ``errors``: a failing decoder is logged and counted (else it raises;
+        a warm-up, which hands nothing on)."""
         n = len(jobs)
         missing = np.zeros((n, TAXELS_PER_PATCH), dtype=bool)
         masked = np.zeros((n, TAXELS_PER_PATCH), dtype=bool)
@@ -115,7 +141,10 @@ class Publisher:
             if job.missing:
                 missing[i] = job.slot.taxels_of(job.missing)
             masked[i] = job.slot.channel.masked
-        resistance = self._resistances(jobs, missing | masked, keep=errors)
+        raw: dict[int, NDArray[np.float64]] | None = \
+            {} if errors and self._raw_subscribers else None
+        resistance = self._resistances(jobs, missing | masked, keep=errors, raw_out=raw)
+        samples = [] if raw is None else raw_samples(jobs, raw, missing, masked)
         force = np.zeros((n, TAXELS_PER_PATCH, 3))
         reason = np.zeros((n, TAXELS_PER_PATCH), dtype=np.uint8)
         decoded = np.zeros(n, dtype=bool)
@@ -137,12 +166,14 @@ class Publisher:
         reason[masked] = Reason.FAULTY
         valid = reason == 0
         force[~valid] = 0.0
-        return force, valid, reason, decoded
+        return force, valid, reason, decoded, samples
 
     def _resistances(self, jobs: Sequence[SampleJob], undecodable: NDArray[np.bool_], *,
-                     keep: bool) -> NDArray[np.float64]:
+                     keep: bool, raw_out: dict[int, NDArray[np.float64]] | None = None
+                     ) -> NDArray[np.float64]:
         """``(n, 9, 3)``: each job's ``(9, P)`` ohms in ``[:, :, :P]``, scaled, NaN where
-        ``undecodable``; one unpack per layout.
+        ``undecodable``; one unpack per layout. ``raw_out``: gets job i's ohms before the
+        scale as ``raw_out[i]``.
 
         NaN, not a stale or faulty reading, so that a decoder that couples taxels (deconv)
         treats those taxels as invalid rather than spreading them to their neighbours.
@@ -171,6 +202,8 @@ class Publisher:
             for m, i in enumerate(rows):
                 if keep and jobs[i].complete:
                     self._raw[channels[m].node_id] = raw[m]
+            if raw_out is not None:
+                raw_out.update(zip(rows, raw, strict=True))
             shape = raw.shape[1:]
             scales = [channel.scale if channel.baseline is None else channel.baseline.scale
                       for channel in channels]
@@ -191,9 +224,9 @@ class Publisher:
             return
         complete = [job.complete for job in jobs]
         nodes = [job.slot.channel.force_node for job in jobs]
-        contact = summarize_nodes(nodes, force, valid)
-        frames = batch_frames(nodes, force, valid, np.array(complete), reason,
-                              [job.cycle[1] for job in jobs], contact)
+        contact = self._summarizer.nodes(nodes, force, valid)
+        frames = self._batcher.frames(nodes, force, valid, np.array(complete), reason,
+                                      [job.cycle[1] for job in jobs], contact)
         # Every frame onto the bus first: the frames for the API come after.
         published = [node.transmitting and self._transmit(f, bus_of(node, self.bus))
                      for node, f in zip(nodes, frames, strict=True)]
@@ -225,6 +258,14 @@ class Publisher:
             except Exception:
                 stats.callback_errors += 1
                 logger.exception("data plane: subscriber %r failed", callback)
+
+    def _hand_raw(self, samples: list[RawSample]) -> None:
+        for callback in self._raw_subscribers:
+            try:
+                callback(samples)
+            except Exception:
+                self.stats.callback_errors += 1
+                logger.exception("data plane: raw subscriber %r failed", callback)
 
     def _follow_baselines(self, jobs: list[SampleJob], frames: list[ForceFrame]) -> None:
         """Remember each patch's last complete sample (for tare) and track drift on it."""

@@ -16,7 +16,7 @@ from canbus.master.hostconfig import PatchConfig
 from canbus.master.patchstate import STATES
 from skin.constants import TAXELS_PER_PATCH
 
-__all__ = ["STATES", "PatchHealth", "PatchRecord"]
+__all__ = ("STATES", "PatchHealth", "PatchRecord")
 
 
 @dataclass(frozen=True)

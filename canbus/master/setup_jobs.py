@@ -26,6 +26,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
+from types import MappingProxyType
 
 from canopen.sdo.exceptions import SdoAbortedError
 
@@ -47,7 +48,7 @@ logger = logging.getLogger(__name__)
 NMT_START, NMT_PRE_OPERATIONAL = 0x01, 0x80
 BACKOFF_MIN_S, BACKOFF_MAX_S = 0.1, 1.0
 PERMANENT_AFTER = 3
-REFUSALS = {
+REFUSALS = MappingProxyType({
     0x06010000: "unsupported access to an object",
     0x06010001: "attempt to read a write-only object",
     0x06010002: "attempt to write a read-only object",
@@ -56,7 +57,7 @@ REFUSALS = {
     0x06040042: "the mapped objects would exceed the PDO length",
     0x06090011: "sub-index does not exist",
     0x06090030: "value range of parameter exceeded",
-}
+})
 """SDO abort codes with which a patch refuses what the config asks of it: a conflict
 between the config and the device, not a passing fault."""
 

@@ -16,6 +16,7 @@ import socket
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 from skin.errors import ConfigError, SkinError
@@ -58,12 +59,12 @@ TLS_KEYS = ("root_ca_certificate", "listen_certificate", "listen_private_key",
             "connect_certificate", "connect_private_key")
 TLS_FLAGS = ("enable_mtls", "verify_name_on_connect")
 _ENDPOINT = re.compile(r"[a-z][a-z0-9-]*/\S+")
-_DEFAULT_OPTIONS: dict[str, Any] = {
+_DEFAULT_OPTIONS: Mapping[str, Any] = MappingProxyType({
     "adminspace/enabled": False,
     # batches a link holds for the forces' priority (Zenoh's default 2): a reader's link
     # rides out a publishing host or network stalled for a moment instead of dropping
     "transport/link/tx/queue/size/data_high": 8,
-}
+})
 _FIELDS = ("enabled", "mode", "listen", "connect", "scouting", "prefix", "host", "queue_size",
            "stats_period_s", "express", "tls", "config_file", "options")
 

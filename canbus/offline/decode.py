@@ -23,6 +23,7 @@ import can
 from canbus.master.dataplane import ForceFrame
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig
+from canbus.master.rawsample import RawSubscriber
 from canbus.tools.recording import Recording
 from skin.errors import BusError
 
@@ -78,9 +79,12 @@ class RecordingBus(can.BusABC):
 
 
 def decode_recording(path: str | os.PathLike[str], config: HostConfig, *,
-                     on_frame: Callable[[ForceFrame], None] | None = None) -> list[ForceFrame]:
+                     on_frame: Callable[[ForceFrame], None] | None = None,
+                     on_raw: RawSubscriber | None = None) -> list[ForceFrame]:
     """Every force sample a listen-only host publishes for the recording at ``path``, in
     the order it publishes them. ``config``'s buses: one (the recording is its bus).
+    ``on_raw``: given each published batch's raw samples (the resistances as the patches
+    sent them, :mod:`canbus.master.rawsample`).
 
     Raises :class:`~skin.errors.RecordingError` for a damaged recording (after decoding
     what comes before the damaged frame), :class:`~skin.errors.BusError` for a config
@@ -106,6 +110,8 @@ def decode_recording(path: str | os.PathLike[str], config: HostConfig, *,
         host.on_forces(frames.append)
         if on_frame is not None:
             host.on_forces(on_frame)
+        if on_raw is not None:
+            host.on_raw_samples(on_raw)
         with host:  # the notifier asks for the next frame only once it handed this one on
             bus.finished.wait()
     finally:

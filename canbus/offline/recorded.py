@@ -4,12 +4,14 @@ data plane judges a live bus.
 :func:`read_patch_samples` first reads what the recording shows about each patch
 (:mod:`canbus.tools.recording_facts`: the TPDO mapping its SDO writes left, its heartbeat,
 LSB and R0, the SYNC period), then plays the recording through the listen-only host on
-the recording's own clock (:func:`canbus.offline.decode.decode_recording`). Each patch's
-decoder there is :class:`_Readings`, which decodes nothing: it hands the resistances the
-data plane assembled back through the force frame. So a sample is complete, incomplete
-or missing by exactly the data plane's answer rules (one unbroken run of one answer per
-SYNC, in its window), its taxels are masked by the EMCYs on the bus, and a patch that
-stopped beating is lost, as on the live bus; nothing of those rules is repeated here.
+the recording's own clock (:func:`canbus.offline.decode.decode_recording`), and keeps the
+raw samples its publisher hands on (:class:`~canbus.master.rawsample.RawSample`: the
+resistances the data plane assembled, before any decoder). So a sample is complete,
+incomplete or missing by exactly the data plane's answer rules (one unbroken run of one
+answer per SYNC, in its window), its taxels are masked by the EMCYs on the bus, and a
+patch that stopped beating is lost, as on the live bus; nothing of those rules is
+repeated here. The host decodes with the analytic decoder, the default of a config
+without a model; its forces are not read.
 """
 
 from __future__ import annotations
@@ -18,22 +20,21 @@ import dataclasses
 import math
 import os
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, ClassVar, Self
+from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from canbus.master.busconfig import BusConfig
 from canbus.master.hostconfig import FORCE_NODE_OFFSET, HostConfig, PatchConfig
 from canbus.master.patch_setup import tpdo_layouts
+from canbus.master.rawsample import RawSample
 from canbus.offline.decode import decode_recording
 from canbus.pdo_codec import TpdoLayout
 from canbus.tools.recording_facts import RecordingFacts, scan_recording
-from decoder.protocol import Decoded, Progress, fold_resistance, unfold
 from decoder.reasons import Reason, classify_resistance, worst_reason
-from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH, SensorConstants
-from skin.errors import ConfigError, ModelFileError, RecordingError
+from skin.constants import DEFAULT_CONSTANTS, TAXELS_PER_PATCH
+from skin.errors import ConfigError, RecordingError
 
 MAPPINGS = ("z", "xyz", "fd-z", "fd-xyz")
 """What ``--mapping`` names: the host's mapping of a mode, classic or CAN FD."""
@@ -106,40 +107,6 @@ class RecordedSamples:
     config: HostConfig  # the listen-only host's config the recording was read with
 
 
-class _Readings:
-    """A "decoder" that decodes nothing: the resistances come back as the force frame's
-    ``force_N`` (a (9, 3) row holds the (9, P) readings), so the data plane's frame of each
-    sample carries what it assembled. Only :func:`read_patch_samples` uses it."""
-
-    name: ClassVar[str] = "recorded-readings"
-    needs_fitting: ClassVar[bool] = False
-
-    def __init__(self, pillars: int, constants: SensorConstants) -> None:
-        self.pillars_ = pillars
-        self.constants = constants
-
-    def fit(self, resistance_ohm: ArrayLike, force_N: ArrayLike, *,
-            progress: Progress | None = None) -> Self:
-        return self  # nothing to learn
-
-    def decode(self, resistance_ohm: ArrayLike) -> Decoded:
-        r, lead = fold_resistance(resistance_ohm)
-        force = np.zeros((r.shape[0], TAXELS_PER_PATCH, 3))
-        force[:, :, : r.shape[2]] = r
-        # The reserved codes: open and saturated read +inf (OPEN), short 0 ohm (SHORT).
-        reason = worst_reason(classify_resistance(r, self.constants))
-        valid = reason == Reason.OK
-        force[~valid] = 0.0
-        return unfold(Decoded(force, valid, reason), lead)
-
-    def save(self, path: str | os.PathLike[str]) -> None:
-        raise ModelFileError("recorded readings are not a model: there is nothing to save")
-
-    @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> Self:
-        raise ModelFileError("recorded readings are not a model: there is nothing to load")
-
-
 def resolve_mappings(facts: RecordingFacts, override: str | None = None
                      ) -> dict[int, PatchMapping]:
     """Each patch's mapping: ``override`` (one of :data:`MAPPINGS`) or what the recording
@@ -207,10 +174,8 @@ def listen_config(facts: RecordingFacts, mappings: dict[int, PatchMapping], *,
         force = node + FORCE_NODE_OFFSET
         if force > 127 or force in ids:
             force = max(set(range(1, 128)) - ids - {p.force_node for p in patches})
-        patches.append(PatchConfig(
-            node_id=node, model=Path(f"(readings of patch {node})"), mode=mapping.mode,
-            prototype=_Readings(mapping.pillars, constants), constants=constants,
-            force_node=force, answer_order=answer_order))
+        patches.append(PatchConfig(node_id=node, mode=mapping.mode, constants=constants,
+                                   force_node=force, answer_order=answer_order))
     return HostConfig(
         patches=tuple(patches), sync_period_ms=period_ms, sync_window_ms=window,
         heartbeat_ms=heartbeat_ms or _heartbeat_ms(facts), listen_only=True, scan=False,
@@ -240,14 +205,19 @@ def read_patch_samples(path: str | os.PathLike[str], node_ids: tuple[int, ...], 
     mappings = resolve_mappings(facts, mapping)
     config = listen_config(facts, mappings, sync_window_ms=sync_window_ms,
                            heartbeat_ms=heartbeat_ms, answer_order=answer_order)
-    frames = decode_recording(path, config)
+    samples: list[RawSample] = []
+    decode_recording(path, config, on_raw=samples.extend)
     patches = {}
     for node, mapped in mappings.items():
-        mine = sorted((f for f in frames if f.patch == node), key=lambda f: f.cycle)
-        p = mapped.pillars
+        mine = sorted((s for s in samples if s.patch == node), key=lambda s: s.cycle)
         n = len(mine)
-        readings = np.array([f.force_N[:, :p] for f in mine]).reshape(n, TAXELS_PER_PATCH, p)
-        reason = np.array([f.reason for f in mine], dtype=np.uint8).reshape(n, TAXELS_PER_PATCH)
+        constants = config.patch(node).constants or DEFAULT_CONSTANTS
+        readings = np.array([s.resistance_ohm for s in mine]).reshape(
+            n, TAXELS_PER_PATCH, mapped.pillars)
+        seen = np.array([s.reason for s in mine], dtype=np.uint8).reshape(n, TAXELS_PER_PATCH)
+        # The reserved codes: open and saturated read +inf (OPEN), short 0 ohm (SHORT).
+        reason = np.where(seen != Reason.OK, seen,
+                          worst_reason(classify_resistance(readings, constants)))
         readings[reason != Reason.OK] = np.nan
         facts_of = facts.patches[node]
         r0 = None
@@ -255,11 +225,10 @@ def read_patch_samples(path: str | os.PathLike[str], node_ids: tuple[int, ...], 
             r0 = np.array([facts_of.r0_ohm[s] for s in range(1, 28)]).reshape(9, 3)
         patches[node] = PatchSamples(
             node_id=node, mapping=mapped,
-            cycle=np.array([f.cycle for f in mine], dtype=np.int64),
-            sync_counter=np.array([f.sync_counter for f in mine], dtype=np.int64),
-            time_s=np.array([f.timestamp for f in mine], dtype=np.float64),
-            complete=np.array([f.complete for f in mine], dtype=bool),
-            resistance_ohm=readings, reason=reason,
-            lsb_ohm=(config.patch(node).constants or DEFAULT_CONSTANTS).resistance_lsb_ohm,
-            r0_reported_ohm=r0)
+            cycle=np.array([s.cycle for s in mine], dtype=np.int64),
+            sync_counter=np.array([s.sync_counter for s in mine], dtype=np.int64),
+            time_s=np.array([s.timestamp for s in mine], dtype=np.float64),
+            complete=np.array([s.complete for s in mine], dtype=bool),
+            resistance_ohm=readings, reason=reason.astype(np.uint8),
+            lsb_ohm=constants.resistance_lsb_ohm, r0_reported_ohm=r0)
     return RecordedSamples(os.fspath(path), patches, facts, config)

@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from canbus import codes, contact_record
 from canbus.device.patch_node import PatchNode
-from canbus.master.contact import PatchContact, summarize_batch
+from canbus.master.contact import ContactSummarizer, PatchContact
 from canbus.master.dataplane import DataPlane, ForceFrame, PatchChannel
 from canbus.master.forceframes import VALID, forces_to_mN, valid_bits
 from canbus.master.forcenode import ForceNode
@@ -185,6 +185,7 @@ class CanopenRig:
                  contact: Callable[[int], PatchContact] | None = None) -> None:
         self.decoder = decoder
         self.contacts = None if contact is None else [contact(n.node_id) for n in stream.nodes]
+        self.summarizer = ContactSummarizer()
         self.sink = SinkBus()
         self.network = canopen.Network(self.sink)
         self.listener = canopen.network.MessageListener(self.network)
@@ -254,7 +255,7 @@ class CanopenRig:
                                           bits[:, None].astype(np.int64)]
         if self.contacts is not None:
             force = np.where(valid[..., None], decoded.force_N, 0.0)
-            batch = summarize_batch(self.contacts, force, valid)
+            batch = self.summarizer.batch(self.contacts, force, valid)
             parts.append(contact_record.encode(batch, range(1, contact_record.SUBS + 1)))
         rows: list[list[int]] = np.concatenate(parts, axis=1).tolist()
         for row, maps in zip(rows, self.publishers, strict=True):

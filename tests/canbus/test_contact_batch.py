@@ -14,7 +14,12 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from canbus import contact_record
-from canbus.master.contact import PatchContact, summarize_batch, summarize_nodes
+from canbus.master.contact import (
+    ContactSummarizer,
+    PatchContact,
+    summarize_batch,
+    summarize_nodes,
+)
 from canbus.master.forceframes import batch_frames, forces_to_mN
 from canbus.master.forcenode import CONTACT_TPDO, ForceNode
 from canbus.pdo_codec import COB_ID_INVALID, TPDO_COMM, TPDO_MAP
@@ -226,3 +231,53 @@ def test_every_mapping_sends_what_the_summary_encodes(stream: Stream, subs: list
     for i, node in enumerate(nodes):
         assert [int(node.store.value(0x2000, s)) for s in range(1, 28)] == \
             mN[i].reshape(27).tolist()
+
+
+@dataclass
+class Holder:
+    """A force node as the summarizer reads it: its contact judge."""
+
+    contact: PatchContact | None
+
+
+def _twin(judge: PatchContact | None) -> PatchContact | None:
+    if judge is None:
+        return None
+    twin = PatchContact(judge.geometry, judge.params)
+    twin.state = judge.state
+    return twin
+
+
+@settings(max_examples=60, deadline=None)
+@given(stream=streams(max_rows=8), edits=st.lists(st.tuples(
+    st.integers(0, 7), st.sampled_from(["params", "geometry", "replace", "remove"]),
+    judges()), min_size=1, max_size=6))
+def test_a_summarizer_s_kept_compositions_follow_their_judges(
+        stream: Stream, edits: list[tuple[int, str, PatchContact]]) -> None:
+    """Batch after batch, a summarizer that keeps its compositions gives what one made anew
+    gives, whatever changed in between: a judge's thresholds or geometry, a node's judge
+    replaced or taken away."""
+    kept = ContactSummarizer()
+    nodes = [Holder(stream.judges[o]) for o in stream.owner]
+    twins = {id(j): _twin(j) for j in stream.judges}
+    fresh = [Holder(twins[id(node.contact)]) for node in nodes]
+    n = len(nodes)
+    for row, what, other in [(0, "none", PatchContact()), *edits]:
+        node, twin = nodes[row % n], fresh[row % n]
+        if what in ("params", "geometry") and node.contact is not None:
+            assert twin.contact is not None
+            setattr(node.contact, what, getattr(other, what))
+            setattr(twin.contact, what, getattr(other, what))
+        elif what == "replace":
+            node.contact, twin.contact = other, _twin(other)
+        elif what == "remove":
+            node.contact = twin.contact = None
+        ours = kept.nodes(nodes, stream.force, stream.valid)
+        anew = summarize_nodes(fresh, stream.force, stream.valid)
+        assert (ours is None) == (anew is None)
+        if ours is None or anew is None:
+            continue
+        np.testing.assert_array_equal(ours.instant.sums, anew.instant.sums)
+        np.testing.assert_array_equal(ours.state_byte, anew.state_byte)
+        assert [n.contact.state for n in nodes if n.contact is not None] == \
+            [n.contact.state for n in fresh if n.contact is not None]
