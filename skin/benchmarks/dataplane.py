@@ -351,6 +351,29 @@ def notifier_rate(frames: int = 20_000) -> float:
         queued.close()
 
 
+def notifier_threads(bus: can.BusABC) -> list[str]:
+    """The name python-can gives the receive thread of a ``Notifier`` on ``bus``."""
+    return [f'Notifier for bus "{bus.channel_info}"']
+
+
+class ReceiveSideClock:
+    """The CPU time the named threads (the receive side: the Notifier's thread, the data
+    plane's) spend from now on, read from each thread's own CPU clock: the sender in the
+    same process, and the GIL it holds, are not counted."""
+
+    def __init__(self, names: list[str]) -> None:
+        threads = {t.name: t for t in threading.enumerate()}
+        missing = [name for name in names if name not in threads]
+        if missing:
+            raise BusError(f"no thread named {missing} to time")
+        self.clocks = [time.pthread_getcpuclockid(threads[n].ident or 0) for n in names]
+        self.start = [time.clock_gettime(c) for c in self.clocks]
+
+    def seconds(self) -> float:
+        return sum(time.clock_gettime(c) - s for c, s in zip(self.clocks, self.start,
+                                                               strict=True))
+
+
 def pipeline_rate(stream: Stream, decoder: Decoder,
                   contact: Callable[[int], PatchContact] | None = None, *,
                   bus: dict[str, Any] | None = None, recorder: Any = None,
@@ -373,6 +396,7 @@ def pipeline_rate(stream: Stream, decoder: Decoder,
     enlarge_receive_buffer(receiver, DEFAULT_RCVBUF)  # as the commands do (a socket bus)
     rig = DataPlaneRig(stream, decoder, background=True, window_s=0.0, contact=contact)
     notifier = can.Notifier(receiver, [rig.plane], timeout=0.05)
+    receiving = ReceiveSideClock([*notifier_threads(receiver), "dataplane"])
     tap = None
     if isinstance(recorder, can.Listener):
         tapped = can.Bus(**bus)
@@ -403,6 +427,7 @@ def pipeline_rate(stream: Stream, decoder: Decoder,
                 time.sleep(50e-6)
         rig.plane.flush()
         elapsed = time.perf_counter() - start
+        receive_cpu = receiving.seconds()
         stats = rig.plane.stats.snapshot()
     finally:
         notifier.stop(timeout=1.0)
@@ -413,6 +438,7 @@ def pipeline_rate(stream: Stream, decoder: Decoder,
         receiver.shutdown()
         rig.close()
     return {"frames_per_s": stats["frames_in"] / elapsed,
+            "receive_frames_per_cpu_s": stats["frames_in"] / max(receive_cpu, 1e-9),
             "complete": float(stats["complete_samples"] == stats["samples"]),
             "mean_batch": stats["samples"] / max(stats["batches"], 1)}
 
@@ -470,6 +496,9 @@ def run_dataplane_benchmark(patches: int = 16, cycles: int = 300, mode: str = "x
     pipeline = max((pipeline_rate(stream, decoder, judge) for _ in range(min(repeats, 3))),
                    key=lambda figures: figures["frames_per_s"])
     result["pipeline_frames_per_s"] = pipeline["frames_per_s"]
+    result["pipeline_receive_frames_per_cpu_s"] = pipeline["receive_frames_per_cpu_s"]
+    own_cpu_s = best["dataplane"][1]  # the data plane's own path, on the same kind of clock
+    result["pipeline_receive_vs_dataplane"] = pipeline["receive_frames_per_cpu_s"] * own_cpu_s / n
     result["pipeline_mean_batch"] = pipeline["mean_batch"]
     result["pipeline_all_complete"] = bool(pipeline["complete"])
     return result

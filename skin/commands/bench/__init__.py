@@ -103,7 +103,11 @@ def print_dataplane(result: dict[str, Any]) -> None:
     print(f"not included above: python-can virtual bus -> Notifier delivery alone "
                   f"{result['notifier_frames_per_s']:,.0f} frames/s; the whole path (virtual "
                   f"bus, Notifier, data plane thread) {result['pipeline_frames_per_s']:,.0f} "
-                  f"frames/s, {result['pipeline_mean_batch']:.1f} samples per decode")
+                  f"frames/s, {result['pipeline_mean_batch']:.1f} samples per decode; its "
+                  f"receive side (the Notifier's and the data plane's threads, the sender "
+                  f"not counted) {result['pipeline_receive_frames_per_cpu_s']:,.0f} frames per "
+                  f"CPU second, {result['pipeline_receive_vs_dataplane']:.2f}x the data plane's "
+                  f"own per CPU second")
 
 
 def run(args: argparse.Namespace) -> int:
