@@ -12,12 +12,14 @@ need is above what was measured; on a machine that keeps up the two are the same
 * a process needs (or used) at least :data:`PROCESS_LIMIT_PCT` of one core: a Python
   process runs its Python code on one core at a time (the GIL), and with less than a tenth
   of a core left it has no slack for a cycle whose work comes late;
-* the processes together need at least :data:`MACHINE_LIMIT` of the machine's cores: the
-  kernel's own loopback work (softirq) is charged to no process, and a 10 ms cycle needs
-  room to catch up after a late one;
-* the machine was busy (at least :data:`BUSY_LIMIT` of its cores) and at least
-  :data:`OTHER_LIMIT` of its cores went to other work than the bench's processes: the
-  shape then got less than it needed, whatever it needs.
+* the processes together need at least :data:`MACHINE_LIMIT` of the machine's cores: on
+  the 2-core machine of docs/zenoh.md, shapes that needed 42 % and 60 % of it carried
+  every sample, one that needed 74 % lost 0.9 to 1.5 % on the CAN side: seven processes
+  share the cores, each with its part of every 10 ms cycle to do, and the fuller the
+  cores, the longer a process waits for one;
+* other work than the bench's processes took at least :data:`OTHER_LIMIT` of the
+  machine's cores, and with it the machine was asked for at least :data:`MACHINE_LIMIT`
+  of its cores: the shape then got less than it needed, whatever it needs.
 
 In every one of these cases the complete shares measure the machine, not Zenoh.
 """
@@ -29,8 +31,7 @@ from dataclasses import dataclass
 from typing import Any
 
 PROCESS_LIMIT_PCT = 90.0
-MACHINE_LIMIT = 0.8
-BUSY_LIMIT = 0.9
+MACHINE_LIMIT = 0.7
 OTHER_LIMIT = 0.1
 
 
@@ -67,14 +68,15 @@ def verdict(roles: Sequence[Role], capacity_pct: float, machine_busy_pct: float)
                 f"{PROCESS_LIMIT_PCT:.0f} % of one)"
                 for r in roles if r.demand_pct >= PROCESS_LIMIT_PCT]
     need = sum(r.demand_pct for r in roles)
-    if need >= MACHINE_LIMIT * capacity_pct:
+    usable = MACHINE_LIMIT * capacity_pct
+    if need >= usable:
         reasons.append(f"the processes need {need:.0f} % of a core in all, the machine has "
                        f"{capacity_pct:.0f} % ({100 * MACHINE_LIMIT:.0f} % of it usable)")
     other = machine_busy_pct - sum(r.cpu_pct for r in roles)
-    if machine_busy_pct >= BUSY_LIMIT * capacity_pct and other >= OTHER_LIMIT * capacity_pct:
-        reasons.append(f"the machine was busy ({machine_busy_pct:.0f} % of "
-                       f"{capacity_pct:.0f} %), {other:.0f} % of it beyond the bench's "
-                       f"processes")
+    if other >= OTHER_LIMIT * capacity_pct and need + other >= usable:
+        reasons.append(f"the machine was shared: other work took {other:.0f} % of a core, "
+                       f"and with it {need + other:.0f} % of the machine's "
+                       f"{capacity_pct:.0f} % was asked for")
     if reasons:
         return Verdict(False, "; ".join(reasons))
     busiest = max(roles, key=lambda r: r.demand_pct)
