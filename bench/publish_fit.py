@@ -106,10 +106,12 @@ def cpu_figures(windows: Sequence[dict[str, Any]], reader: dict[str, Any],
     runner's window of ``span_s``.
     """
     hosts_pct, host_us, host_frames_s, host_need, full_frames_s = [], [], [], [], 0.0
+    per_cycle: list[float | None] = []
     for window in windows:
         frames = window["frames_received"] + window["frames_sent"]
         cycles = window["last_cycle"] - window["first_cycle"] + 1
-        full = frames / cycles * rate_hz if cycles > 0 else None  # frames/s at the rate
+        per_cycle.append(frames / cycles if cycles > 0 else None)
+        full = None if per_cycle[-1] is None else per_cycle[-1] * rate_hz  # at the rate
         us = 1e6 * window["cpu_s"] / frames if frames else None
         hosts_pct.append(100.0 * _per_s(window["cpu_s"], window["seconds"]))
         host_us.append(us)
@@ -130,7 +132,8 @@ def cpu_figures(windows: Sequence[dict[str, Any]], reader: dict[str, Any],
         "cores": cores, "capacity_pct": 100.0 * cores, "hosts_pct": hosts_pct,
         "simulator_pct": simulator_pct, "reader_pct": reader_pct, "total_pct": total,
         "machine_busy_pct": machine_busy_pct, "other_pct": machine_busy_pct - total,
-        "host_frames_per_s": host_frames_s, "host_us_per_frame": host_us,
+        "host_frames_per_s": host_frames_s, "host_frames_per_cycle": per_cycle,
+        "host_us_per_frame": host_us,
         "simulator_us_per_frame": simulator_us, "reader_us_per_sample": reader_us,
         "need_pct": {"hosts": host_need, "simulator": roles[-2].need_pct,
                      "reader": roles[-1].need_pct,

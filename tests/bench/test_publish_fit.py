@@ -130,6 +130,7 @@ def test_the_need_is_the_cost_per_frame_times_the_frames_the_full_rate_makes() -
     assert cpu["hosts_pct"] == pytest.approx([12.0, 6.0])
     assert cpu["host_us_per_frame"] == pytest.approx([10.0, 10.0])
     assert cpu["host_frames_per_s"] == pytest.approx([12_000.0, 6_000.0])
+    assert cpu["host_frames_per_cycle"] == pytest.approx([120.0, 120.0])
     assert cpu["need_pct"]["hosts"] == pytest.approx([12.0, 12.0])
     assert cpu["simulator_us_per_frame"] == pytest.approx(2e6 / 180_000)
     assert cpu["need_pct"]["simulator"] == pytest.approx(2e6 / 180_000 * 24_000 / 1e4)
