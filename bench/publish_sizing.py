@@ -88,6 +88,7 @@ class ShapeNeed:
 
     hosts_pct: tuple[float, ...]
     simulator_pct: float
+    """0 for a robot (``simulated=False``)."""
     reader_pct: float
     cores: int | None
     """The fewest cores that carry it; None: a process alone needs too much of its core
@@ -104,14 +105,18 @@ def bus_frames_per_cycle(patches: int, buses: int, rate_hz: float) -> list[float
     return [sum(bus.frames_per_s.values()) / rate_hz for bus in shape.buses]
 
 
-def shape_needs(costs: Costs, patches: int, buses: int, rate_hz: float) -> ShapeNeed:
-    """The CPU ``patches`` patches on ``buses`` buses (a host each) need at ``rate_hz``."""
+def shape_needs(costs: Costs, patches: int, buses: int, rate_hz: float, *,
+                simulated: bool = True) -> ShapeNeed:
+    """The CPU ``patches`` patches on ``buses`` buses (a host each) need at ``rate_hz``;
+    ``simulated=False``: the patches are hardware, no simulator runs (a robot)."""
     frames = bus_frames_per_cycle(patches, buses, rate_hz)
     hosts = tuple(costs.host.at(f) * rate_hz / 1e4 for f in frames)
-    simulator = sum(costs.simulator.at(f) for f in frames) * rate_hz / 1e4
+    simulator = sum(costs.simulator.at(f) for f in frames) * rate_hz / 1e4 if simulated \
+        else 0.0
     reader = costs.reader.at(patches * rate_hz) / 1e4
     roles = [*(Role(f"host{k}", pct, pct) for k, pct in enumerate(hosts)),
-             Role("simulator", simulator, simulator), Role("reader", reader, reader)]
+             *([Role("simulator", simulator, simulator)] if simulated else []),
+             Role("reader", reader, reader)]
     total = sum(hosts) + simulator + reader
     if any(r.demand_pct >= PROCESS_LIMIT_PCT for r in roles):
         return ShapeNeed(hosts, simulator, reader, None)

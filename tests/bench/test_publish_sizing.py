@@ -74,5 +74,9 @@ def test_a_shape_gets_the_fewest_cores_that_carry_it_and_none_if_a_process_canno
         assert shape.cores is not None
         usable = MACHINE_LIMIT * 100.0
         assert usable * (shape.cores - 1) <= shape.total_pct < usable * shape.cores
+    robot = shape_needs(per_frame, 32, 4, RATE, simulated=False)
+    assert robot.simulator_pct == 0.0 and robot.hosts_pct == need.hosts_pct
+    assert robot.total_pct == pytest.approx(need.total_pct - need.simulator_pct)
+    assert robot.cores == 2  # 100 % < 60 % of 200 %
     crowded = shape_needs(per_frame, 127, 1, RATE)
     assert max(crowded.hosts_pct) >= PROCESS_LIMIT_PCT and crowded.cores is None
