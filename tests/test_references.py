@@ -35,10 +35,11 @@ def _documents() -> list[Path]:
 
 
 def _prose(path: Path) -> str:
-    """What a reader reads: a document whole; of a source, its docstrings and comments."""
+    """What a reader reads: a document but its Python blocks (run by tests/test_docs.py, their
+    names are variables as often as modules); of a source, its docstrings and comments."""
     text = path.read_text(encoding="utf-8")
     if path.suffix != ".py":
-        return text
+        return PYTHON_BLOCK.sub("", text)
     tree = ast.parse(text)
     parts = [ast.get_docstring(node, clean=False) or "" for node in ast.walk(tree)
              if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef
@@ -52,6 +53,7 @@ def _is_pattern(name: str) -> bool:
                                                      for part in re.split(r"[/.]", name))
 
 
+PYTHON_BLOCK = re.compile(r"^```python\n.*?^```$", re.S | re.M)
 MAKES = re.compile(r'makes="([^"]*)"|makes=(\S+)')
 
 

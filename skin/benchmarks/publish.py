@@ -19,7 +19,11 @@ heard every host, a window of ``seconds`` is measured:
   publishing thread, Zenoh's own threads, the hand-over on the data plane's thread) per
   sample; ``host_cpu_us_per_sample``: the host process's whole CPU per sample;
 * the reader's CPU, the machine's load average, and the two candidate encodings of a
-  sample measured in the same run (:mod:`skin.benchmarks.codecs`).
+  sample measured in the same run (:mod:`skin.benchmarks.codecs`);
+* ``cpu``: where the CPU of the window went (each host, the simulator, the reader, the
+  whole machine) and what each needs at 100 Hz; ``fits_machine`` and ``why``: whether the
+  machine carried the shape (:mod:`skin.benchmarks.publish_fit`). When it did not, the complete
+  shares measure the machine, not Zenoh.
 """
 
 from __future__ import annotations
@@ -39,6 +43,8 @@ from typing import Any
 import numpy as np
 
 from skin.benchmarks.codecs import measure_codecs
+from skin.benchmarks.proccpu import busy_pct, machine_ticks, process_cpu_s, usable_cores
+from skin.benchmarks.publish_fit import cpu_figures
 from skin.benchmarks.publish_host import host_main, receive, send
 from skin.benchmarks.publish_reader import reader_main
 from skin.errors import BusError
@@ -47,6 +53,7 @@ DEFAULT_HOSTS, DEFAULT_PATCHES, DEFAULT_SECONDS = 4, 32, 10.0
 WARMUP_S = 2.0
 DRAIN_S = 0.5
 SCENE = "indenter"
+RATE_HZ = 100.0
 READY_TIMEOUT_S = 120.0
 
 
@@ -109,16 +116,23 @@ def run_publish_benchmark(hosts: int = DEFAULT_HOSTS, patches: int = DEFAULT_PAT
         log(f"measuring {seconds:g} s")
         for conn in [*host_conns, reader_conn]:
             send(conn, {"measure": True})
+        start = _runner_mark(sim)
         time.sleep(seconds)
         for conn in host_conns:
             send(conn, {"stop": True})
+        end = _runner_mark(sim)
         time.sleep(DRAIN_S)
         send(reader_conn, {"stop": True})
         windows = [_wait(conn, f"host {k}") for k, conn in enumerate(host_conns)]
         reader = _wait(reader_conn, "the reader")
     load_after = os.getloadavg()
     result = summarize(windows, reader, patches)
-    result.update(seconds=seconds, express=express, scene=SCENE, rate_hz=100.0,
+    cpu, judged = cpu_figures(
+        windows, reader, result["reader_samples"], end["sim_cpu_s"] - start["sim_cpu_s"],
+        end["wall"] - start["wall"], busy_pct(start["machine"], end["machine"]),
+        usable_cores(), patches, RATE_HZ)
+    result.update(seconds=seconds, express=express, scene=SCENE, rate_hz=RATE_HZ,
+                  cpu=cpu, fits_machine=judged.fits, why=judged.why,
                   codec=codecs, cpu_count=os.cpu_count(),
                   load_average={"before": list(load_before), "after": list(load_after)})
     return result
@@ -161,6 +175,12 @@ def _processes(hosts: int, patches: int, seconds: float, group: str, port: int,
         except subprocess.TimeoutExpired:
             sim.kill()
             sim.wait()
+
+
+def _runner_mark(sim: subprocess.Popen[bytes]) -> dict[str, Any]:
+    """The simulator's CPU and the machine's, at one end of the window."""
+    return {"wall": time.monotonic(), "sim_cpu_s": process_cpu_s(sim.pid),
+            "machine": machine_ticks()}
 
 
 def _wait(conn: Connection, who: str) -> dict[str, Any]:
@@ -224,6 +244,7 @@ def summarize(windows: list[dict[str, Any]], reader: dict[str, Any],
         "publisher_dropped": sum(w["dropped"] for w in windows),
         "reader_cpu_pct": 100.0 * reader["cpu_s"] / max(reader["seconds"], 1e-9),
         "reader_cpu_us_per_sample": 1e6 * reader["cpu_s"] / max(int(keep.sum()), 1),
+        "reader_samples": int(keep.sum()),
         "reader_received": reader["counters"]["received"],
         "reader_rejected": reader["counters"]["rejected"],
     }

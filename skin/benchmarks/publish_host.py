@@ -90,6 +90,8 @@ def _snapshot(host: Any, publisher: Any) -> dict[str, Any]:
     return {"wall": time.monotonic(), "cpu": time.process_time(),
             "publish": publisher.cpu_seconds(), "cycle": host.sync.cycle,
             "samples": stats["samples"], "complete": stats["complete_samples"],
+            "frames_received": stats["frames_in"] + stats["bus_frames"]
+            + stats["unknown_frames"], "frames_sent": stats["frames_out"],
             "sent": publisher.sent, "dropped": publisher.queue.dropped}
 
 
@@ -99,4 +101,6 @@ def _window(start: dict[str, Any], end: dict[str, Any]) -> dict[str, Any]:
             "seconds": end["wall"] - start["wall"], "cpu_s": end["cpu"] - start["cpu"],
             "publish_cpu_s": publish, "samples": end["samples"] - start["samples"],
             "complete": end["complete"] - start["complete"],
+            "frames_received": end["frames_received"] - start["frames_received"],
+            "frames_sent": end["frames_sent"] - start["frames_sent"],
             "sent": end["sent"] - start["sent"], "dropped": end["dropped"] - start["dropped"]}

@@ -57,8 +57,14 @@ def print_publish(r: dict[str, Any]) -> None:
     print(f"{r['hosts']} hosts, {r['patches']} patches (3-axis, 100 Hz), {r['cycles']} SYNC "
           f"cycles in {r['seconds']:g} s; Zenoh on loopback, express "
           f"{'on' if r['express'] else 'off'}")
+    if r["fits_machine"]:
+        print(f"fits this machine: {r['why']}")
+    else:
+        print(f"does not fit this machine: {r['why']}")
     print(f"reader got {r['reader_complete_pct']:.3f} % of {r['samples_expected']:,} samples "
-          f"complete (the hosts made {r['host_complete_pct']:.3f} % complete)")
+          f"complete (the hosts made {r['host_complete_pct']:.3f} % complete)"
+          + ("" if r["fits_machine"] else
+             ": what this machine carried, not what Zenoh lost"))
     print(f"SYNC -> reader    p50 {lat['p50']:.2f} ms, p99 {lat['p99']:.2f} ms, "
           f"max {lat['max']:.2f} ms")
     print(f"SYNC -> force PDO p50 {pdo['p50']:.2f} ms, p99 {pdo['p99']:.2f} ms, "
@@ -68,9 +74,32 @@ def print_publish(r: dict[str, Any]) -> None:
           f"{r['publish_cpu_us_per_sample']:.1f} us ({r['publish_share_pct']:.1f} %: {parts})")
     print(f"reader CPU {r['reader_cpu_pct']:.1f} % of a core, "
           f"{r['reader_cpu_us_per_sample']:.1f} us per sample")
+    print_cpu(r["cpu"], r["rate_hz"])
     codec = r["codec"]
     print("encodings: " + "; ".join(
         f"{k} {v['bytes']:.0f} B, encode {v['encode_us']:.1f} us, decode {v['decode_us']:.1f} us"
         for k, v in codec.items()))
     print(f"load average {load['before'][0]:.2f} before, {load['after'][0]:.2f} after, on "
           f"{r['cpu_count']} CPUs")
+
+
+def _figure(value: float | None, spec: str = ".0f") -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def print_cpu(cpu: dict[str, Any], rate_hz: float) -> None:
+    """Where the window's CPU went, each process's cost per unit of work, and its need."""
+    need = cpu["need_pct"]
+    print(f"CPU, % of a core: hosts {'+'.join(_figure(v) for v in cpu['hosts_pct'])}, "
+          f"simulator {cpu['simulator_pct']:.0f}, reader {cpu['reader_pct']:.0f}: "
+          f"{cpu['total_pct']:.0f} of the machine's {cpu['capacity_pct']:.0f}; the machine "
+          f"was busy {cpu['machine_busy_pct']:.0f} ({cpu['other_pct']:.0f} beyond these)")
+    print(f"per unit of work: a host "
+          f"{'/'.join(_figure(v, '.1f') for v in cpu['host_us_per_frame'])} us per bus frame "
+          f"({'/'.join(_figure(v, ',.0f') for v in cpu['host_frames_per_s'])} frames/s), "
+          f"the simulator {_figure(cpu['simulator_us_per_frame'], '.1f')} us per bus frame, "
+          f"the reader {_figure(cpu['reader_us_per_sample'], '.1f')} us per sample")
+    print(f"needed at {rate_hz:g} Hz, % of a core: hosts "
+          f"{'+'.join(_figure(v) for v in need['hosts'])}, simulator "
+          f"{_figure(need['simulator'])}, reader {_figure(need['reader'])}: "
+          f"{need['total']:.0f} of {cpu['capacity_pct']:.0f}")
