@@ -37,6 +37,7 @@ from decoder.analytic import AnalyticDecoder
 from decoder.reasons import Reason
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
+from tests.support.rigs.host import press
 from tests.support.rigs.waiting import wait_until
 
 LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
@@ -60,15 +61,6 @@ class CountingBus(can.interfaces.virtual.VirtualBus):
 
 def eventually(condition: Callable[[], object], what: str, timeout: float = WAIT_S) -> None:
     wait_until(condition, what=what, timeout=timeout, interval=0.002)
-
-
-def press(loads: dict[int, tuple[float, float, float]], pillars: int = 3) -> np.ndarray:
-    """(9, P) resistances of the given taxel forces, quantised as a patch sends them."""
-    force = np.zeros((9, 3))
-    for taxel, f in loads.items():
-        force[taxel] = f
-    r = resistance_from_force(force, DEFAULT_CONSTANTS)[:, :pillars]
-    return np.asarray(codes.resistance_to_code(r, LSB), dtype=np.float64) * LSB
 
 
 def _key(frame: ForceFrame) -> tuple[int, int]:
