@@ -69,12 +69,6 @@ class AnswerReader(AnswerCycles[PatchAnswer], can.Listener):
         with self._lock:
             self._following = {patch.node_id: patch for patch in patches}
 
-    @property
-    def patches(self) -> dict[int, PatchAnswer]:
-        """The patches followed, or to be from the next SYNC on (node-ID -> answer)."""
-        with self._lock:
-            return dict(self._slots if self._following is None else self._following)
-
     def on_message_received(self, msg: can.Message) -> None:
         self.take(msg)
 

@@ -17,7 +17,7 @@ answer came once and in order, and never the data of two answers.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import canopen
@@ -48,11 +48,15 @@ class ResistanceSample:
 
 
 class ResistanceReader(PdoSampleReader):
-    """Resistance samples of the patches ``patches`` (node-IDs) on the bus it listens to."""
+    """Resistance samples of the patches ``patches`` (node-IDs) on the bus it listens to;
+    ``answer_orders``: node-ID -> the order a patch sends an answer's TPDOs in (a host
+    config's ``answer_order``; default ascending COB-ID)."""
 
     def __init__(self, patches: Iterable[int], *, period_s: float | None = None,
-                 known: Iterable[KnownNode] = ()) -> None:
+                 known: Iterable[KnownNode] = (),
+                 answer_orders: Mapping[int, str] | None = None) -> None:
         self.lsb_ohm = dict.fromkeys(patches, DEFAULT_LSB_OHM)
+        self.answer_orders = dict(answer_orders or {})
         self._callbacks: tuple[Callable[[ResistanceSample], None], ...] = ()
         super().__init__(self.lsb_ohm, "skin-patch", period_s=period_s, known=known)
 
@@ -77,7 +81,8 @@ class ResistanceReader(PdoSampleReader):
 
     def _assembly(self, node_id: int, layouts: Sequence[TpdoLayout],
                   od: canopen.ObjectDictionary) -> PdoAssembly:
-        return PatchAnswers(node_id, layouts, od, order=self.order, cycles=self.cycles)
+        return PatchAnswers(node_id, layouts, od, cycles=self.cycles,
+                            order=self.answer_orders.get(node_id, self.order))
 
     def on_observed(self, node_id: int, index: int, subindex: int, raw: bytes) -> None:
         if (index, subindex) == (LSB, 0):

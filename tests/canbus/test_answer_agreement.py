@@ -18,6 +18,7 @@ whose verdicts are spelt out. A recording of a live host run: ``test_sniff_host.
 
 from __future__ import annotations
 
+import dataclasses
 import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -118,13 +119,14 @@ class PlaneRig:
             patch.force_node.attach(self.network)
             patch.force_node.start()
 
-    def read(self, path: Path) -> dict[Key, ForceFrame]:
+    def read(self, path: Path, order: str) -> dict[Key, ForceFrame]:
         """The data plane fed the recording frame by frame, as the listen-only host's
         notifier hands them on: a patch's PDO to the data plane, the rest to the SYNC
         follower (a SYNC opens its cycle at once); no SYNC window (a listen-only host's)."""
         plane = DataPlane(self.sink, sync_window_s=0.0, background=False)
         for patch in self.patches:
-            plane.add_channel(patch.channel(self.decoder))
+            plane.add_channel(dataclasses.replace(patch.channel(self.decoder),
+                                                  answer_order=order))
         out: list[ForceFrame] = []
         plane.subscribe(out.extend)
         follower = SyncFollower(plane.on_sync)
@@ -149,29 +151,31 @@ def _unique(by_key: dict[Key, object], samples: list) -> dict:
     return by_key
 
 
-def _sniffed(path: Path) -> dict[Key, Answer]:
+def _sniffed(path: Path, config: HostConfig) -> dict[Key, Answer]:
+    """As ``skin sniff --config`` builds its sniffer."""
     answers: list[Answer] = []
     sniffer = Sniffer(ServiceDecoder(attribution=Attribution(Dictionary(),
-                                                             known_nodes(CONFIG))),
-                      on_answer=answers.append)
+                                                             known_nodes(config))),
+                      on_answer=answers.append,
+                      answer_orders={p.node_id: p.answer_order for p in config.patches})
     with Recording(path) as recording:
         for msg in recording:
             sniffer.on_message_received(msg)
     return _unique({(a.node_id, a.cycle): a for a in answers}, answers)
 
 
-def _viewed(path: Path) -> dict[Key, tuple[bool, float, np.ndarray]]:
+def _viewed(path: Path, config: HostConfig) -> dict[Key, tuple[bool, float, np.ndarray]]:
     out = {}
     for node in NODES:
-        samples = recorded_resistances(path, node, config=CONFIG)
+        samples = recorded_resistances(path, node, config=config)
         assert all(s.cycle is not None for s in samples)
         out |= _unique({(node, s.cycle or 0): (s.complete, s.timestamp, s.resistance_ohm)
                         for s in samples}, samples)
     return out
 
 
-def _readings(path: Path) -> dict[Key, tuple[bool, float, np.ndarray, np.ndarray]]:
-    recorded = read_patch_samples(path, NODES)
+def _readings(path: Path, order: str) -> dict[Key, tuple[bool, float, np.ndarray, np.ndarray]]:
+    recorded = read_patch_samples(path, NODES, answer_order=order)
     out = {}
     for node, p in recorded.patches.items():
         for k, cycle in enumerate(p.cycle.tolist()):
@@ -180,10 +184,14 @@ def _readings(path: Path) -> dict[Key, tuple[bool, float, np.ndarray, np.ndarray
     return out
 
 
-def _read(rig: PlaneRig, path: Path) -> Verdicts:
-    decoded = decode_recording(path, CONFIG)
-    return Verdicts(rig.read(path), _sniffed(path), _viewed(path),
-                    _unique({(f.patch, f.cycle): f for f in decoded}, decoded), _readings(path))
+def _read(rig: PlaneRig, path: Path, order: str = "cob-id") -> Verdicts:
+    """Every reader's samples; the patches send an answer's TPDOs in ``order``."""
+    config = dataclasses.replace(CONFIG, patches=tuple(
+        dataclasses.replace(p, answer_order=order) for p in CONFIG.patches))
+    decoded = decode_recording(path, config)
+    return Verdicts(rig.read(path, order), _sniffed(path, config), _viewed(path, config),
+                    _unique({(f.patch, f.cycle): f for f in decoded}, decoded),
+                    _readings(path, order))
 
 
 def _assert_agree(v: Verdicts) -> None:
@@ -255,6 +263,27 @@ def test_late_repeated_and_missing_answers_are_judged_alike_everywhere(rig: Plan
         (1, 5),  # ... whole: a stale answer classic CAN cannot tell from a prompt one
         # (2, 5): TPDO 2 again, other bytes, after TPDO 5: the answer ended there
         (1, 6), (2, 6)}
+
+
+def test_patches_that_send_in_tpdo_order_are_judged_in_that_order_everywhere(
+        rig: PlaneRig) -> None:
+    """A config's ``answer_order = "tpdo"`` (one transmit FIFO) is every reader's: an answer
+    in TPDO order is whole, one in COB-ID order broken at its second frame."""
+    frames = []
+    for k in range(1, CYCLES + 1):
+        for patch in rig.patches:
+            answer = _answer(patch, k, T0 + k * PERIOD_S + 1e-3 * patch.node.node_id)
+            times = [msg.timestamp for msg in answer]
+            if patch.node.node_id == 1:  # in TPDO order: by position in the mapping
+                answer.sort(key=lambda m: list(patch.codec.cob_ids).index(m.arbitration_id))
+            for msg, t in zip(answer, times, strict=True):
+                msg.timestamp = t
+            frames += answer
+    with tempfile.TemporaryDirectory() as folder:
+        verdicts = _read(rig, _write(sorted(frames, key=lambda m: m.timestamp), Path(folder)),
+                         "tpdo")
+    _assert_agree(verdicts)
+    assert verdicts.complete()["view"] == {(1, k) for k in range(1, CYCLES + 1)}
 
 
 # -- the property ----------------------------------------------------------------------------
