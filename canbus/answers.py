@@ -6,8 +6,9 @@ A patch answers SYNC k with one *answer*: its synchronous TPDOs, sent together i
 order (:attr:`PatchAnswer.place`; by default ascending COB-ID, the order in which one
 node's queued frames win arbitration on a CAN bus). A frame counts for cycle k only if its
 timestamp lies in [t_k, t_k + sync_window_s] (CiA 301's synchronous window, object 0x1007;
-t_k is the time SYNC k passed; ``sync_window_s == 0`` means until the next SYNC) *and* it
-belongs to the answer that began in that window:
+t_k is the time of SYNC k, as the host sent it or as a listener heard it;
+``sync_window_s == 0`` means until the next SYNC) *and* it belongs to the answer that began
+in that window:
 
 - the answer begins with its first TPDO; a later TPDO seen before it is the tail of an
   earlier answer and counts as ``late``, as does a frame stamped before t_k;
@@ -35,9 +36,9 @@ A complete answer is handed on at once (:meth:`AnswerCycles._sample`); every oth
 when the next SYNC closes the cycle, incomplete, with the PDOs missing or not trusted. So
 each patch gets exactly one sample per cycle, and a consumer can count cycles.
 
-:class:`AnswerCycles` holds the open cycle and every patch's answer to it; it is not
-locked and opens no cycle by itself: the data plane (:mod:`canbus.master.dataplane`) runs it
-under its own lock and opens a cycle where the bus passed a SYNC; a reader of a bus or a
+:class:`AnswerCycles` holds the open cycle and every patch's answer to it, and opens no
+cycle by itself: the live host's data plane (:mod:`canbus.master.dataplane`) opens one where
+the bus passed the SYNC it sent (or at once for one it heard); a reader of a bus or a
 recording (:mod:`canbus.tools.answer_reader`) opens one at each SYNC in the bus's order.
 """
 

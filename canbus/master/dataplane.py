@@ -11,11 +11,12 @@ with ``bus.send``.
 Cycle rules: :mod:`canbus.answers`, the one assembly of a patch's answers that the sniffer,
 the view and ``skin decode`` judge them by too. A patch answers SYNC k with its
 synchronous TPDOs, in a fixed order (:attr:`PatchChannel.answer_order`); a frame counts for
-cycle k only if it lies in the SYNC window (``sync_window_s`` after t_k, the time SYNC k
-passed; 0: until the next SYNC) and extends the answer that began there, in order; a
-repeated PDO ends the answer, but the frame just taken again with the same bytes (a CAN
-retransmission) changes nothing. So a sample is complete only when every TPDO of one
-answer arrived once, in order, in the window, and the data of two answers is never mixed.
+cycle k only if it lies in the SYNC window (``sync_window_s`` after t_k, the time the host
+sent SYNC k or heard it; 0: until the next SYNC) and extends the answer that began there,
+in order; a PDO taken already, again, ends the answer, but the frame just taken again with
+the same bytes (a CAN retransmission) changes nothing. So a sample is complete only when
+every TPDO of one answer arrived once, in order, in the window, and the data of two
+answers is never mixed.
 
 When a cycle closes: where the bus passed the next SYNC, not where the host sent it
 (:mod:`canbus.master.syncpassage`; :meth:`DataPlane.on_sync_sent` announces a SYNC the host

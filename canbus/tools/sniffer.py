@@ -384,8 +384,8 @@ class Sniffer(can.Listener):
         return view is not None and view.product == PATCH_PRODUCT
 
     def _follow_patches(self) -> None:
-        """From the next SYNC on, judge the answers of every patch whose TPDOs are all
-        known to be its own (lock held)."""
+        """Judge, from the cycle the SYNC being taken opens, the answers of every patch
+        whose TPDOs are all known to be its own (lock held)."""
         dictionary = self.decoder.dictionary
         if dictionary.version == self._answers_version:
             return
