@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from canbus.answers import PatchAnswer
 from canbus.master.baseline import Baseline
 from canbus.master.forcenode import ForceNode
 from canbus.pdo_codec import PdoCodec
@@ -20,7 +21,7 @@ from skin.contact_state import ContactSummary
 from skin.errors import ConfigError
 from skin.placement import PatchOnLink, PatchPlacement, on_link
 
-RESISTANCES, ANSWERED = 0x2000, 0x2006
+RESISTANCES = 0x2000
 
 
 @dataclass(frozen=True)
@@ -108,36 +109,17 @@ class DataPlaneStats:
         return dataclasses.asdict(self)
 
 
-class AnswerSlot:
-    """A channel's state in the current cycle and its precomputed layout."""
+class AnswerSlot(PatchAnswer):
+    """A channel's answer in the open cycle (:class:`~canbus.answers.PatchAnswer`) and what
+    decoding it needs: where the codes are in ``raw``, which taxels each PDO carries."""
 
     def __init__(self, channel: PatchChannel, key: int) -> None:
         codec = channel.codec
+        super().__init__(channel.node_id, codec.layouts, answer_order=channel.answer_order)
         pdos = len(codec.layouts)
         self.channel = channel
-        self.active = True
         self.online = True
-        self.stride = codec.width + codec.width % 2  # bytes per PDO in ``raw``: even, so
-        self.raw = bytearray(self.stride * pdos)  # that codes read as UNSIGNED16 words
-        self.zeros = bytes(self.stride * pdos)
-        self.full = (1 << pdos) - 1
-        self.seen = 0  # PDO bits received this cycle
-        self.bad = 0  # PDO bits not trusted this cycle (duplicate, malformed)
-        self.done = False  # queued this cycle
-        self.next = 0  # the place in the answer the next frame must take (0: not begun)
-        self.ended = False  # the answer was broken: nothing more counts this cycle
         self.key = key  # channels with equal keys are unpacked together
-        cob_ids = codec.cob_ids.tolist()
-        if channel.answer_order == "cob-id":
-            order = sorted(range(pdos), key=cob_ids.__getitem__)
-        elif channel.answer_order == "tpdo":
-            order = list(range(pdos))
-        else:
-            raise ConfigError("channel.answer_order", "must be 'cob-id' or 'tpdo', got "
-                              f"{channel.answer_order!r}")
-        self.place = [0] * pdos  # PDO position in codec.layouts -> its place in the answer
-        for n, p in enumerate(order):
-            self.place[p] = n
         p = channel.pillars
         try:
             self.columns = np.array([[codec.column(RESISTANCES, 3 * t + k + 1) for k in range(p)]
@@ -146,17 +128,13 @@ class AnswerSlot:
             raise ConfigError("channel.codec", f"patch {channel.node_id}'s PDOs do not map "
                               f"every 0x2000 code of {p} pillar(s)") from err
         carried = np.zeros((pdos, TAXELS_PER_PATCH), dtype=bool)
-        at: dict[tuple[int, int], int] = {}  # variable -> its first byte in ``raw``
         for n, layout in enumerate(codec.layouts):
-            offset = self.stride * n
             for entry in layout.entries:
-                at.setdefault((entry.index, entry.subindex), offset)
-                offset += entry.bits // 8
                 value = entry.subindex - 1
                 if entry.index == RESISTANCES and value % 3 < p:
                     carried[n, value // 3] = True
         self.carried = carried  # (PDOs, 9): the taxels each PDO carries
-        offsets = np.array([[at[(RESISTANCES, 3 * t + k + 1)] for k in range(p)]
+        offsets = np.array([[self.offsets[(RESISTANCES, 3 * t + k + 1)] for k in range(p)]
                             for t in range(TAXELS_PER_PATCH)], dtype=np.intp)
         self.words: NDArray[np.intp] | None = None
         """(9, P) each code's place in ``raw`` read as little-endian UNSIGNED16 words, or
@@ -164,22 +142,12 @@ class AnswerSlot:
         u16 = all(codec.dtypes[c] == np.dtype("<u2") for c in self.columns.ravel().tolist())
         if u16 and not np.any(offsets % 2):
             self.words = offsets // 2
-        self.answered_bit = 0  # the PDO that carries 0x2006, the SYNC counter answered
-        self.answered_at = 0  # its byte in that PDO
-        if (ANSWERED, 0) in at:
-            pdo, self.answered_at = divmod(at[(ANSWERED, 0)], self.stride)
-            self.answered_bit = 1 << pdo
 
     def taxels_of(self, pdo_bits: int) -> NDArray[np.bool_]:
         """(9,) the taxels carried by the PDOs whose bits are set."""
         which = np.array([pdo_bits >> p & 1 for p in range(len(self.carried))], dtype=bool)
         taxels: NDArray[np.bool_] = self.carried[which].any(axis=0)
         return taxels
-
-    def reset(self) -> None:
-        self.seen = self.bad = self.next = 0
-        self.done = self.ended = False
-        self.raw[:] = self.zeros
 
 
 @dataclass(frozen=True)

@@ -8,33 +8,15 @@ queued; the publisher decodes what is queued in numpy batches (one ``PdoCodec.un
 per PDO layout, one ``decode`` per decoder object) and sends the force nodes' TPDOs
 with ``bus.send``.
 
-Cycle rules. A patch answers SYNC k with one *answer*: its synchronous TPDOs, sent
-together in a fixed order (:attr:`PatchChannel.answer_order`; by default ascending COB-ID,
-the order in which one node's queued frames win arbitration on a CAN bus). A frame
-counts for cycle k only if its timestamp lies in [t_k, t_k + sync_window_s] (CiA 301's
-synchronous window, object 0x1007; t_k is the time the host sent SYNC k;
-``sync_window_s == 0`` means until the next SYNC) *and* it belongs to the answer that
-began in that window:
-
-- the answer begins with its first TPDO; a later TPDO seen before it is the tail of an
-  earlier answer and counts as ``late``, as does a frame stamped before t_k;
-- the answer's TPDOs must then come one after the other, in order; any other frame of
-  the patch ends the answer: a ``duplicate`` if its PDO was already seen (that PDO is
-  not trusted either), ``out_of_order`` if it is ahead of its place (the frame before it
-  was lost). Nothing after the end of an answer counts for the cycle, so the PDOs from
-  the break on are missing. One exception: the frame just taken, again with the same
-  bytes, is counted a ``duplicate`` and changes nothing (a CAN receiver gets a frame
-  twice when an error in its last bit makes the sender retransmit it);
-- a frame shorter than its mapping is ``malformed``: that PDO is not trusted.
-
-So a sample is complete only when every TPDO of one answer arrived once, in order, in
-the window; an incomplete sample carries an unbroken run of one answer from its first
-TPDO; and the data of two answers is never mixed, however late, duplicated or reordered
-the frames come, unless a whole answer's worth of consecutive frames was lost (what
-classic CAN cannot prove, and what a one-cycle-stale answer looks like, is in
-docs/host.md). Frames stamped after the window are held until the next SYNC, which
-takes the ones inside its own window (a patch may answer SYNC k+1 before the host has
-called :meth:`DataPlane.on_sync`) and counts the rest ``late``.
+Cycle rules: :mod:`canbus.answers`, the one assembly of a patch's answers that the sniffer,
+the view and ``skin decode`` judge them by too. A patch answers SYNC k with its
+synchronous TPDOs, in a fixed order (:attr:`PatchChannel.answer_order`); a frame counts for
+cycle k only if it lies in the SYNC window (``sync_window_s`` after t_k, the time the host
+sent SYNC k or heard it; 0: until the next SYNC) and extends the answer that began there,
+in order; a PDO taken already, again, ends the answer, but the frame just taken again with
+the same bytes (a CAN retransmission) changes nothing. So a sample is complete only when
+every TPDO of one answer arrived once, in order, in the window, and the data of two
+answers is never mixed.
 
 When a cycle closes: where the bus passed the next SYNC, not where the host sent it
 (:mod:`canbus.master.syncpassage`; :meth:`DataPlane.on_sync_sent` announces a SYNC the host
@@ -62,6 +44,7 @@ import can
 import numpy as np
 from numpy.typing import NDArray
 
+from canbus.answers import AnswerCycles, Entry
 from canbus.master.channel import (
     AnswerSlot,
     DataPlaneStats,
@@ -92,11 +75,11 @@ MAX_BUS_LAG_S = 0.05
 its cycle anyway: far above a receive thread's lag on a busy machine, and only a bus that
 carries no frame at all waits it out."""
 
-_Entry = tuple[AnswerSlot, int, int, int, int]  # slot, PDO bit, byte offset, mapped size, place
-
-
-class DataPlane(can.Listener):
+class DataPlane(AnswerCycles[AnswerSlot], can.Listener):
     """Patch TPDOs -> forces -> force TPDOs on ``bus``; see the module docstring."""
+
+    stats: DataPlaneStats
+    _passage: SyncPassage
 
     def __init__(self, bus: can.BusABC, *, sync_window_s: float,
                  background: bool = True, max_bus_lag_s: float = MAX_BUS_LAG_S,
@@ -107,23 +90,17 @@ class DataPlane(can.Listener):
             raise ConfigError("max_bus_lag_s", f"must be >= 0 s, got {max_bus_lag_s}")
         if not (math.isfinite(publish_hold_s) and publish_hold_s >= 0):
             raise ConfigError("publish_hold_s", f"must be >= 0 s, got {publish_hold_s}")
+        super().__init__(sync_window_s, DataPlaneStats())
         self.bus = bus
-        self.sync_window_s = sync_window_s
         self.max_bus_lag_s = max_bus_lag_s
         self.publish_hold_s = publish_hold_s
-        self.stats = DataPlaneStats()
         self.bus_traffic: frozenset[int] = SERVICE_COB_IDS
         """COB-IDs of the bus's own traffic beside the patches' PDOs: counted as
         ``bus_frames``, not unknown (``canbus.master.frame_kinds``)."""
-        self._lock = threading.Lock()  # cycle state: held briefly by every thread
+        # self._lock (AnswerCycles'): the cycle state, held briefly by every thread
         self._publish_lock = threading.Lock()  # one publisher at a time, in queue order
-        self._table: dict[int, _Entry] = {}  # replaced, never mutated: read without the lock
-        self._slots: dict[int, AnswerSlot] = {}
         self._shapes: dict[object, int] = {}  # PDO layout and pillars -> slot key
-        self._cycle: tuple[int, int, float] | None = None
         self._passage = SyncPassage()  # the SYNCs sent whose passage the bus has not shown
-        self._start, self._end = math.inf, -math.inf  # no cycle open
-        self._held: list[tuple[_Entry, bytes, float]] = []
         self._queue: list[SampleJob] = []
         self._publisher = Publisher(bus, self.stats)
         self._wake = threading.Event()  # a sample is queued
@@ -194,72 +171,39 @@ class DataPlane(can.Listener):
             raise ConfigError("node_id", f"no channel for patch {node_id}") from err
 
     def _rebuild_table(self) -> None:
-        table: dict[int, _Entry] = {}
+        table: dict[int, Entry[AnswerSlot]] = {}
         for slot in self._slots.values():
-            if not slot.online:
-                continue
-            codec = slot.channel.codec
-            for p, (cob, size) in enumerate(zip(codec.cob_ids.tolist(), codec.sizes.tolist(),
-                                                strict=True)):
-                table[cob] = (slot, 1 << p, slot.stride * p, size, slot.place[p])
-        self._table = table
+            if slot.online:
+                table.update(slot.entries())
+        self._table = table  # read without the lock
         self._count_waiting()
 
     def _count_waiting(self) -> None:
         self._waiting = sum(slot.online and slot.active and not (slot.done or slot.ended)
                             for slot in self._slots.values())
 
-    # -- the hot path -----------------------------------------------------------------------
+    # -- the hot path: AnswerCycles.take (True for a channel's PDO; else _other) --------------
 
     def on_message_received(self, msg: can.Message) -> None:
         self.take(msg)
 
-    def take(self, msg: can.Message) -> bool:
-        """Handle ``msg`` if it is a PDO of a channel; False (and counted unknown) if not."""
-        if msg.timestamp >= self._passage.next_t:
-            self._bus_passed(msg.timestamp)
-        entry = self._table.get(msg.arbitration_id)
-        if entry is None or msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
-            # only the notifier thread writes these counters
-            if msg.arbitration_id in self.bus_traffic and not msg.is_extended_id \
-                    and not msg.is_error_frame:
-                self.stats.bus_frames += 1  # SYNC, heartbeats, SDO, ... (frame_kinds)
-                if msg.arbitration_id == SYNC and self._passage and self.sync_echo:
-                    self._sync_echoed(msg.data[0] if msg.data else 0)
-            else:
-                self.stats.unknown_frames += 1
-            return False
-        with self._lock:
-            self.stats.frames_in += 1
-            if self._start <= msg.timestamp <= self._end:
-                self._accept(entry, msg.data)
-            elif msg.timestamp > self._end and len(self._held) < 2 * len(self._table):
-                self._held.append((entry, bytes(msg.data), msg.timestamp))
-            else:
-                self.stats.late_frames += 1
-        return True
+    def _other(self, msg: can.Message) -> bool:
+        """Not a PDO of a channel: counted as the bus's own traffic or unknown."""
+        # only the notifier thread writes these counters
+        if msg.arbitration_id in self.bus_traffic and not msg.is_extended_id \
+                and not msg.is_error_frame:
+            self.stats.bus_frames += 1  # SYNC, heartbeats, SDO, ... (frame_kinds)
+            if msg.arbitration_id == SYNC and self._passage and self.sync_echo:
+                self._sync_echoed(msg.data[0] if msg.data else 0)
+        else:
+            self.stats.unknown_frames += 1
+        return False
 
-    def _accept(self, entry: _Entry, data: bytes | bytearray) -> None:
-        """One in-window frame: it extends the cycle's answer or is turned away (lock held)."""
-        slot, bit, offset, size, place = entry
-        if bit == slot.answered_bit and self._stale(slot, data):
-            return
-        if place != slot.next or slot.ended or slot.done:
-            self._turn_away(entry, data)
-            return
-        slot.seen |= bit
-        slot.next = place + 1
-        if len(data) < size:
-            self.stats.malformed_frames += 1
-            slot.bad |= bit
-            return
-        slot.raw[offset:offset + size] = data if len(data) == size else data[:size]
-        if slot.seen == slot.full and not slot.bad and slot.active and self._cycle is not None:
-            self._answer_over(slot)
-            slot.done = True
-            self._queue.append(SampleJob(slot, self._cycle, bytes(slot.raw), 0, True))
-            if not self._wake.is_set():  # the publisher has not yet taken the queue
-                self._wake.set()
+    def _sample(self, slot: AnswerSlot, cycle: Sync, missing: int, complete: bool) -> None:
+        """Queue the slot's sample of the open cycle for the publisher (lock held)."""
+        self._queue.append(SampleJob(slot, cycle, bytes(slot.raw), missing, complete))
+        if complete and not self._wake.is_set():  # the publisher has not yet taken the queue
+            self._wake.set()
 
     def _answer_over(self, slot: AnswerSlot) -> None:
         """The slot's answer to the open cycle is complete or broken off: once every online
@@ -268,38 +212,6 @@ class DataPlane(can.Listener):
             self._waiting -= 1
             if self._waiting <= 0:
                 self._answered.set()
-
-    def _stale(self, slot: AnswerSlot, data: bytes | bytearray) -> bool:
-        """The PDO names the SYNC it answers (0x2006), and it is not this cycle's: an answer
-        to an earlier SYNC, counted ``stale_answers`` and ``late_frames`` (lock held)."""
-        counter = self._cycle[1] if self._cycle is not None else 0
-        if not counter or len(data) <= slot.answered_at or data[slot.answered_at] == counter:
-            return False
-        self.stats.stale_answers += 1
-        self.stats.late_frames += 1
-        return True
-
-    def _turn_away(self, entry: _Entry, data: bytes | bytearray) -> None:
-        """A frame that does not extend the cycle's answer (module docstring; lock held)."""
-        slot, bit, offset, size, place = entry
-        stats = self.stats
-        if not slot.next and not slot.ended:
-            stats.late_frames += 1  # the tail of an earlier answer
-        elif not slot.seen & bit:
-            stats.out_of_order_frames += 1
-            self._answer_over(slot)
-            slot.ended = True
-        else:
-            stats.duplicate_frames += 1
-            if slot.done and not place:
-                stats.second_answers += 1
-            # The frame just taken, again with the same bytes: a CAN receiver can get a
-            # frame twice when its sender retransmits after an error in the last bit.
-            repeat = place == slot.next - 1 and slot.raw[offset:offset + size] == data[:size]
-            if not (repeat or slot.done or slot.ended):
-                self._answer_over(slot)
-                slot.bad |= bit
-                slot.ended = True
 
     # -- cycles -----------------------------------------------------------------------------
 
@@ -354,22 +266,12 @@ class DataPlane(can.Listener):
         for sync in syncs:
             self._open(*sync)
 
-    def _open(self, cycle: int, sync_counter: int, timestamp: float) -> None:
-        """Close the open cycle, open ``cycle`` and judge the frames held for it (lock held)."""
-        self._close()
+    def _opened(self, cycle: int) -> None:
+        """Cycle ``cycle`` is open (lock held): every online patch is to answer it."""
         self._count_waiting()
-        self._cycle = (cycle, sync_counter, timestamp)
         if self._publisher.steady_from_cycle is None and self._slots and all(
                 slot.online and slot.active for slot in self._slots.values()):
             self._publisher.steady_from_cycle = cycle
-        self._start = timestamp
-        self._end = timestamp + self.sync_window_s if self.sync_window_s else math.inf
-        held, self._held = self._held, []
-        for entry, data, t in held:
-            if self._start <= t <= self._end:
-                self._accept(entry, data)
-            else:
-                self.stats.late_frames += 1
 
     def answered(self) -> bool:
         """No cycle is open, or every patch that can still answer it has: a whole answer,
@@ -383,21 +285,8 @@ class DataPlane(can.Listener):
         """Close the current cycle now and publish everything queued before returning."""
         with self._lock:
             self._open_all(self._passage.passed_until(math.inf))
-            self._close()
-            self._cycle = None
-            self._start, self._end = math.inf, -math.inf
+            self._end_cycles()
         self.publish_pending()
-
-    def _close(self) -> None:
-        """Queue the open cycle's unfinished patches as incomplete samples (lock held)."""
-        if self._cycle is not None:
-            for slot in self._slots.values():
-                if not slot.done:
-                    missing = slot.full & ~(slot.seen & ~slot.bad)
-                    self._queue.append(SampleJob(slot, self._cycle, bytes(slot.raw), missing,
-                                                 False))
-        for slot in self._slots.values():
-            slot.reset()
 
     # -- publishing -------------------------------------------------------------------------
 

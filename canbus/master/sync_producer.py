@@ -21,6 +21,7 @@ from collections.abc import Callable
 
 import can
 
+from canbus.answers import counter_of_sync
 from canbus.txmessage import TxMessage
 from canbus.worker import Worker
 
@@ -101,11 +102,11 @@ class SyncFollower(can.Listener):
         self.cycle = 0
 
     def on_message_received(self, msg: can.Message) -> None:
-        if msg.arbitration_id != SYNC_COB_ID or msg.is_extended_id or msg.is_remote_frame \
-                or msg.is_error_frame or len(msg.data) > 1:
+        counter = counter_of_sync(msg)
+        if counter is None:
             return
         self.cycle += 1
         try:
-            self.on_sync(self.cycle, msg.data[0] if msg.data else 0, msg.timestamp)
+            self.on_sync(self.cycle, counter, msg.timestamp)
         except Exception:  # an exception in a listener would end the notifier's thread
             logger.exception("SYNC cycle %d failed", self.cycle)

@@ -4,7 +4,8 @@
 any length up to CAN FD's 64 bytes) and the sample being assembled: each frame's bytes go
 into a preallocated buffer at its PDO's place; when the sample closes, one
 ``np.frombuffer`` with a structured dtype reads every mapped variable. Where a sample
-begins and closes: the module docstring of :mod:`canbus.tools.pdo_samples`.
+begins and closes: the module docstring of :mod:`canbus.tools.pdo_samples` (a force
+node's samples; a patch's answers: :class:`~canbus.tools.patch_answers.PatchAnswers`).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ class RawSample:
     payload: bytes  # the PDOs at their places in the assembly's buffer
     arrived: int  # bit p: PDO p (in ``PdoAssembly.layouts`` order) came
     complete: bool  # every mapped PDO came, once
+    cycle: int | None = None  # the SYNC cycle a patch's answer is of (patch_answers)
 
 
 class PdoAssembly:
@@ -140,6 +142,14 @@ class PdoAssembly:
         if now - self.first > limit * period_s:
             return self.close()
         return None
+
+    def sync(self, counter: int, timestamp: float) -> list[RawSample]:
+        """A SYNC: the samples it closes (none: a sample here is closed by its PDOs)."""
+        return []
+
+    def finish(self) -> list[RawSample]:
+        """The bus or the recording ended: the samples that closes (none here)."""
+        return []
 
     def close(self) -> RawSample:
         sample = RawSample(self.node_id, self.last, bytes(self.buffer), self.seen,

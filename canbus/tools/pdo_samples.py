@@ -27,7 +27,10 @@ would be joined.) So a sample closes:
 
 A sender that is held up mid-sample (a busy host thread) delays its PDOs; they still
 join their own sample, never the next one. A partial sample carries the PDOs that came,
-and says which.
+and says which. These are the rules for the samples of a node that follows no SYNC
+window, a force node's (the host sends them as it decodes). A patch's answers to SYNC are
+judged by the host's own rule (:mod:`canbus.answers`): the resistance reader assembles
+them with :mod:`canbus.tools.patch_answers` (:meth:`PdoSampleReader._assembly`).
 
 :class:`PdoSampleReader` is the ``can.Listener`` around assemblies of many nodes that the
 force reader and the resistance reader share: the receive thread only appends
@@ -44,11 +47,13 @@ import statistics
 import threading
 import time
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import can
+import canopen
 import numpy as np
 
+from canbus.pdo_codec import TpdoLayout
 from canbus.tools.attribution import Attribution, KnownNode
 from canbus.tools.pdo_assembly import PdoAssembly, RawSample
 from canbus.tools.pdo_dictionary import Dictionary
@@ -99,6 +104,7 @@ class PdoSampleReader(can.Listener):
         self.malformed = 0  # of which shorter than their mapping
         self.unattributed: dict[int, int] = {}  # COB-ID -> frames no node is known to send
         self.syncs = 0
+        self.cycles = 0  # of which SYNCs that open a cycle (canbus.answers.counter_of_sync)
         self.sync_counter: int | None = None
         self.latest = -np.inf  # the newest bus timestamp processed
         self._sdo = SdoDecoder()
@@ -116,8 +122,7 @@ class PdoSampleReader(can.Listener):
         self._started = False
         for node in self.node_ids:
             view = self._view(node)
-            self._assemblies[node] = PdoAssembly(node, view.tpdo_layouts(), view.od,
-                                                order=self.order)
+            self._assemblies[node] = self._assembly(node, view.tpdo_layouts(), view.od)
         self._follow_attribution()
         self._started = True  # from now on a node named mid-stream waits for its next sample
 
@@ -127,7 +132,7 @@ class PdoSampleReader(can.Listener):
         """Copies the frame if the reader may need it; nothing else."""
         self.received += 1
         if msg.arbitration_id in self._wanted and not msg.is_extended_id \
-                and not msg.is_error_frame:
+                and not msg.is_error_frame and not msg.is_remote_frame:
             self._pending.append((msg.arbitration_id, bytes(msg.data), msg.timestamp))
 
     # -- processing -------------------------------------------------------------------
@@ -139,11 +144,22 @@ class PdoSampleReader(can.Listener):
             self._thread.start()
 
     def stop(self) -> None:
-        """Stop the thread (if any) and process what is left; safe to call again."""
+        """Stop the thread (if any) and process what is left, closing every sample still
+        open (:meth:`finish`); safe to call again."""
         self._stopping.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join()
         self.process()
+        self.finish()
+
+    def finish(self) -> None:
+        """The bus or the recording ended: hand on the samples only its end closes (a
+        patch's answer to the last SYNC, :mod:`canbus.tools.patch_answers`)."""
+        with self._lock:
+            for assembly in self._assemblies.values():
+                raws = assembly.finish()
+                if raws:
+                    self.on_samples(assembly, raws)
 
     def _run(self) -> None:
         while not self._stopping.wait(_POLL_S):
@@ -155,9 +171,15 @@ class PdoSampleReader(can.Listener):
             return self.fixed_period_s
         return self._period_s
 
-    def _on_sync(self, data: bytes, timestamp: float) -> None:
+    def _on_sync(self, data: bytes, timestamp: float, closed: Closed) -> None:
         self.syncs += 1
         self.sync_counter = data[0] if data else None
+        if len(data) <= 1:  # a SYNC, that opens a cycle (canbus.answers.counter_of_sync)
+            self.cycles += 1
+            for assembly in self._assemblies.values():
+                raws = assembly.sync(data[0] if data else 0, timestamp)
+                if raws:
+                    closed.setdefault(id(assembly), (assembly, []))[1].extend(raws)
         times = self._sync_times
         times.append(timestamp)
         if len(times) >= 2:
@@ -198,7 +220,7 @@ class PdoSampleReader(can.Listener):
         if assembly is not None:
             self._take(assembly, cob_id, data, timestamp, closed)
         elif cob_id == SYNC_COB_ID:
-            self._on_sync(data, timestamp)
+            self._on_sync(data, timestamp, closed)
             self.attribution.sync(timestamp)
         elif 0x581 <= cob_id <= 0x67F:
             self._sdo_frame(cob_id, data)
@@ -271,8 +293,7 @@ class PdoSampleReader(can.Listener):
         """The node's assembly from its current mapping; its open sample is dropped (a
         mapping change mid-sample: the node's PDOs before it are of the old one)."""
         view = self._view(node_id)
-        self._assemblies[node_id] = PdoAssembly(node_id, view.tpdo_layouts(), view.od,
-                                                order=self.order)
+        self._assemblies[node_id] = self._assembly(node_id, view.tpdo_layouts(), view.od)
         self._follow_attribution()
 
     def _follow_attribution(self) -> set[int]:
@@ -286,7 +307,7 @@ class PdoSampleReader(can.Listener):
             layouts = tuple(view.tpdo_layouts())
             if layouts != assembly.layouts:  # a boot-up forgot a remap, CAN FD was adopted
                 # (or a mapping was seen only in part)
-                self._assemblies[node] = PdoAssembly(node, layouts, view.od, order=self.order)
+                self._assemblies[node] = self._assembly(node, layouts, view.od)
         owners = self.attribution.table()
         before = {a.node_id for a in self._table.values()}
         self._table = {cob: a for a in self._assemblies.values() for cob in a.slots
@@ -301,11 +322,18 @@ class PdoSampleReader(can.Listener):
         self._wanted = frozenset(possible | set(self._table) | services | {SYNC_COB_ID})
         return named
 
+    def _assembly(self, node_id: int, layouts: Sequence[TpdoLayout],
+                  od: canopen.ObjectDictionary) -> PdoAssembly:
+        """A new assembly of the node's samples (a force node's: PDOs joined by their
+        order, :mod:`canbus.tools.pdo_assembly`)."""
+        return PdoAssembly(node_id, layouts, od, order=self.order)
+
     def assembly(self, node_id: int) -> PdoAssembly:
         return self._assemblies[node_id]
 
     def feed(self, messages: Iterable[can.Message]) -> int:
-        """Take ``messages`` (e.g. a recording's) as if received and process them; the count."""
+        """Take ``messages`` (e.g. a recording's) as if received, process them and end there
+        (:meth:`finish`); the count."""
         count = 0
         for msg in messages:
             self.on_message_received(msg)
@@ -313,4 +341,5 @@ class PdoSampleReader(can.Listener):
             if count % 1024 == 0:
                 self.process()
         self.process()
+        self.finish()
         return count

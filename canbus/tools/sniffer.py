@@ -15,8 +15,15 @@ a remote frame carries no data bits; error frames are not counted.
 Anomalies:
 - missed SYNC cycles: gaps in the SYNC counter; without a counter, intervals longer
   than 1.5 times the median of the last 8 are counted as that many periods;
-- incomplete samples: after a SYNC, a node that sent some PDOs in the cycle but not all it
-  sends in other cycles, or one of them twice (frames before the first SYNC are not judged);
+- incomplete samples: a patch's answers judged as the host judges them
+  (:mod:`canbus.answers`, through :class:`~canbus.tools.answer_reader.AnswerReader`): one
+  sample per SYNC cycle from the first SYNC after its PDOs are known (their COB-IDs
+  attributed to it), complete when every TPDO of one answer came once and in order
+  before the next SYNC (the frame just taken again with the same bytes, a CAN
+  retransmission, changes nothing); ``on_answer`` is handed each. Any other node (a force
+  node, a node without a shipped EDS) is judged at each SYNC by the PDOs it sends in other
+  cycles: incomplete when one of them did not come in the cycle, or one came twice (a
+  node that sent nothing in the cycle is not judged, nor frames before the first SYNC);
 - heartbeat gaps: a node's heartbeat interval over 1.5 times the median of its last 8;
 - unknown COB-IDs: frames outside the predefined connection set and 29-bit ids;
 - unattributed PDOs: PDOs no node is known to send (``canbus.tools.attribution``: a
@@ -39,14 +46,17 @@ import statistics
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import can
 
+from canbus.answers import PatchAnswer
 from canbus.frametime import classic_frame_bits, fd_frame_time_s, fd_length
+from canbus.identity import PATCH_PRODUCT
 from canbus.rxfilter import ReceiveFilter
+from canbus.tools.answer_reader import Answer, AnswerReader
 from canbus.tools.services import Decoded, Route, Service, ServiceDecoder, route
 
 _MANAGEMENT = frozenset((Service.NMT, Service.EMCY, Service.SDO, Service.TIME, Service.LSS))
@@ -206,7 +216,13 @@ class Sniffer(can.Listener):
     def __init__(self, decoder: ServiceDecoder | None = None, *, bitrate: int = 1_000_000,
                  data_bitrate: int | None = None, events: int = 200,
                  on_frame: Callable[[can.Message, Route, Decoded | None], None] | None = None,
-                 own: ReceiveFilter | None = None) -> None:
+                 own: ReceiveFilter | None = None,
+                 on_answer: Callable[[Answer], None] | None = None,
+                 answer_orders: Mapping[int, str] | None = None) -> None:
+        """``on_answer``: called with each patch answer judged (module docstring), on the
+        receive thread with the sniffer's lock held; ``answer_orders``: node-ID -> the order
+        a patch sends an answer's TPDOs in (a host config's ``answer_order``; default
+        ascending COB-ID)."""
         self.decoder = decoder or ServiceDecoder()
         self.own = own
         self.own_frames = 0
@@ -237,6 +253,10 @@ class Sniffer(can.Listener):
         self._expected: dict[int, set[int]] = {}
         self._heartbeats: dict[int, tuple[float | None, _Period, int | None]] = {}
         self._states: dict[int | None, int] = {}
+        self.on_answer = on_answer
+        self.answer_orders = dict(answer_orders or {})
+        self._answers = AnswerReader(self._answered)
+        self._answers_version = -1  # the dictionary's, when the patches followed were chosen
 
     def on_message_received(self, msg: can.Message) -> None:
         if self.own is not None and self.own.is_own(msg):
@@ -284,11 +304,15 @@ class Sniffer(can.Listener):
         elif not cob.known:
             self._unknown += 1
             self._unknown_ids.add(msg.arbitration_id)
+        if service is Service.SYNC:
+            self._follow_patches()  # a patch known by now is judged from this SYNC on
+        self._answers.take(msg)
         if service is Service.PDO and self._cycle is not None and where.node is not None:
-            seen = self._cycle.setdefault(where.node, set())
-            if msg.arbitration_id in seen:
-                self._duplicates.add(where.node)
-            seen.add(msg.arbitration_id)
+            if not self._is_patch(where.node):
+                seen = self._cycle.setdefault(where.node, set())
+                if msg.arbitration_id in seen:
+                    self._duplicates.add(where.node)
+                seen.add(msg.arbitration_id)
         elif service is Service.SYNC:
             self._on_sync(msg)
             self.decoder.attribution.sync(msg.timestamp)
@@ -354,6 +378,38 @@ class Sniffer(can.Listener):
         elif self._last_sync is not None:
             self._missed_sync += self._sync_period.periods_missed(msg.timestamp - self._last_sync)
         self._last_sync = msg.timestamp
+
+    def _is_patch(self, node: int) -> bool:
+        view = self.decoder.dictionary.view(node)
+        return view is not None and view.product == PATCH_PRODUCT
+
+    def _follow_patches(self) -> None:
+        """Judge, from the cycle the SYNC being taken opens, the answers of every patch
+        whose TPDOs are all known to be its own (lock held)."""
+        dictionary = self.decoder.dictionary
+        if dictionary.version == self._answers_version:
+            return
+        owners = self.decoder.attribution.table()
+        patches = []
+        for view in dictionary.views():
+            layouts = view.tpdo_layouts()
+            if view.product == PATCH_PRODUCT and layouts and all(
+                    (owner := owners.get(layout.cob_id)) is not None
+                    and owner.node == view.node_id and owner.kind == "TPDO"
+                    for layout in layouts):
+                patches.append(PatchAnswer(view.node_id, layouts, answer_order=self.answer_orders
+                                           .get(view.node_id, "cob-id")))
+        self._answers.follow(patches)
+        self._answers_version = dictionary.version
+
+    def _answered(self, answer: Answer) -> None:
+        """A patch's sample of a cycle, judged (lock held)."""
+        if answer.complete:
+            self._complete += 1
+        else:
+            self._incomplete += 1
+        if self.on_answer is not None:
+            self.on_answer(answer)
 
     def _on_heartbeat(self, node: int, msg: can.Message) -> None:
         view = self.decoder.dictionary.view(node)

@@ -317,14 +317,18 @@ def test_the_resistance_reader_reads_a_patch_s_codes_in_ohms() -> None:
     code[4, 1] = codes.OPEN
     code[7, 0] = codes.SHORT
     payloads = codec.pack(code.reshape(1, 27))[0]
-    frames = [(lay.cob_id, bytes(payloads[n][:lay.size])) for n, lay in enumerate(layouts)]
+    # as the patch sends an answer: ascending COB-ID, TPDO 1, 5, 2, 6, 3, 7, 4
+    frames = sorted((lay.cob_id, bytes(payloads[n][:lay.size])) for n, lay in enumerate(layouts))
     reader = ResistanceReader([3], known=[KnownNode(3, "skin-patch")])
     got: list[ResistanceSample] = []
     reader.on_sample(got.append)
-    reader.feed(_messages(frames, 5.0) + _messages(frames[:6], 5.01))
-    reader.process(now=5.1)
-    whole, partial = got
+    sync = [(0x080, b"\x01")]  # a sample is a patch's answer to a SYNC (canbus.answers)
+    reader.feed(_messages(sync + frames, 5.0) + _messages(sync + frames[:6], 5.01))
+    whole, partial = got  # the second closed by the end of the frames
     np.testing.assert_array_equal(whole.resistance_ohm, codes.code_to_resistance(code, 0.05))
-    assert whole.complete and not partial.complete
-    assert np.isnan(partial.resistance_ohm[8]).all()  # TPDO 7 (taxel 8's codes) never came
+    assert (whole.cycle, whole.complete, partial.cycle, partial.complete) == (1, True, 2, False)
+    assert (whole.timestamp, partial.timestamp) == (5.0, 5.01)  # their SYNCs'
+    # TPDO 4, the last the patch sends, never came (taxel 4's codes 13..15); TPDO 7 did
+    assert np.isnan(partial.resistance_ohm[4]).all()
+    assert not np.isnan(partial.resistance_ohm[8]).any()
     assert whole.resistance_ohm[4, 1] == np.inf and whole.resistance_ohm[7, 0] == 0.0

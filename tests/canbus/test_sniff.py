@@ -27,6 +27,7 @@ from canbus.device.nmt_slave import OPERATIONAL
 from canbus.device.patch_server import PatchServer
 from canbus.frametime import classic_frame_bits
 from canbus.od import load_od
+from canbus.tools.answer_reader import Answer
 from canbus.tools.attribution import Attribution, KnownNode
 from canbus.tools.pdo_dictionary import Dictionary
 from canbus.tools.recording import Recording
@@ -49,13 +50,35 @@ def _msg(t: float, cob_id: int, data: bytes = b"", **kw: object) -> can.Message:
                        is_extended_id=bool(kw.pop("extended", False)), **kw)  # type: ignore[arg-type]
 
 
+PATCH_ANSWER = (0x181, 0x201, 0x281, 0x301, 0x381, 0x401, 0x481)  # patch 1, as it sends one
+FORCE_NODE = 65  # TPDO 1, 2 at 0x1C1, 0x2C1
+
+
+def _answer(node: int, cycle: int, *, lose: int | None = None) -> list[tuple[int, bytes]]:
+    """Patch ``node``'s answer to SYNC ``cycle``: its 7 TPDOs in sending order, codes that
+    name the cycle; ``lose``: the COB-ID of patch 1's TPDO that does not come."""
+    return [(cob - 1 + node, bytes([cycle, node, k, 0, 0, 0, 0, 0]))
+            for k, cob in enumerate(PATCH_ANSWER) if cob != lose]
+
+
 def _sync_trace() -> list[can.Message]:
+    """SYNC 1, 2, 3, 5, 6 (4 missed). Patch 1: whole; whole with a frame retransmitted
+    (the same bytes again); TPDO 4 (0x301) lost; TPDO 2 again with other bytes. Patch 2:
+    whole, silent, whole, whole. Force node 65 (no patch: judged by the PDOs it sends in
+    other cycles): TPDO 1 and 2; TPDO 1 alone; TPDO 2 twice; nothing."""
     frames = [_msg(-0.001, 0x181, bytes(8))]  # before the first SYNC: not judged
-    cycles = {1: [0x181, 0x281, 0x182], 2: [0x181, 0x182], 3: [0x181, 0x181, 0x281, 0x182],
-              5: [0x181, 0x281], 6: [0x181]}
+    repeated = _answer(1, 2)
+    repeated.insert(3, repeated[2])
+    doubled = _answer(1, 5)
+    doubled.insert(2, (0x201, bytes(8)))
+    cycles = {1: _answer(1, 1) + _answer(2, 1) + [(0x1C1, bytes(8)), (0x2C1, bytes(8))],
+              2: [*repeated, (0x1C1, bytes(8))],
+              3: _answer(1, 3, lose=0x301) + _answer(2, 3)
+              + [(0x1C1, bytes(8)), (0x2C1, bytes(8)), (0x2C1, bytes(8))],
+              5: doubled + _answer(2, 5), 6: _answer(1, 6)}
     for counter, t in zip((1, 2, 3, 5, 6), (0.0, 0.01, 0.02, 0.04, 0.05), strict=True):
         frames.append(_msg(t, 0x080, bytes([counter])))
-        frames += [_msg(t + 0.001 * (k + 1), c, bytes(8)) for k, c in enumerate(cycles[counter])]
+        frames += [_msg(t + 0.0001 * (k + 1), c, d) for k, (c, d) in enumerate(cycles[counter])]
     frames += [_msg(0.1 * k, 0x701, b"\x05") for k in (1, 2, 3, 5, 6)]  # a 200 ms gap
     frames += [_msg(0.7, 0x123, b"\x01"), _msg(0.71, 0x123, b"\x02"),
                _msg(0.72, 0x1ABCDE, b"\x00", extended=True), _msg(0.73, 0x501, bytes(8)),
@@ -64,18 +87,29 @@ def _sync_trace() -> list[can.Message]:
 
 
 def _told(*patches: int) -> ServiceDecoder:
-    """A decoder told (as a host config tells it) that ``patches`` keep their defaults."""
+    """A decoder told (as a host config tells it) that ``patches`` and force node 65 keep
+    their defaults."""
     return ServiceDecoder(attribution=Attribution(
-        Dictionary(), [KnownNode(n, "skin-patch") for n in patches]))
+        Dictionary(), [*(KnownNode(n, "skin-patch") for n in patches),
+                       KnownNode(FORCE_NODE, "skin-forces")]))
 
 
 def test_anomalies_on_a_scripted_trace() -> None:
-    sniffer = Sniffer(_told(1, 2))
+    answers: list[Answer] = []
+    sniffer = Sniffer(_told(1, 2), on_answer=answers.append)
     for msg in _sync_trace():
         sniffer.on_message_received(msg)
     snap = sniffer.snapshot()
     a = snap.anomalies
-    assert (a.missed_sync, a.incomplete_samples, a.complete_samples) == (1, 2, 5)
+    # patches as the host judges them (canbus.answers), cycle by cycle: patch 1 complete in
+    # 1, 2 (a retransmission changes nothing) and 5 (whole: at once, its cycle still open),
+    # patch 2 in 1, 3 and 4 (SYNC 5); its silent cycle is a sample, incomplete
+    assert [(x.node_id, x.cycle, x.sync_counter, x.complete) for x in answers] == [
+        (1, 1, 1, True), (2, 1, 1, True), (1, 2, 2, True), (2, 2, 2, False),
+        (2, 3, 3, True), (1, 3, 3, False), (2, 4, 5, True), (1, 4, 5, False),
+        (1, 5, 6, True)]
+    # the force node: complete in its first cycle, short in the second, doubled in the third
+    assert (a.missed_sync, a.incomplete_samples, a.complete_samples) == (1, 3 + 2, 6 + 1)
     assert a.heartbeat_gaps == 1
     assert (a.unknown_frames, a.unknown_cob_ids, a.error_frames) == (3, (0x123, 0x1ABCDE), 1)
     assert (a.unattributed_frames, a.unattributed_cob_ids) == (1, (0x501,))  # no such PDO
@@ -293,7 +327,7 @@ def test_live_view_renders_a_snapshot() -> None:
                          2.0, rows=40))
     text = console.export_text()
     assert "skin sniff test" in text and "redraws 3 (skipped 1)" in text
-    assert "missed SYNC 1  incomplete samples 2/7  heartbeat gaps 1  unknown 3 (2 ids)  " \
+    assert "missed SYNC 1  incomplete samples 5/12  heartbeat gaps 1  unknown 3 (2 ids)  " \
         "unattributed 1 (1 ids)" in text
     assert "SYNC counter 6" in text
     only_sync = Console(record=True, width=200)

@@ -15,6 +15,8 @@ nodes 65 and 66 publishing), while a listener records the bus to .pcap and .log.
   through the CLI: ``skin run --listen-only`` and ``skin replay`` on one channel.
 - Wireshark's tshark types every frame of the .pcap as we do (NMT, SYNC, PDO, heartbeat,
   SDO, EMCY all present).
+- The sniffer and the view's raw resistances, reading the recording, call complete exactly
+  the samples the live host published complete (one assembly of the answers).
 """
 
 from __future__ import annotations
@@ -38,10 +40,13 @@ from canbus.device.source import ArraySource
 from canbus.master.dataplane import ForceFrame
 from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, PatchConfig
+from canbus.tools.answer_reader import Answer
+from canbus.tools.attribution import Attribution
+from canbus.tools.pdo_dictionary import Dictionary
 from canbus.tools.recorder import CandumpLogWriter, Recorder
 from canbus.tools.recording import Recording
 from canbus.tools.replay import Replayer
-from canbus.tools.services import Service, route
+from canbus.tools.services import Service, ServiceDecoder, route
 from canbus.tools.sniffer import Sniffer
 from decoder.reasons import Reason
 from skin.cli import main
@@ -217,6 +222,34 @@ def test_skin_run_listen_only_decodes_what_skin_replay_sends(
     assert 0 < record["stats"]["complete_samples"] <= sum(f.complete for f in live)
     assert record["stats"]["sync_cycles"] == host_run.stats["sync_cycles"]
     assert record["stats"]["frames_out"] == 0
+
+
+def test_the_sniffer_and_the_view_judge_the_live_run_s_answers_as_the_host_did(
+        host_run: HostRun) -> None:
+    """One assembly of the patches' answers (canbus.answers): read back from the recording,
+    the sniffer and the view's raw resistances call complete exactly the samples the live
+    host published complete (random recordings: test_answer_agreement.py)."""
+    from skin.commands.common.known_nodes import known_nodes
+    from skin.commands.view.sources import recorded_resistances
+
+    path = host_run.folder / "host.log"
+    live = {(f.patch, f.cycle): f.complete for f in host_run.frames}
+    answers: list[Answer] = []
+    sniffer = Sniffer(ServiceDecoder(attribution=Attribution(
+        Dictionary(), known_nodes(host_run.config))), on_answer=answers.append)
+    with Recording(path) as recording:
+        for msg in recording:
+            sniffer.on_message_received(msg)
+    sniffed = {(a.node_id, a.cycle): a.complete for a in answers}
+    viewed = {(s.patch, s.cycle): s.complete
+              for node in (1, 2) for s in recorded_resistances(path, node, config=host_run.config)}
+    complete = {key for key, whole in live.items() if whole}
+    assert len(complete) >= 2 * CYCLES - 2  # the run has complete samples to agree on
+    assert {key for key, whole in sniffed.items() if whole} == complete
+    assert {key for key, whole in viewed.items() if whole} == complete
+    assert set(viewed) == set(live)  # one sample per patch per SYNC
+    last = max(cycle for _, cycle in live)
+    assert set(sniffed) | {(1, last), (2, last)} == set(live)  # but the one no SYNC closed
 
 
 def test_pcap_and_log_hold_the_same_frames(host_run: HostRun) -> None:

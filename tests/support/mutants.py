@@ -41,7 +41,7 @@ class Mutant:
 MUTANTS = (
     Mutant("tail-joins-the-next-answer",
            "answers never mixed: a frame out of its answer's order is turned away",
-           "canbus/master/dataplane.py",
+           "canbus/answers.py",
            "        if place != slot.next or slot.ended or slot.done:",
            "        if slot.done:",
            ("tests/canbus/test_dataplane_answers.py",
@@ -55,7 +55,7 @@ MUTANTS = (
            ("tests/canbus/test_dataplane_answers.py",)),
     Mutant("window-ignored",
            "answers never mixed: a frame stamped after its cycle's window is not its cycle's",
-           "canbus/master/dataplane.py",
+           "canbus/answers.py",
            "            if self._start <= msg.timestamp <= self._end:",
            "            if self._start <= msg.timestamp:",
            ("tests/canbus/test_dataplane_answers.py", "tests/canbus/test_dataplane.py",

@@ -92,7 +92,9 @@ def _sniff(args: argparse.Namespace) -> int:
     printer = LinePrinter(decoder, shown, sys.stdout, stats) if view == "lines" else None
     sniffer = Sniffer(decoder, bitrate=getattr(args, "bitrate", None) or 1_000_000,
                       data_bitrate=getattr(args, "data_bitrate", None),
-                      on_frame=printer.on_frame if printer is not None else None)
+                      on_frame=printer.on_frame if printer is not None else None,
+                      answer_orders=None if config is None else {
+                          p.node_id: p.answer_order for p in config.patches})
     switch = sys.getswitchinterval()
     try:
         sys.setswitchinterval(min(switch, _SWITCH_S))

@@ -331,12 +331,13 @@ def recorded_resistances(path: str | os.PathLike[str], patch: int, *,
     """Patch ``patch``'s raw resistances (its own TPDOs) in a recording, in time order."""
     from canbus.tools.resistance_reader import ResistanceReader
 
-    known = []
+    known, orders = [], {}
     if config is not None and any(p.node_id == patch for p in config.patches):
         from skin.commands.common.known_nodes import patch_node
 
         known = [patch_node(config, config.patch(patch))]
-    reader = ResistanceReader([patch], known=known)
+        orders = {patch: config.patch(patch).answer_order}
+    reader = ResistanceReader([patch], known=known, answer_orders=orders)
     samples: list[ResistanceSample] = []
     reader.on_sample(samples.append)
     reader.feed(_messages(path, until))
