@@ -151,4 +151,4 @@ def test_the_design_is_docs_architecture(path: Path) -> None:
     ("[host.md](docs/hosts.md)", ["docs/hosts.md"]),
 ])
 def test_the_check_finds_what_is_missing(text: str, missing: list[str]) -> None:
-    assert sorted(missing_paths(text) + missing_modules(text)) == missing
+    assert sorted(missing_paths(text) + missing_modules(text)) == missing  # exact: names, text
