@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 from canbus import contact_record
 from canbus.contact_record import BusContact
 from canbus.tools.attribution import KnownNode
-from canbus.tools.pdo_assembly import PdoAssembly, RawSample
+from canbus.tools.pdo_assembly import JoinedPdos, PdoAssembly
 from canbus.tools.pdo_names import EdsChoice
 from canbus.tools.pdo_samples import PdoSampleReader
 from canbus.tools.sample_tracker import PatchStatus, SampleTracker
@@ -139,7 +139,7 @@ class _Columns:
         mapped[self.force_at] = True
         self.mapped = mapped.reshape(9, 3).all(axis=1)  # taxels with all 3 components mapped
 
-    def samples(self, raws: list[RawSample], patch: int) -> list[ForceSample]:
+    def samples(self, raws: list[JoinedPdos], patch: int) -> list[ForceSample]:
         """The force samples of ``raws`` (one node's), decoded at once."""
         n = len(raws)
         values = self.assembly.values(raws)
@@ -222,7 +222,7 @@ class ForceReader(PdoSampleReader):
         """Call ``callback(sample)`` for every sample, on the processing thread."""
         self._callbacks = (*self._callbacks, callback)
 
-    def on_samples(self, assembly: PdoAssembly, raws: list[RawSample]) -> None:
+    def on_samples(self, assembly: PdoAssembly, raws: list[JoinedPdos]) -> None:
         columns = self._columns.get(assembly.node_id)
         if columns is None or columns.assembly is not assembly:
             columns = self._columns[assembly.node_id] = _Columns(assembly)

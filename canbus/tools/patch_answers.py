@@ -19,7 +19,7 @@ import canopen
 from canbus.answers import PatchAnswer
 from canbus.pdo_codec import TpdoLayout
 from canbus.tools.answer_reader import Answer, AnswerReader
-from canbus.tools.pdo_assembly import PdoAssembly, RawSample
+from canbus.tools.pdo_assembly import JoinedPdos, PdoAssembly
 
 
 class PatchAnswers(PdoAssembly):
@@ -36,36 +36,36 @@ class PatchAnswers(PdoAssembly):
         self._reader.follow([self._answer])
 
     def take(self, cob_id: int, data: bytes, timestamp: float,
-             period_s: float) -> list[RawSample]:
+             period_s: float) -> list[JoinedPdos]:
         """One frame of PDO ``cob_id``: the answer it completes, if any."""
         self._reader.take(can.Message(timestamp=timestamp, arbitration_id=cob_id, data=data,
                                       is_extended_id=False, check=False))
         self.malformed = self._reader.stats.malformed_frames
         return self._samples()
 
-    def sync(self, counter: int, timestamp: float) -> list[RawSample]:
+    def sync(self, counter: int, timestamp: float) -> list[JoinedPdos]:
         """A SYNC: the open cycle's answer, if it was not complete, and a new cycle."""
         self._reader.sync(counter, timestamp)
         return self._samples()
 
-    def expire(self, now: float, period_s: float) -> RawSample | None:
+    def expire(self, now: float, period_s: float) -> JoinedPdos | None:
         return None  # a cycle lasts until the next SYNC
 
-    def finish(self) -> list[RawSample]:
+    def finish(self) -> list[JoinedPdos]:
         """The bus or the recording ended: the open cycle's answer, if it was not complete."""
         self._reader.end()
         return self._samples()
 
-    def _samples(self) -> list[RawSample]:
+    def _samples(self) -> list[JoinedPdos]:
         answers, self._answers[:] = list(self._answers), []
         return [self._sample(a) for a in answers]
 
-    def _sample(self, answer: Answer) -> RawSample:
+    def _sample(self, answer: Answer) -> JoinedPdos:
         """The answer in the assembly's buffer layout (:meth:`PdoAssembly.values` reads it)."""
         buffer = bytearray(self.size)
         stride = self._answer.stride
         for bit, offset, size in self.slots.values():
             buffer[offset:offset + size] = answer.payload[stride * bit:stride * bit + size]
         arrived = self.full & ~answer.missing
-        return RawSample(self.node_id, answer.sync_time, bytes(buffer), arrived,
+        return JoinedPdos(self.node_id, answer.sync_time, bytes(buffer), arrived,
                          answer.complete, answer.cycle)

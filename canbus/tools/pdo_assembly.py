@@ -35,7 +35,7 @@ class Variable:
 
 
 @dataclass(frozen=True)
-class RawSample:
+class JoinedPdos:
     """One node's joined PDOs (read them with :meth:`PdoAssembly.values`)."""
 
     node_id: int
@@ -101,10 +101,10 @@ class PdoAssembly:
         return None
 
     def take(self, cob_id: int, data: bytes, timestamp: float,
-             period_s: float) -> list[RawSample]:
+             period_s: float) -> list[JoinedPdos]:
         """One frame of PDO ``cob_id``: the samples it closes (none, one or two)."""
         bit, offset, size = self.slots[cob_id]
-        out: list[RawSample] = []
+        out: list[JoinedPdos] = []
         if self.await_first:
             if bit != self.first_pdo:
                 return out  # the rest of a sample whose beginning was not the node's yet
@@ -133,7 +133,7 @@ class PdoAssembly:
             out.append(self.close())
         return out
 
-    def expire(self, now: float, period_s: float) -> RawSample | None:
+    def expire(self, now: float, period_s: float) -> JoinedPdos | None:
         """The open sample, closed partial, if it has been open for :data:`OPEN_PERIODS`
         periods by bus time ``now`` (:data:`HEADLESS_SHARE` of one without its first PDO)."""
         if not self.seen:
@@ -143,21 +143,21 @@ class PdoAssembly:
             return self.close()
         return None
 
-    def sync(self, counter: int, timestamp: float) -> list[RawSample]:
+    def sync(self, counter: int, timestamp: float) -> list[JoinedPdos]:
         """A SYNC: the samples it closes (none: a sample here is closed by its PDOs)."""
         return []
 
-    def finish(self) -> list[RawSample]:
+    def finish(self) -> list[JoinedPdos]:
         """The bus or the recording ended: the samples that closes (none here)."""
         return []
 
-    def close(self) -> RawSample:
-        sample = RawSample(self.node_id, self.last, bytes(self.buffer), self.seen,
+    def close(self) -> JoinedPdos:
+        sample = JoinedPdos(self.node_id, self.last, bytes(self.buffer), self.seen,
                            self.seen == self.full)
         self.seen = 0
         return sample
 
-    def values(self, samples: Sequence[RawSample]) -> NDArray[np.float64]:
+    def values(self, samples: Sequence[JoinedPdos]) -> NDArray[np.float64]:
         """``(n, V)`` every mapped variable of ``n`` samples of this assembly, one numpy
         read; a PDO that did not come reads as the bytes left by the last one that did."""
         n = len(samples)
@@ -168,7 +168,7 @@ class PdoAssembly:
             out[:, columns] = np.ascontiguousarray(raw[:, byte_index]).view(dtype)
         return out
 
-    def arrived(self, samples: Sequence[RawSample]) -> NDArray[np.bool_]:
+    def arrived(self, samples: Sequence[JoinedPdos]) -> NDArray[np.bool_]:
         """``(n, V)`` whether each variable's PDO came."""
         bits = np.array([s.arrived for s in samples], dtype=np.int64)
         came: NDArray[np.bool_] = (bits[:, None] >> self._pdo[None, :] & 1).astype(bool)

@@ -55,7 +55,7 @@ import numpy as np
 
 from canbus.pdo_codec import TpdoLayout
 from canbus.tools.attribution import Attribution, KnownNode
-from canbus.tools.pdo_assembly import PdoAssembly, RawSample
+from canbus.tools.pdo_assembly import JoinedPdos, PdoAssembly
 from canbus.tools.pdo_dictionary import Dictionary
 from canbus.tools.pdo_names import EdsChoice, NodeView
 from canbus.tools.services import SdoDecoder
@@ -70,7 +70,7 @@ _POLL_S = 0.02
 
 
 Frame = tuple[int, bytes, float]
-Closed = dict[int, tuple["PdoAssembly", list[RawSample]]]
+Closed = dict[int, tuple["PdoAssembly", list[JoinedPdos]]]
 _RECENT = 1024
 """Unattributed frames held for a node that their sample may yet name (a few samples')."""
 
@@ -191,7 +191,7 @@ class PdoSampleReader(can.Listener):
         the newest frame's time or ``now`` (bus time), whichever is later."""
         with self._lock:
             pending = self._pending
-            closed: dict[int, tuple[PdoAssembly, list[RawSample]]] = {}
+            closed: dict[int, tuple[PdoAssembly, list[JoinedPdos]]] = {}
             while pending:
                 self._one(*pending.popleft(), closed)
             until = self.latest if now is None else max(self.latest, now)
@@ -261,7 +261,7 @@ class PdoSampleReader(can.Listener):
                 keep.append((cob_id, data, timestamp))
         self._recent = keep
 
-    def on_samples(self, assembly: PdoAssembly, raws: list[RawSample]) -> None:
+    def on_samples(self, assembly: PdoAssembly, raws: list[JoinedPdos]) -> None:
         """Samples of one node that closed, in order (called with the reader's lock
         held, once per node and :meth:`process`); subclasses interpret them."""
 

@@ -29,7 +29,7 @@ from canbus.patch_constants import decode_si
 from canbus.pdo_codec import TpdoLayout
 from canbus.tools.attribution import KnownNode
 from canbus.tools.patch_answers import PatchAnswers
-from canbus.tools.pdo_assembly import PdoAssembly, RawSample
+from canbus.tools.pdo_assembly import JoinedPdos, PdoAssembly
 from canbus.tools.pdo_samples import PdoSampleReader
 
 RESISTANCES, LSB = 0x2000, 0x2001
@@ -64,7 +64,7 @@ class ResistanceReader(PdoSampleReader):
         """Call ``callback(sample)`` for every sample, on the processing thread."""
         self._callbacks = (*self._callbacks, callback)
 
-    def on_samples(self, assembly: PdoAssembly, raws: list[RawSample]) -> None:
+    def on_samples(self, assembly: PdoAssembly, raws: list[JoinedPdos]) -> None:
         columns = [k for k, v in enumerate(assembly.variables)
                    if v.index == RESISTANCES and 1 <= v.subindex <= 27]
         at = [assembly.variables[k].subindex - 1 for k in columns]
