@@ -21,7 +21,7 @@ from typing import Any, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from decoder.box import Box
+from decoder.box import Box, expect_array
 from decoder.domain import Domain, check_margin, domain_reasons, per_taxel
 from decoder.patchcheck import block_margin
 from decoder.physics import features, taxel_reasons, to_force
@@ -29,7 +29,6 @@ from decoder.protocol import (
     F64,
     BaseDecoder,
     Progress,
-    expect_array,
 )
 from decoder.unmix import apply_unmix, fit_unmix, unmix_rows
 from skin.constants import DEFAULT_CONSTANTS, SensorConstants
@@ -78,7 +77,7 @@ class DeconvDecoder(BaseDecoder):
         state.setdefault("domain_", None)  # version 1 kept no domain: nothing is flagged
 
     def _check_state(self) -> None:
-        expect_array(self.unmix_, "unmix_", (9, 9))
+        expect_array(self.unmix_, "state.unmix_", (9, 9))
         if self.pillars_ not in (1, 3) or isinstance(self.pillars_, bool):
             raise ModelFileError(f"state.pillars_: must be 1 or 3, got {self.pillars_!r}")
         if self.domain_ is not None:

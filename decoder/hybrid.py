@@ -50,7 +50,7 @@ from typing import Any, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from decoder.box import Box
+from decoder.box import Box, expect_array
 from decoder.domain import Domain, Ellipsoid, check_margin, domain_reasons, per_taxel
 from decoder.lm import LMOptions
 from decoder.patchcheck import block_margin
@@ -58,7 +58,6 @@ from decoder.physics import features, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
     Progress,
-    expect_array,
 )
 from decoder.regressor import FoldedMLP, MLPDecoderBase, fit_mlp, sample_rows
 from decoder.unmix import apply_unmix, fit_unmix, unmix_rows
@@ -175,7 +174,7 @@ class HybridDecoder(MLPDecoderBase):
 
     def _check_state(self) -> None:
         super()._check_state()
-        expect_array(self.unmix_, "unmix_", (9, 9))
+        expect_array(self.unmix_, "state.unmix_", (9, 9))
         layout = self._layout()
         for key in ("domain_", "residual_domain_"):
             value = getattr(self, key)
@@ -188,7 +187,8 @@ class HybridDecoder(MLPDecoderBase):
             got = used.shape if isinstance(used, np.ndarray) else type(used).__name__
             raise ModelFileError(f"state.use_residual_: expected bool array of shape "
                                  f"({layout.n_out},), got {got}")
-        threshold = expect_array(self.residual_threshold_, "residual_threshold_", (layout.n_out,))
+        threshold = expect_array(self.residual_threshold_, "state.residual_threshold_",
+                                 (layout.n_out,))
         if np.any(threshold < 0):
             raise ModelFileError("state.residual_threshold_: must be >= 0")
         density = None if self.residual_domain_ is None else self.residual_domain_.density

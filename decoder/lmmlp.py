@@ -39,6 +39,7 @@ from typing import Any, Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from decoder.box import expect_array
 from decoder.domain import Domain, check_margin, domain_reasons, per_taxel
 from decoder.metrics import FLOOR_FRACTION
 from decoder.patchcheck import fit_boxes, fit_patch_checks
@@ -46,7 +47,6 @@ from decoder.physics import features, taxel_reasons, to_force
 from decoder.protocol import (
     F64,
     Progress,
-    expect_array,
     fold_resistance,
 )
 from decoder.regressor import MLPDecoderBase, sample_rows
@@ -135,7 +135,7 @@ class LMMLPDecoder(MLPDecoderBase):
         super()._check_state()
         layout = self._layout()
         if self.unmix_ is not None:
-            expect_array(self.unmix_, "unmix_", (9, 9))
+            expect_array(self.unmix_, "state.unmix_", (9, 9))
         self.domain_ = Domain.from_state(self.domain_, "state.domain_", layout.n_in,
                                          layout.n_out)
         for key in JUDGED:

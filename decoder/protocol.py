@@ -316,11 +316,3 @@ class BaseDecoder:
     def __repr__(self) -> str:
         shown = ", ".join(f"{p}={getattr(self, p)!r}" for p in self._params if p != "constants")
         return f"{type(self).__name__}({shown})"
-
-
-def expect_array(value: Any, field: str, shape: tuple[int, ...]) -> F64:
-    """State check helper: a float64 array of exactly ``shape``."""
-    if not isinstance(value, np.ndarray) or value.dtype != np.float64 or value.shape != shape:
-        got = value.shape if isinstance(value, np.ndarray) else type(value).__name__
-        raise ModelFileError(f"state.{field}: expected float64 array of shape {shape}, got {got}")
-    return value

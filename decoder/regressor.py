@@ -22,10 +22,11 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from decoder.box import expect_array
 from decoder.hidden import START, HiddenChoice, choose_hidden, eq21_candidates
 from decoder.lm import LMOptions, TrainResult, train_lm
 from decoder.mlp import F64, Layout, mapminmax, mapminmax_gain, minmax_range, nguyen_widrow
-from decoder.protocol import BaseDecoder, Progress, expect_array
+from decoder.protocol import BaseDecoder, Progress
 from skin.constants import TAXELS_PER_PATCH, SensorConstants
 from skin.errors import DecodeError, ModelFileError
 from skin.inputs.budget import require_memory
@@ -257,10 +258,10 @@ class MLPDecoderBase(BaseDecoder):
                                  f"{self.hidden}")
         layout = self._layout()
         for key in ("x_lo_", "x_hi_"):
-            expect_array(getattr(self, key), key, (layout.n_in,))
+            expect_array(getattr(self, key), f"state.{key}", (layout.n_in,))
         for key in ("y_lo_", "y_hi_"):
-            expect_array(getattr(self, key), key, (layout.n_out,))
-        expect_array(self.theta_, "theta_", (layout.n_params,))
+            expect_array(getattr(self, key), f"state.{key}", (layout.n_out,))
+        expect_array(self.theta_, "state.theta_", (layout.n_params,))
         if np.any(self.x_lo_ > self.x_hi_) or np.any(self.y_lo_ > self.y_hi_):
             raise ModelFileError("state.x_lo_: a scaling range has min > max")
         self._prepare()

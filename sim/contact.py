@@ -5,15 +5,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from skin.contact import taxel_xy
+
 F64 = NDArray[np.float64]
-
-
-def taxel_xy(pitch_m: float) -> tuple[F64, F64]:
-    """Centres (x, y) of the 9 taxels in the patch frame; taxel k is row k//3, column k%3."""
-    row, col = np.divmod(np.arange(9), 3)
-    x: F64 = (col - 1.0) * pitch_m
-    y: F64 = (row - 1.0) * pitch_m
-    return x, y
 
 
 def sphere_fz(
@@ -27,7 +21,7 @@ def sphere_fz(
     grows as indentation^1.5, reaching ``fz_max_N`` under the centre at
     ``depth_max_m``.
     """
-    x, y = taxel_xy(pitch_m)
+    x, y = taxel_xy(pitch_m).T
     r2 = (cx[..., None] - x) ** 2 + (cy[..., None] - y) ** 2
     indent = np.maximum(depth_m[..., None] - r2 / (2.0 * radius_m), 0.0) / depth_max_m
     fz: F64 = fz_max_N * indent * np.sqrt(indent)

@@ -14,10 +14,11 @@ from typing import ClassVar, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.contact import sphere_fz, taxel_xy
+from sim.contact import sphere_fz
 from sim.params import non_negative, positive
 from sim.rng import stream
 from sim.stickslip import StickSlip, StickSlipParams
+from skin.contact import taxel_xy
 
 F64 = NDArray[np.float64]
 
@@ -230,7 +231,7 @@ class Grasp:
         cycle = np.floor(t / p.period_s).astype(np.int64)
         draws = np.stack([self._cycle(int(c)) for c in cycle]) if n else np.zeros((0, 1, 5))
         envelope = 0.5 * (1.0 - np.cos(2.0 * np.pi * t / p.period_s))
-        x, y = taxel_xy(self.pitch)
+        x, y = taxel_xy(self.pitch).T
         cx = (2.0 * draws[..., 1] - 1.0) * self.pitch
         cy = (2.0 * draws[..., 2] - 1.0) * self.pitch
         r2 = (cx[..., None] - x) ** 2 + (cy[..., None] - y) ** 2

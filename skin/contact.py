@@ -6,7 +6,7 @@ loads, so both measure the same thing.
 
 Geometry. Taxel k sits at column k % 3, row k // 3 of the patch's grid, centre
 ((k % 3 - 1)·pitch, (k // 3 - 1)·pitch) in the *patch frame* (x right, y up seen from
-above, z out of the skin: Fz > 0 presses in; :func:`sim.contact.taxel_xy` places them
+above, z out of the skin: Fz > 0 presses in; :func:`taxel_xy` places them
 alike). The config places the patch on the skin at ``position_m`` turned by
 ``orientation_deg`` about z: a point p of the patch frame is ``position + R(θ)·p`` in the
 *placed frame*.

@@ -18,9 +18,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from sim.contact import sphere_fz, taxel_xy
+from sim.contact import sphere_fz
 from sim.loads import LOAD_PARAMS, make_load
 from skin.constants import DEFAULT_CONSTANTS
+from skin.contact import taxel_xy
 
 F64 = NDArray[np.float64]
 PITCH_M = DEFAULT_CONSTANTS.taxel_pitch_m
@@ -94,7 +95,7 @@ def spheres(n: int, rng: np.random.Generator, p: dict[str, Any], seed: int) -> F
 def plate(n: int, rng: np.random.Generator, p: dict[str, Any], seed: int) -> F64:
     """A flat plate pressed with a random tilt: Fz = fz_max x clip(d + a·x + b·y, 0, 1), three
     degrees of freedom (``tilt`` 0: one, all taxels alike)."""
-    x, y = taxel_xy(PITCH_M)
+    x, y = taxel_xy(PITCH_M).T
     tilt = p.get("tilt", 0.5)
     d = rng.uniform(0.0, 1.0, (n, 1))
     a, b = (rng.uniform(-tilt, tilt, (n, 1)) / PITCH_M for _ in range(2))
