@@ -64,7 +64,8 @@ _PDO_SHAPED = frozenset((Service.PDO, Service.UNKNOWN))
 _WINDOW = 8
 
 
-def frame_bits(msg: can.Message, bitrate: int, data_bitrate: int | None) -> tuple[float, float]:
+def frame_bit_bounds(msg: can.Message, bitrate: int,
+                     data_bitrate: int | None) -> tuple[float, float]:
     """Bits one frame occupies on the wire at ``bitrate``: (no stuffing, worst-case stuffing)."""
     data = 0 if msg.is_remote_frame else len(msg.data)
     if msg.is_fd:
@@ -348,7 +349,7 @@ class Sniffer(can.Listener):
                msg.is_remote_frame)
         bits = self._bits.get(key)
         if bits is None:
-            bits = self._bits[key] = frame_bits(msg, self.bitrate, self.data_bitrate)
+            bits = self._bits[key] = frame_bit_bounds(msg, self.bitrate, self.data_bitrate)
         self._best += bits[0]
         self._worst += bits[1]
 

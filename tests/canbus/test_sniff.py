@@ -32,7 +32,7 @@ from canbus.tools.attribution import Attribution, KnownNode
 from canbus.tools.pdo_dictionary import Dictionary
 from canbus.tools.recording import Recording
 from canbus.tools.services import Service, ServiceDecoder, route
-from canbus.tools.sniffer import FrameFilter, Sniffer, frame_bits
+from canbus.tools.sniffer import FrameFilter, Sniffer, frame_bit_bounds
 from skin.cli import main
 from skin.commands.common import busopen
 from skin.commands.sniff.view import ViewStats, render
@@ -141,7 +141,7 @@ def test_bus_load_counts_bits_as_skin_plan() -> None:
         sniffer.on_message_received(msg)
     snap = sniffer.snapshot()
     # 29-bit id, 8 bytes: 54 + 64 = 118 stuffed bits (+29 worst-case stuff) + 13 = 131 / 160
-    assert frame_bits(frames[3], 500_000, None) == (131.0, 160.0)
+    assert frame_bit_bounds(frames[3], 500_000, None) == (131.0, 160.0)
     best = classic_frame_bits(8, worst_case_stuffing=False) + \
         classic_frame_bits(1, worst_case_stuffing=False) + \
         classic_frame_bits(0, worst_case_stuffing=False) + 131
