@@ -32,7 +32,7 @@ from tests.support.rigs.children import Child, spawn
 from tests.support.rigs.ports import udp_bus
 from tests.support.rigs.waiting import wait_until
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 SCENE = "calibration"
 HOST = """[host]
 sync_period_ms = 10.0
