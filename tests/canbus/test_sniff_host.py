@@ -30,12 +30,10 @@ from pathlib import Path
 
 import can
 import can.interfaces.virtual
-import canopen
 import numpy as np
 import pytest
 
 from canbus import codes
-from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.dataplane import ForceFrame
 from canbus.master.host import HostManager
@@ -54,6 +52,7 @@ from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 from tests.canbus.virtual_channels import ctrl_c, listening, read_out
 from tests.support.rigs import children
+from tests.support.rigs.recorded_host import recorded_host
 from tests.support.rigs.waiting import wait_until
 
 LSB = DEFAULT_CONSTANTS.resistance_lsb_ohm
@@ -96,31 +95,10 @@ def host_run(tmp_path_factory: pytest.TempPathFactory) -> HostRun:
     config = HostConfig(patches=(PatchConfig(1), PatchConfig(2)), sync_period_ms=40.0,
                         heartbeat_ms=100, scan_ms=100)
     object.__setattr__(config, "sync_window_ms", 0.0)  # the data plane's "until the next"
-    listen = can.Bus(interface="virtual", channel=channel)
     recorders = [Recorder(folder / "host.pcap"), Recorder(folder / "host.log")]
-    notifier = can.Notifier(listen, [*recorders], timeout=0.05)
-    device = canopen.Network()
-    device.NOTIFIER_CYCLE = 0.05
-    device.connect(interface="virtual", channel=channel)
-    bus = can.Bus(interface="virtual", channel=channel)
-    frames: list[ForceFrame] = []
-    try:
-        with PatchServer(device, ArraySource(_samples(), (1, 2))):
-            host = HostManager(bus, config)
-            host.on_forces(frames.append)
-            host.start()
-            try:
-                assert host.wait_operational(timeout=15.0), host.health()
-                wait_until(lambda: sum(f.patch == 1 for f in frames) >= CYCLES,
-                           what="force frames")
-            finally:
-                host.stop()
-    finally:
-        device.disconnect()
-        notifier.stop(timeout=1.0)  # stops (and saves) both recorders
-        listen.shutdown()
-        bus.shutdown()
-    return HostRun(folder, frames, config, host.stats())
+    with recorded_host(channel, config, ArraySource(_samples(), (1, 2)), recorders) as run:
+        wait_until(lambda: sum(f.patch == 1 for f in run.frames) >= CYCLES, what="force frames")
+    return HostRun(folder, run.frames, config, run.stats)
 
 
 def _seen(host: HostManager) -> int:

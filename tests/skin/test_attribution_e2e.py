@@ -17,16 +17,13 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import can
-import canopen
 import numpy as np
 import pytest
 
 from canbus import codes
-from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.dataplane import ForceFrame
 from canbus.master.forceframes import forces_to_mN
-from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, load_host_config
 from canbus.tools.attribution import Attribution
 from canbus.tools.pdo_dictionary import Dictionary
@@ -40,6 +37,7 @@ from skin.commands.view.layout import Layout
 from skin.commands.view.recorded import moment_view
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
+from tests.support.rigs.recorded_host import recorded_host
 from tests.support.rigs.waiting import wait_until
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "host.toml"
@@ -76,34 +74,17 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Run:
     # does not stall for; at the example's 100 ms one late heartbeat loses a patch for a
     # moment, and its PDOs of that moment are, rightly, no channel's (unknown_frames)
     config = replace(load_host_config(EXAMPLE), scan_ms=100, heartbeat_ms=1000)
-    listen = can.Bus(interface="virtual", channel=channel)
-    recorder = Recorder(folder / "example.log")
-    notifier = can.Notifier(listen, [recorder], timeout=0.05)
-    device = canopen.Network()
-    device.NOTIFIER_CYCLE = 0.05
-    device.connect(interface="virtual", channel=channel)
-    bus = can.Bus(interface="virtual", channel=channel)
-    frames: list[ForceFrame] = []
-    try:
-        with PatchServer(device, ArraySource(_samples(), (1, 2, 3))):
-            host = HostManager(bus, config)
-            host.on_forces(frames.append)
-            lost: list[int] = []
-            host.on_event(lambda event: lost.append(event.patch)
-                          if getattr(event, "state", None) == "lost" else None)
-            host.start()
-            try:
-                assert host.wait_operational(timeout=15.0), host.health()
-                wait_until(lambda: sum(f.patch == 3 and f.complete for f in frames) >= CYCLES,
-                           what=f"{CYCLES} complete samples of patch 3")
-            finally:
-                host.stop()
-    finally:
-        device.disconnect()
-        notifier.stop(timeout=1.0)
-        listen.shutdown()
-        bus.shutdown()
-    return Run(folder / "example.log", config, frames, host.stats(), lost)
+    lost: list[int] = []
+
+    def on_event(event: object) -> None:
+        if getattr(event, "state", None) == "lost":
+            lost.append(event.patch)  # type: ignore[attr-defined]
+
+    with recorded_host(channel, config, ArraySource(_samples(), (1, 2, 3)),
+                       [Recorder(folder / "example.log")], on_event=on_event) as run:
+        wait_until(lambda: sum(f.patch == 3 and f.complete for f in run.frames) >= CYCLES,
+                   what=f"{CYCLES} complete samples of patch 3")
+    return Run(folder / "example.log", config, run.frames, run.stats, lost)
 
 
 def _sniff_lines(run: Run, *extra: str) -> list[str]:

@@ -11,16 +11,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import can
-import canopen
 import numpy as np
 
-from canbus.device.patch_server import PatchServer
 from canbus.device.source import ArraySource
 from canbus.master.dataplane import ForceFrame
-from canbus.master.host import HostManager
 from canbus.master.hostconfig import HostConfig, PatchConfig
 from canbus.tools.recorder import Recorder
+from tests.support.rigs.recorded_host import recorded_host
 from tests.support.rigs.waiting import wait_until
 
 
@@ -43,28 +40,8 @@ def record_host_run(path: Path, resistance_ohm: np.ndarray, node_ids: tuple[int,
     recorded to ``path`` until every patch has ``cycles`` force frames."""
     config = HostConfig(patches=tuple(PatchConfig(n, mode=mode) for n in node_ids),
                         sync_period_ms=sync_period_ms, heartbeat_ms=200, scan_ms=100)
-    listen = can.Bus(interface="virtual", channel=channel)
-    recorder = Recorder(path)
-    notifier = can.Notifier(listen, [recorder], timeout=0.05)
-    device = canopen.Network()
-    device.NOTIFIER_CYCLE = 0.05
-    device.connect(interface="virtual", channel=channel)
-    bus = can.Bus(interface="virtual", channel=channel)
-    frames: list[ForceFrame] = []
-    try:
-        with PatchServer(device, ArraySource(resistance_ohm, node_ids)):
-            host = HostManager(bus, config)
-            host.on_forces(frames.append)
-            host.start()
-            try:
-                assert host.wait_operational(timeout=15.0), host.health()
-                until(lambda: min(sum(f.patch == n for f in frames) for n in node_ids)
-                      >= cycles, "force frames")
-            finally:
-                host.stop()
-    finally:
-        device.disconnect()
-        notifier.stop(timeout=1.0)  # saves the recording
-        listen.shutdown()
-        bus.shutdown()
-    return HostRun(path, frames, config, host.stats())
+    with recorded_host(channel, config, ArraySource(resistance_ohm, node_ids),
+                       [Recorder(path)]) as run:
+        until(lambda: min(sum(f.patch == n for f in run.frames) for n in node_ids) >= cycles,
+              "force frames")
+    return HostRun(path, run.frames, config, run.stats)
