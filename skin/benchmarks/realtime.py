@@ -44,6 +44,7 @@ from typing import IO, Any
 import numpy as np
 
 from canbus.busload import TPDO_BASES
+from skin.benchmarks.proccpu import process_cpu_s
 from skin.benchmarks.publish import free_udp_ports
 from skin.errors import BusError
 
@@ -255,9 +256,7 @@ class _Processes:
 
     def cpu_s(self, name: str) -> float:
         """The process's user and system CPU time so far (all its threads)."""
-        fields = Path(f"/proc/{self._procs[name].pid}/stat").read_text().rsplit(")", 1)[1]
-        utime, stime = fields.split()[11:13]
-        return (int(utime) + int(stime)) / os.sysconf("SC_CLK_TCK")
+        return process_cpu_s(self._procs[name].pid)
 
 
 def _may_realtime(priority: int) -> bool:
