@@ -52,7 +52,7 @@ from decoder.protocol import Decoder
 from decoder.registry import create_decoder
 from sim import Scene, Simulator, load_scene
 from sim.contact_truth import TrueContact, true_contact
-from skin.benchmarks.dataplane import DataPlaneRig, build_stream, published_frames, stream_of
+from skin.benchmarks.dataplane_rigs import DataPlaneRig, build_stream, published_frames, stream_of
 from skin.constants import DEFAULT_CONSTANTS
 from skin.contact import ContactParams, PatchGeometry, summarize
 from skin.contact_state import track

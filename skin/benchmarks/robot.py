@@ -40,7 +40,7 @@ from canbus.master.robot import contacts_of
 from decoder.protocol import Decoder
 from sim.probe import ProbeRun, ProbeScene, load_probe_scene, run_probe
 from skin.benchmarks.contact import train_on
-from skin.benchmarks.dataplane import published_frames, stream_of
+from skin.benchmarks.dataplane_rigs import published_frames, stream_of
 from skin.constants import DEFAULT_CONSTANTS
 from skin.contact import ContactParams, PatchGeometry
 from skin.errors import ConfigError

@@ -8,7 +8,8 @@ import threading
 import pytest
 
 from decoder.registry import create_decoder
-from skin.benchmarks.dataplane import ReceiveSideClock, build_stream, pipeline_rate
+from skin.benchmarks.dataplane_rigs import build_stream
+from skin.benchmarks.pipeline import ReceiveSideClock, pipeline_rate
 from skin.errors import BusError
 
 

@@ -44,7 +44,7 @@ from canbus.tools.services import ServiceDecoder
 from canbus.tools.sniffer import Sniffer
 from decoder.reasons import Reason
 from decoder.registry import create_decoder
-from skin.benchmarks.dataplane import SinkBus
+from skin.benchmarks.dataplane_rigs import SinkBus
 from skin.commands.common.known_nodes import known_nodes
 from skin.commands.view.sources import recorded_resistances
 from tests.support.rigs.dataplane import Patch, load

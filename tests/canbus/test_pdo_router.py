@@ -10,7 +10,7 @@ from canbus.master.dataplane import DataPlane, PatchChannel
 from canbus.master.forcenode import ForceNode
 from canbus.master.pdo_router import PdoRouter
 from decoder.registry import create_decoder
-from skin.benchmarks.dataplane import SinkBus
+from skin.benchmarks.dataplane_rigs import SinkBus
 
 
 class _Seen(can.Listener):

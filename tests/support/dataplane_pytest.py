@@ -17,13 +17,8 @@ import pytest
 
 from decoder.protocol import Decoder
 from decoder.registry import create_decoder
-from skin.benchmarks.dataplane import (
-    CanopenRig,
-    DataPlaneRig,
-    QueuedFrames,
-    Stream,
-    build_stream,
-)
+from skin.benchmarks.dataplane_rigs import CanopenRig, DataPlaneRig, Stream, build_stream
+from skin.benchmarks.pipeline import QueuedFrames
 
 CYCLES = 50  # 5,600 frames in, 5,600 out per round
 

@@ -2,7 +2,7 @@
 
     python -m tests.support.mcap_dataplane [--patches 16] [--cycles 300] [--repeats 3] [--pace FPS]
 
-The whole threaded path of :func:`skin.benchmarks.dataplane.pipeline_rate` (a bus, notifier, data
+The whole threaded path of :func:`skin.benchmarks.pipeline.pipeline_rate` (a bus, notifier, data
 plane and its publishing thread, force nodes, contact summaries) as fast as it goes, on
 udp_multicast over loopback (a group and port of ``tests.support.rigs.ports``), alone and with
 the recorder ``skin run --record run.mcap`` runs: ``process``, the recording process
@@ -30,7 +30,8 @@ from canbus.rxbuffer import DEFAULT_RCVBUF
 from canbus.tools.recorder import Recorder
 from canbus.tools.recording import Recording
 from decoder.registry import create_decoder
-from skin.benchmarks.dataplane import build_stream, contact_judge, pipeline_rate
+from skin.benchmarks.dataplane_rigs import build_stream, contact_judge
+from skin.benchmarks.pipeline import pipeline_rate
 from skin.commands.common.recordproc import RecordingProcess
 from tests.support.rigs.ports import udp_bus
 

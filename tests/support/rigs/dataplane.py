@@ -18,7 +18,7 @@ from canbus.master.forcenode import ForceNode
 from canbus.od import load_od
 from decoder.protocol import Decoded
 from decoder.registry import create_decoder
-from skin.benchmarks.dataplane import SinkBus
+from skin.benchmarks.dataplane_rigs import SinkBus
 from skin.constants import DEFAULT_CONSTANTS
 from skin.tripod import resistance_from_force
 
