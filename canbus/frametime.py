@@ -17,7 +17,12 @@ last data bit) adds at most floor((16 - 1) / 4) = 3 bits before BRS and floor((2
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from canbus.framebits import FD_LENGTHS, TAIL_BITS
+
+if TYPE_CHECKING:
+    import can
 
 
 def classic_frame_bits(data_bytes: int, *, worst_case_stuffing: bool,
@@ -105,3 +110,20 @@ def force_payloads(*, fd: bool, contact: bool = True) -> list[int]:
     if fd:
         return [2 * 28 + 1 + (7 if contact else 0)]
     return [8] * (8 if contact else 7)
+
+
+def frame_bit_bounds(msg: can.Message, bitrate: int,
+                     data_bitrate: int | None) -> tuple[float, float]:
+    """Bits one frame occupies on the wire at ``bitrate``: (no stuffing, worst-case stuffing)."""
+    data = 0 if msg.is_remote_frame else len(msg.data)
+    if msg.is_fd:
+        fast = (data_bitrate or bitrate) if msg.bitrate_switch else bitrate
+        length = fd_length(data)
+        return (bitrate * fd_frame_time_s(length, bitrate, fast, worst_case_stuffing=False),
+                bitrate * fd_frame_time_s(length, bitrate, fast, worst_case_stuffing=True))
+    best = classic_frame_bits(min(data, 8), worst_case_stuffing=False)
+    worst = classic_frame_bits(min(data, 8), worst_case_stuffing=True)
+    if msg.is_extended_id:
+        stuffed = 34 + 20 + 8 * min(data, 8)
+        best, worst = best + 20, stuffed + (stuffed - 1) // 4 + 13
+    return float(best), float(worst)

@@ -25,14 +25,14 @@ from rich.console import Console
 
 from canbus.device.nmt_slave import OPERATIONAL
 from canbus.device.patch_server import PatchServer
-from canbus.frametime import classic_frame_bits
+from canbus.frametime import classic_frame_bits, frame_bit_bounds
 from canbus.od import load_od
 from canbus.tools.answer_reader import Answer
 from canbus.tools.attribution import Attribution, KnownNode
 from canbus.tools.pdo_dictionary import Dictionary
 from canbus.tools.recording import Recording
 from canbus.tools.services import Service, ServiceDecoder, route
-from canbus.tools.sniffer import FrameFilter, Sniffer, frame_bit_bounds
+from canbus.tools.sniffer import FrameFilter, Sniffer
 from skin.cli import main
 from skin.commands.common import busopen
 from skin.commands.sniff.view import ViewStats, render

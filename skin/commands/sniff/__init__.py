@@ -32,7 +32,8 @@ if TYPE_CHECKING:
     import can
 
     from canbus.tools.recorder import Recorder
-    from canbus.tools.sniffer import FrameFilter, Snapshot, Sniffer
+    from canbus.tools.snapshot import Snapshot
+    from canbus.tools.sniffer import FrameFilter, Sniffer
 
 from skin.commands.sniff.view import LinePrinter, ViewStats, render, summary_lines
 

@@ -18,7 +18,8 @@ if TYPE_CHECKING:
     from rich.console import RenderableType
 
     from canbus.tools.services import Decoded, Route, ServiceDecoder
-    from canbus.tools.sniffer import FrameFilter, Snapshot
+    from canbus.tools.snapshot import Snapshot
+    from canbus.tools.sniffer import FrameFilter
 
 _LINE_QUEUE = 100_000
 _LINES_POLL_S = 0.02
